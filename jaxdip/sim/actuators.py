@@ -1,0 +1,71 @@
+"""Actuator and output nonlinearities of Stumfoll §7.5: saturation (157), deadzone (160), backlash (161)."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from jaxdip.sim.component import Component, stateless
+
+
+def saturate(u, u_min, u_max):
+    return jnp.clip(u, u_min, u_max)
+
+
+def deadzone(u, d_minus, d_plus):
+    """Simplified deadzone (160): inputs inside [d-, d+) produce nothing, outside they pass unchanged."""
+    return jnp.where((u >= d_minus) & (u < d_plus), 0.0, u)
+
+
+def backlash(psi, u_prev, u, m, d_minus, d_plus):
+    """One step of backlash (161) with output psi driven by input u.
+
+    The printed law evaluates the engaged branches at u(k) while testing the direction with u(k+1) - u(k);
+    that makes the output lag the input by a whole sample even when the gears are engaged, which is not what
+    backlash does. We use the standard form: when engaged the output is m (u_{k+1} - d) with the new input.
+    """
+    up = m * (u - d_plus)
+    down = m * (u - d_minus)
+    rising = (u - u_prev > 0) & (psi <= up)
+    falling = (u - u_prev < 0) & (psi >= down)
+    return jnp.where(rising, up, jnp.where(falling, down, psi))
+
+
+class SaturationParams(NamedTuple):
+    u_min: jnp.ndarray
+    u_max: jnp.ndarray
+
+
+def saturation() -> Component:
+    return stateless(lambda p, u, key, k: saturate(u, p.u_min, p.u_max))
+
+
+class DeadzoneParams(NamedTuple):
+    d_minus: jnp.ndarray
+    d_plus: jnp.ndarray
+
+
+def deadzone_component() -> Component:
+    return stateless(lambda p, u, key, k: deadzone(u, p.d_minus, p.d_plus))
+
+
+class BacklashParams(NamedTuple):
+    m: jnp.ndarray
+    d_minus: jnp.ndarray
+    d_plus: jnp.ndarray
+
+
+def backlash_component(size: int = 1) -> Component:
+    """Stateful backlash on a signal of ``size`` entries, starting engaged at zero."""
+
+    def init(p, key, x0):
+        z = jnp.zeros(size)
+        return (z, z)
+
+    def step(p, state, u, key, k):
+        psi, u_prev = state
+        psi = backlash(psi, u_prev, u, p.m, p.d_minus, p.d_plus)
+        return (psi, u), psi
+
+    return Component(init, step)

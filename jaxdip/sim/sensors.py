@@ -1,0 +1,77 @@
+"""Sensor models: y = Q( C x + constant bias + walking bias + white noise ).
+
+The walking bias is the first-order Gauss-Markov process of Stumfoll (155), db/dt = -b/tau + w_b with w_b
+white of spectral density sigma_b^2. It is discretised exactly over the sample period dt:
+
+    b_{k+1} = a b_k + sqrt(sigma_b^2 tau / 2 (1 - a^2)) xi_k,   a = exp(-dt / tau),
+
+so its stationary variance is sigma_b^2 tau / 2 and its autocorrelation decays as exp(-|s| / tau) at any dt.
+Q is a uniform quantiser with step ``quantum`` (0 disables it), the encoders' discretisation.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxdip.sim.component import Component
+
+
+class SensorParams(NamedTuple):
+    C: jnp.ndarray  # (p, n) output matrix
+    white_std: jnp.ndarray  # (p,) white noise standard deviation per output
+    const_bias: jnp.ndarray  # (p,) constant offset
+    gm_sigma: jnp.ndarray  # (p,) walking-bias driving-noise intensity sigma_b (0 disables)
+    gm_tau: jnp.ndarray  # (p,) walking-bias time constant tau (s)
+    quantum: jnp.ndarray  # (p,) quantisation step (0 disables)
+
+
+def sensor_params(C, white_std=0.0, const_bias=0.0, gm_sigma=0.0, gm_tau=1.0, quantum=0.0) -> SensorParams:
+    C = jnp.atleast_2d(jnp.asarray(C, dtype=jnp.float64))
+    p = C.shape[0]
+
+    def vec(v):
+        return jnp.broadcast_to(jnp.asarray(v, dtype=jnp.float64), (p,))
+
+    return SensorParams(C, vec(white_std), vec(const_bias), vec(gm_sigma), vec(gm_tau), vec(quantum))
+
+
+def full_state_params(n, white_std=0.0, **kw) -> SensorParams:
+    return sensor_params(jnp.eye(n), white_std, **kw)
+
+
+def gauss_markov_coeffs(sigma_b, tau, dt):
+    a = jnp.exp(-dt / tau)
+    q_std = jnp.sqrt(sigma_b**2 * tau / 2.0 * (1.0 - a**2))
+    return a, q_std
+
+
+def gauss_markov_stationary_std(sigma_b, tau):
+    return jnp.sqrt(sigma_b**2 * tau / 2.0)
+
+
+def quantize(y, quantum):
+    """Round to the nearest multiple of ``quantum``; identity where quantum is 0."""
+    safe = jnp.where(quantum > 0, quantum, 1.0)
+    return jnp.where(quantum > 0, safe * jnp.round(y / safe), y)
+
+
+def linear_sensor(dt: float, stationary_start: bool = True) -> Component:
+    """Sensor component; the walking bias starts from its stationary law (or at zero)."""
+
+    def init(params: SensorParams, key, x0):
+        std0 = gauss_markov_stationary_std(params.gm_sigma, params.gm_tau)
+        b0 = std0 * jax.random.normal(key, params.gm_sigma.shape) if stationary_start else jnp.zeros_like(std0)
+        return b0
+
+    def step(params: SensorParams, bias, x, key, k):
+        k_white, k_bias = jax.random.split(key)
+        white = params.white_std * jax.random.normal(k_white, params.white_std.shape)
+        y = quantize(params.C @ x + params.const_bias + bias + white, params.quantum)
+        a, q_std = gauss_markov_coeffs(params.gm_sigma, params.gm_tau, dt)
+        bias = a * bias + q_std * jax.random.normal(k_bias, bias.shape)
+        return bias, y
+
+    return Component(init, step)
