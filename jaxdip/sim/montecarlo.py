@@ -102,6 +102,7 @@ def run(
         carry, rec = compiled[n](params, base_key, seeds_arr, carry)
         if rec is not None:
             recs.append(rec)
+        jax.block_until_ready(carry)  # dispatch is asynchronous: wait so the bar tells the truth
         bar.update(n)
     bar.close()
 

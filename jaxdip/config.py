@@ -1,0 +1,255 @@
+"""Typed experiment configs loaded from TOML and validated before anything compiles.
+
+An experiment's config is a dataclass whose defaults are the documents' values. Each field may carry
+``check`` metadata (see ``positive``, ``nonneg``, ...). ``load`` merges, in order: the defaults, a TOML file,
+the experiment's ``--quick`` overrides, ``--seeds`` and ``--set key=value`` pairs; then checks every key's
+type and constraint and the config's own ``validate()``. Any problem raises ``ConfigError(key, why)``, which
+the CLI prints as one line ``error: <key>: <why>``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import tomllib
+import types
+import typing
+from typing import Any
+
+
+class ConfigError(ValueError):
+    def __init__(self, key: str, why: str):
+        super().__init__(f"{key}: {why}")
+        self.key = key
+        self.why = why
+
+
+# ---- constraints ----------------------------------------------------------------------------------------
+
+
+def _numbers(v):
+    if isinstance(v, (list, tuple)):
+        for e in v:
+            yield from _numbers(e)
+    elif isinstance(v, (int, float)) and not isinstance(v, bool):
+        yield v
+
+
+def positive(v):
+    if any(not (x > 0) or math.isnan(x) for x in _numbers(v)):
+        return "must be positive"
+
+
+def nonneg(v):
+    if any(not (x >= 0) or math.isnan(x) for x in _numbers(v)):
+        return "must be non-negative"
+
+
+def finite(v):
+    if any(not math.isfinite(x) for x in _numbers(v)):
+        return "must be finite"
+
+
+def positive_finite(v):
+    return finite(v) or positive(v)
+
+
+def nonneg_finite(v):
+    return finite(v) or nonneg(v)
+
+
+def one_of(*choices):
+    def check(v):
+        if v not in choices:
+            return f"must be one of {', '.join(map(repr, choices))}"
+
+    return check
+
+
+def length(n):
+    def check(v):
+        if len(v) != n:
+            return f"must have {n} entries, got {len(v)}"
+
+    return check
+
+
+def field(default, *checks, doc: str = ""):
+    """A config field with constraints; mutable defaults are copied per instance."""
+    meta = {"checks": checks, "doc": doc}
+    if isinstance(default, (list, dict)):
+        import copy
+
+        return dataclasses.field(default_factory=lambda: copy.deepcopy(default), metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+# ---- type checking ---------------------------------------------------------------------------------------
+
+
+def _check_type(key: str, value: Any, tp) -> Any:
+    origin = typing.get_origin(tp)
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(key, f"expected a number, got {type(value).__name__} {value!r}")
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            if isinstance(value, float) and value.is_integer():
+                return int(value)
+            raise ConfigError(key, f"expected an integer, got {value!r}")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(key, f"expected true or false, got {value!r}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(key, f"expected a string, got {value!r}")
+        return value
+    if origin is list:
+        (inner,) = typing.get_args(tp)
+        if not isinstance(value, list):
+            raise ConfigError(key, f"expected a list, got {value!r}")
+        return [_check_type(f"{key}[{i}]", v, inner) for i, v in enumerate(value)]
+    if origin is typing.Union or origin is types.UnionType:  # e.g. list[float] | list[list[float]]: first that fits wins
+        errors = []
+        for option in typing.get_args(tp):
+            try:
+                return _check_type(key, value, option)
+            except ConfigError as e:
+                errors.append(e.why)
+        raise ConfigError(key, " or ".join(dict.fromkeys(errors)))
+    raise TypeError(f"unsupported config type {tp!r} for {key}")
+
+
+def _hints(cls):
+    return typing.get_type_hints(cls)
+
+
+def from_dict(cls, data: dict, prefix: str = ""):
+    """Build a config dataclass from nested dicts, checking keys, types and constraints."""
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    hints = _hints(cls)
+    unknown = [k for k in data if k not in fields]
+    if unknown:
+        k = unknown[0]
+        close = difflib.get_close_matches(k, fields, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else f" (known keys: {', '.join(fields)})"
+        raise ConfigError(prefix + k, "unknown key" + hint)
+    kwargs = {}
+    for name, f in fields.items():
+        key = prefix + name
+        tp = hints[name]
+        if dataclasses.is_dataclass(tp):
+            sub = data.get(name, {})
+            if not isinstance(sub, dict):
+                raise ConfigError(key, "expected a table")
+            kwargs[name] = from_dict(tp, sub, key + ".")
+            continue
+        if name in data:
+            value = _check_type(key, data[name], tp)
+        else:
+            value = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+        for check in f.metadata.get("checks", ()):
+            why = check(value)
+            if why:
+                raise ConfigError(key, why)
+        kwargs[name] = value
+    cfg = cls(**kwargs)
+    if hasattr(cfg, "validate"):
+        cfg.validate()
+    return cfg
+
+
+def to_dict(cfg) -> dict:
+    return dataclasses.asdict(cfg)
+
+
+def _set_path(d: dict, dotted: str, value):
+    parts = dotted.split(".")
+    for p in parts[:-1]:
+        d = d.setdefault(p, {})
+        if not isinstance(d, dict):
+            raise ConfigError(dotted, "is not a table")
+    d[parts[-1]] = value
+
+
+def parse_set(item: str):
+    """``key=value`` with a TOML value (numbers, true/false, [lists], "strings"); bare words are strings."""
+    if "=" not in item:
+        raise ConfigError(item, "--set expects key=value")
+    key, raw = item.split("=", 1)
+    key = key.strip()
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    return key, value
+
+
+def _merge(base: dict, over: dict):
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(base.get(k), dict):
+            _merge(base[k], v)
+        else:
+            base[k] = v
+
+
+def load(cls, path: str | None = None, quick: dict | None = None, seeds: int | None = None,
+         sets: list[str] | None = None):
+    data = to_dict(cls())
+    if path is not None:
+        try:
+            with open(path, "rb") as fh:
+                _merge(data, tomllib.load(fh))
+        except FileNotFoundError:
+            raise ConfigError("--config", f"no such file: {path}") from None
+        except tomllib.TOMLDecodeError as e:
+            raise ConfigError("--config", f"not valid TOML: {e}") from None
+    if quick:
+        _merge(data, quick)
+    if seeds is not None:
+        data["seeds"] = seeds
+    for item in sets or []:
+        k, v = parse_set(item)
+        _set_path(data, k, v)
+    return from_dict(cls, data)
+
+
+# ---- TOML output -----------------------------------------------------------------------------------------
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        if math.isnan(v):
+            return "nan"
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(e) for e in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def to_toml(d: dict, header: str = "") -> str:
+    lines = [header] if header else []
+    tables = []
+    for k, v in d.items():
+        if isinstance(v, dict):
+            tables.append((k, v))
+        else:
+            lines.append(f"{k} = {_toml_value(v)}")
+    for name, t in tables:
+        lines.append("")
+        lines.append(f"[{name}]")
+        for k, v in t.items():
+            lines.append(f"{k} = {_toml_value(v)}")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,64 @@
+"""Pieces shared by experiments: initial-state samplers, weight matrices from config, band figures."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxdip.config import ConfigError
+
+
+def weight_matrix(key: str, value, n: int) -> np.ndarray:
+    """A weight given as n diagonal entries or an n x n symmetric PSD matrix."""
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.shape == (n,):
+        arr = np.diag(arr)
+    elif arr.shape != (n, n):
+        raise ConfigError(key, f"must be {n} diagonal weights or a {n}x{n} matrix, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ConfigError(key, "must be finite")
+    if not np.allclose(arr, arr.T):
+        raise ConfigError(key, "must be symmetric")
+    if np.linalg.eigvalsh(arr).min() < -1e-12 * max(1.0, np.abs(arr).max()):
+        raise ConfigError(key, "must be positive semi-definite")
+    return arr
+
+
+def ball_sampler(center, radius):
+    """x0 uniform in the Euclidean ball of ``radius`` around ``center`` (radius 0: exactly the center)."""
+    center = jnp.asarray(center, dtype=jnp.float64)
+    n = center.shape[0]
+
+    def sample(key):
+        k1, k2 = jax.random.split(key)
+        d = jax.random.normal(k1, (n,))
+        d = d / jnp.linalg.norm(d)
+        r = radius * jax.random.uniform(k2) ** (1.0 / n)
+        return center + r * d
+
+    return sample
+
+
+def band_figure(t, series: dict, ylabel: str = "", title: str = ""):
+    """Median and 5-95% envelope over seeds of each series (arrays shaped (seeds, time))."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(series), 1, figsize=(7, 2.4 * len(series)), sharex=True, squeeze=False)
+    for ax, (name, arr) in zip(axes[:, 0], series.items()):
+        arr = np.asarray(arr)
+        if arr.shape[0] == 0:
+            ax.set_title(f"{name}: no finite trajectory")
+            continue
+        lo, med, hi = np.quantile(arr, [0.05, 0.5, 0.95], axis=0)
+        ax.fill_between(t, lo, hi, alpha=0.3, label="5-95% of seeds")
+        ax.plot(t, med, lw=1.2, label="median")
+        ax.axhline(0.0, color="k", lw=0.5)
+        ax.set_ylabel(f"{name} {ylabel}".strip())
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(loc="upper right", fontsize=8)
+    axes[-1, 0].set_xlabel("time (s)")
+    if title:
+        axes[0, 0].set_title(title)
+    fig.tight_layout()
+    return fig
