@@ -1,0 +1,81 @@
+"""The CLI's contract: one-line errors with exit 2 and no output on bad config; identical results per key."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from jaxdip import config as C
+from jaxdip.experiments import dip_lqr, registry
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+TINY = ["--quick", "--seeds", "4", "--set", "duration=0.2"]
+
+
+def jaxdip(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "jaxdip.cli", *args], capture_output=True, text=True,
+                          cwd=cwd or ROOT, env=dict(os.environ, JAXDIP_NO_PROGRESS="1"), timeout=600)
+
+
+@pytest.mark.parametrize(
+    "setting, key",
+    [
+        ("Qx=[1,2,3,4,5,6]", "Qx"),  # misspelt key
+        ("noise_std=[-0.1,0,0,0,0,0]", "noise_std"),  # negative noise level
+        ("Q=[[1,0],[0,1]]", "Q"),  # wrong shape
+        ("R=-1", "R"),
+        ("dt=nan", "dt"),
+        ("seeds=many", "seeds"),
+    ],
+)
+def test_bad_config_exits_2_with_one_line_and_writes_nothing(tmp_path, setting, key):
+    out = tmp_path / "out"
+    r = jaxdip("run", "dip-lqr", "--quick", "--out", str(out), "--set", setting)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {key}:"), r.stderr
+    assert not out.exists()
+    assert os.listdir(tmp_path) == []
+
+
+def test_bad_config_file(tmp_path):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text("seeds = 4\nnoise_std = [0.1, 0.1]\n")
+    r = jaxdip("run", "dip-lqr", "--config", str(cfg), "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and r.stderr.startswith("error: noise_std:")
+    assert not (tmp_path / "o").exists()
+
+
+def test_list_and_unknown_experiment():
+    r = jaxdip("list")
+    assert r.returncode == 0 and "dip-lqr" in r.stdout.split()
+    r = jaxdip("run", "dip-lqq")
+    assert r.returncode == 2 and r.stderr.startswith("error: unknown experiment 'dip-lqq'")
+
+
+def test_run_writes_contract_and_is_reproducible(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    for out in (a, b):
+        r = jaxdip("run", "dip-lqr", *TINY, "--out", str(out))
+        assert r.returncode == 0, r.stderr
+    for name in ("metrics.json", "report.md", "config.toml", "band_alpha_theta.png"):
+        assert (a / name).is_file(), name
+    ma, mb = (json.loads((d / "metrics.json").read_text()) for d in (a, b))
+    for k in ("experiment", "seeds", "dtype", "backend", "jax_version", "wall_s", "results"):
+        assert k in ma
+    assert ma["dtype"] == "float64" and ma["seeds"] == 4
+    assert json.dumps(ma["results"], sort_keys=True) == json.dumps(mb["results"], sort_keys=True)
+    # the resolved config reproduces the run's settings
+    cfg = C.load(dip_lqr.DipLqrConfig, path=str(a / "config.toml"))
+    assert cfg.seeds == 4 and cfg.duration == 0.2
+    assert not [p for p in os.listdir(tmp_path) if p.startswith(".")]  # no temporary folders left
+
+
+@pytest.mark.parametrize("exp_id", sorted(registry()))
+def test_config_files_match_defaults(exp_id):
+    exp = registry()[exp_id]
+    path = os.path.join(ROOT, "configs", f"{exp_id}.toml")
+    assert os.path.isfile(path), f"configs/{exp_id}.toml missing"
+    assert C.load(exp.config_cls, path=path) == exp.config_cls()
