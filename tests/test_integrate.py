@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from jaxdip.control.lqr import lqr
+from jaxdip.control.riccati import lqr
 from jaxdip.plants import dip
 from jaxdip.sim.discretize import linearize
 from jaxdip.sim.integrate import rk4_zoh

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from jaxdip.control.lqr import care, dare, dlqr, lqr, lyap
+from jaxdip.control.riccati import care, dare, dlqr, lqr, lyap
 from jaxdip.plants import dip
 from jaxdip.sim.discretize import linearize, zoh
 
