@@ -118,7 +118,7 @@ def run_bench(quick: bool = False, out: str = "bench.json") -> dict:
     np_rate = n_np / (time.perf_counter() - t)
 
     # FLOPs of one period, from a loop-free program (unrolled sub-steps)
-    from jaxdip.sim.loop import Loop, make_step
+    from jaxdip.sim.loop import make_step
 
     flat = loop._replace(substeps=1)
     one = jax.jit(lambda c: make_step(flat, n_periods)(params, key, c)[0])

@@ -35,6 +35,9 @@ def _parser():
     r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override one config key")
     r.add_argument("--quick", action="store_true", help="reduced run: few seeds, short horizon")
 
+    c = sub.add_parser("config", help="print an experiment's default config as TOML")
+    c.add_argument("id")
+
     b = sub.add_parser("bench", help="closed-loop throughput against a plain NumPy loop")
     b.add_argument("--quick", action="store_true")
     b.add_argument("--out", default="bench.json")
@@ -125,6 +128,16 @@ def main(argv=None) -> int:
 
         for exp_id in sorted(registry()):
             print(exp_id)
+        return 0
+    if args.cmd == "config":
+        from jaxdip import config as C
+        from jaxdip.experiments import get
+
+        try:
+            exp = get(args.id)
+        except KeyError as e:
+            return _error(e.args[0])
+        print(C.documented_toml(exp.config_cls(), f"{exp.id}: {exp.title}", exp.source), end="")
         return 0
     return {"run": cmd_run, "reproduce": cmd_reproduce, "bench": cmd_bench}[args.cmd](args)
 

@@ -253,3 +253,18 @@ def to_toml(d: dict, header: str = "") -> str:
         for k, v in t.items():
             lines.append(f"{k} = {_toml_value(v)}")
     return "\n".join(lines) + "\n"
+
+
+def documented_toml(cfg, title: str = "", source: str = "") -> str:
+    """A config as TOML with each key's doc as a comment above it (the format of configs/<id>.toml)."""
+    lines = [f"# {title}"] if title else []
+    if source:
+        lines.append(f"# Reproduces: {source}")
+    if lines:
+        lines += ["# Defaults are the documents' values; edit a copy and pass it with --config FILE.", ""]
+    for f in dataclasses.fields(cfg):
+        doc = f.metadata.get("doc", "")
+        if doc:
+            lines.append(f"# {doc}")
+        lines.append(f"{f.name} = {_toml_value(getattr(cfg, f.name))}")
+    return "\n".join(lines) + "\n"

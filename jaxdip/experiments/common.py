@@ -62,3 +62,40 @@ def band_figure(t, series: dict, ylabel: str = "", title: str = ""):
         axes[0, 0].set_title(title)
     fig.tight_layout()
     return fig
+
+
+def trajectory_summary(res, state_names, stab_idx, stab_tol) -> dict:
+    """Per-seed time averages of a Monte Carlo result, then means over the non-diverged seeds with 95% CIs.
+
+    For every state: the time mean, time variance, mean |x| and variance of |x| (Table 3.1 reports the last
+    two); the same for the input; the stabilised fraction (not diverged and max |x_i| over the loop's tail
+    window below ``stab_tol`` for i in ``stab_idx``) with a Wilson interval; the diverged count.
+    """
+    from jaxdip import stats
+
+    st = jax.tree_util.tree_map(np.asarray, res.carry.stats)
+    diverged = np.asarray(res.carry.diverged)
+    ok = ~diverged
+    cnt = np.maximum(st.count, 1)[:, None]
+    tmean, tabs, tsq = st.sum_x / cnt, st.sum_absx / cnt, st.sum_x2 / cnt
+    stab = ok & np.all(st.tail_max_absx[:, list(stab_idx)] < stab_tol, axis=1)
+    frac, ci = stats.wilson(int(stab.sum()), len(stab))
+    out = {"stabilized_fraction": frac, "stabilized_fraction_ci95": ci, "diverged": int(diverged.sum()),
+           "states": {}}
+    for i, name in enumerate(state_names):
+        out["states"][name] = {
+            **stats.with_ci("mean", tmean[:, i], ok),
+            **stats.with_ci("var", tsq[:, i] - tmean[:, i] ** 2, ok),
+            **stats.with_ci("mean_abs", tabs[:, i], ok),
+            **stats.with_ci("var_abs", tsq[:, i] - tabs[:, i] ** 2, ok),
+        }
+    u_mean = st.sum_u / cnt
+    u_abs = st.sum_absu / cnt
+    u_sq = st.sum_u2 / cnt
+    out["u"] = {**stats.with_ci("mean_abs", u_abs[:, 0], ok), **stats.with_ci("var", u_sq[:, 0] - u_mean[:, 0] ** 2, ok),
+                **stats.with_ci("var_abs", u_sq[:, 0] - u_abs[:, 0] ** 2, ok)}
+    return out
+
+
+def fmt_ci(v, ci, digits=4):
+    return f"{v:.{digits}g} [{ci[0]:.{digits}g}, {ci[1]:.{digits}g}]"

@@ -15,12 +15,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxdip import config as C
-from jaxdip import stats
 from jaxdip.control import feedback_params, lqr, state_feedback
 from jaxdip.estimators import passthrough
 from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome
-from jaxdip.experiments.common import ball_sampler, band_figure, weight_matrix
+from jaxdip.experiments.common import ball_sampler, band_figure, fmt_ci, trajectory_summary, weight_matrix
 from jaxdip.plants import dip
 from jaxdip.sim import Loop, LoopParams, linearize, montecarlo, sensors
 
@@ -94,35 +93,11 @@ def simulate(cfg: DipLqrConfig, progress: bool = True, shard: bool | None = None
 
 
 def summarize(cfg: DipLqrConfig, res, n_steps: int) -> dict:
-    st = jax.tree_util.tree_map(np.asarray, res.carry.stats)
-    diverged = np.asarray(res.carry.diverged)
-    ok = ~diverged
-    cnt = np.maximum(st.count, 1)[:, None]
-    tmean = st.sum_x / cnt
-    tvar = st.sum_x2 / cnt - tmean**2
-    tabs = st.sum_absx / cnt
-    stab = ok & (st.tail_max_absx[:, 1] < cfg.stabilized_tol) & (st.tail_max_absx[:, 2] < cfg.stabilized_tol)
-    frac, ci = stats.wilson(int(stab.sum()), len(stab))
-    out = {"stabilized_fraction": frac, "stabilized_fraction_ci95": ci, "diverged": int(diverged.sum()),
-           "states": {}}
-    for i, name in enumerate(dip.STATE_NAMES):
-        out["states"][name] = {
-            **stats.with_ci("mean", tmean[:, i], ok),
-            **stats.with_ci("var", tvar[:, i], ok),
-            **stats.with_ci("mean_abs", tabs[:, i], ok),
-        }
-    u_mean_abs = st.sum_absu[:, 0] / cnt[:, 0]
-    u_var = st.sum_u2[:, 0] / cnt[:, 0] - (st.sum_u[:, 0] / cnt[:, 0]) ** 2
-    out["u"] = {**stats.with_ci("mean_abs", u_mean_abs, ok), **stats.with_ci("var", u_var, ok)}
-    return out
+    return trajectory_summary(res, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol)
 
 
 # Thesis Table 3.1, LQR column: the laboratory system over a typical 20 s interval (units not printed).
 THESIS_LQR_LAB = {"alpha": (3.4, 3.03), "theta": (1.9, 0.81), "xc": (29.4, 410.7), "u": (1.7, 1.5)}
-
-
-def _fmt(v, ci):
-    return f"{v:.4g} [{ci[0]:.4g}, {ci[1]:.4g}]"
 
 
 def report(cfg: DipLqrConfig, r: dict) -> str:
@@ -131,7 +106,7 @@ def report(cfg: DipLqrConfig, r: dict) -> str:
         f"periods, {cfg.duration} s, noise std {cfg.noise_std}, initial states uniform in a ball of radius "
         f"{cfg.init_radius} around upright.",
         "",
-        f"- stabilised fraction: **{_fmt(r['stabilized_fraction'], r['stabilized_fraction_ci95'])}** "
+        f"- stabilised fraction: **{fmt_ci(r['stabilized_fraction'], r['stabilized_fraction_ci95'])}** "
         f"(max |alpha|, |theta| over the last second < {cfg.stabilized_tol} rad)",
         f"- diverged: {r['diverged']} of {cfg.seeds}",
         "",
@@ -141,10 +116,10 @@ def report(cfg: DipLqrConfig, r: dict) -> str:
         "|---|---|---|---|",
     ]
     for name, s in r["states"].items():
-        lines.append(f"| {name} | {_fmt(s['mean'], s['mean_ci95'])} | {_fmt(s['var'], s['var_ci95'])} | "
-                     f"{_fmt(s['mean_abs'], s['mean_abs_ci95'])} |")
-    lines.append(f"| u (V) | | {_fmt(r['u']['var'], r['u']['var_ci95'])} | "
-                 f"{_fmt(r['u']['mean_abs'], r['u']['mean_abs_ci95'])} |")
+        lines.append(f"| {name} | {fmt_ci(s['mean'], s['mean_ci95'])} | {fmt_ci(s['var'], s['var_ci95'])} | "
+                     f"{fmt_ci(s['mean_abs'], s['mean_abs_ci95'])} |")
+    lines.append(f"| u (V) | | {fmt_ci(r['u']['var'], r['u']['var_ci95'])} | "
+                 f"{fmt_ci(r['u']['mean_abs'], r['u']['mean_abs_ci95'])} |")
     lines += [
         "",
         "For orientation only: thesis Table 3.1 (LQR column) gives laboratory means/variances of |alpha| 3.4/3.03, "

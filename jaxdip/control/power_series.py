@@ -1,0 +1,63 @@
+"""Power-series (Garrard) control: thesis (3.5), paper (8).
+
+For xdot = f(x) + B u with f(x) = A x + f_3(x) + O(|x|^5) (the DIP's f is odd, so there is no f_2),
+the third-order approximation of the HJB solution gives
+
+    u = -R^-1 B^T [ P x - (A^T - P B R^-1 B^T)^-1 P f_3(x) ],
+
+P the CARE solution. f_3 is obtained by autodiff, never by hand expansion: with phi(t) = f(t x),
+f_3(x) = phi'''(0) / 6 (three nested forward derivatives along x). Its linear part is the LQR gain.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxdip.control.riccati import care
+from jaxdip.sim.component import stateless
+
+
+def third_order_term(f, x):
+    """f_3(x) = (1/6) d^3/dt^3 f(t x) at t = 0, for f: R^n -> R^n (x is the expansion's displacement)."""
+
+    def phi(t):
+        return f(t * x)
+
+    d1 = lambda t: jax.jvp(phi, (t,), (1.0,))[1]
+    d2 = lambda t: jax.jvp(d1, (t,), (1.0,))[1]
+    d3 = lambda t: jax.jvp(d2, (t,), (1.0,))[1]
+    return d3(jnp.zeros((), dtype=x.dtype)) / 6.0
+
+
+class PSParams(NamedTuple):
+    P: jnp.ndarray
+    A: jnp.ndarray
+    B: jnp.ndarray
+    R: jnp.ndarray
+    plant: object
+
+
+def ps_params(plant, plant_params, Q, R) -> PSParams:
+    from jaxdip.sim.discretize import linearize
+
+    n, m = plant.n, plant.m
+    A, B = linearize(plant.f, plant_params, jnp.zeros(n), jnp.zeros(m))
+    R = jnp.atleast_2d(jnp.asarray(R, dtype=jnp.float64))
+    P = care(A, B, Q, R)
+    return PSParams(P, A, B, R, plant_params)
+
+
+def power_series_law(plant, p: PSParams, x):
+    m = plant.m
+    drift = lambda z: plant.f(p.plant, z, jnp.zeros(m))
+    f3 = third_order_term(drift, x)
+    BRB = p.B @ jnp.linalg.solve(p.R, p.B.T)
+    corr = jnp.linalg.solve(p.A.T - p.P @ BRB, p.P @ f3)
+    return -jnp.linalg.solve(p.R, p.B.T @ (p.P @ x - corr))
+
+
+def power_series_controller(plant):
+    return stateless(lambda p, xhat, key, k: power_series_law(plant, p, xhat))
