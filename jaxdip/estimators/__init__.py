@@ -1,5 +1,17 @@
 """Estimators of the common init/step interface (``jaxdip.sim.component``)."""
 
+from jaxdip.estimators import cpx, kalman, linearized, proximal, scpx
+from jaxdip.estimators.cpx import CPXParams, cpx_linearized, cpx_qr
+from jaxdip.estimators.kalman import EKFParams, KFParams, ekf
+from jaxdip.estimators.kalman import kalman as kalman_filter
+from jaxdip.estimators.linearized import AffineStep, local_model
 from jaxdip.estimators.passthrough import passthrough
+from jaxdip.estimators.run import filter_sequence
+from jaxdip.estimators.proximal import LSMHEParams, ls_mhe, ls_mhe_filter, prox_ls, prox_ls_svd
+from jaxdip.estimators.scpx import scpx_linearized, scpx_lti
 
-__all__ = ["passthrough"]
+__all__ = [
+    "passthrough", "cpx", "kalman", "linearized", "proximal", "scpx", "CPXParams", "cpx_linearized", "cpx_qr",
+    "EKFParams", "KFParams", "ekf", "kalman_filter", "AffineStep", "local_model", "LSMHEParams", "ls_mhe",
+    "ls_mhe_filter", "prox_ls", "prox_ls_svd", "scpx_linearized", "scpx_lti", "filter_sequence",
+]

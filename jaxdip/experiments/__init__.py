@@ -15,7 +15,10 @@ def register(exp: Experiment) -> Experiment:
 
 
 def _load_builtin():
+    from jaxdip.experiments import dip_controllers  # noqa: F401
     from jaxdip.experiments import dip_lqr  # noqa: F401
+    from jaxdip.experiments import eki_examples  # noqa: F401
+    from jaxdip.experiments import lorenz_mhe  # noqa: F401
 
 
 def registry() -> dict[str, Experiment]:

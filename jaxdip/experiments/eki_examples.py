@@ -1,0 +1,321 @@
+"""eki-linear and eki-nonlinear: the ensemble Kalman search for P on the two 2-D examples of thesis §2.7.
+
+Procedure 1 with P_v (2.19): members are vectors v in R^2 (renormalised after each update), scored by (2.23)
+after K steps of the projection control (2.9) from one random x_0 ~ N(0, I) per iteration (shared by the
+ensemble). The final v is the ensemble mean, normalised. Then the relaxed projection control (2.10) with
+gamma_k = gamma / ||x_k||^alpha (2.18) runs from the thesis's x_0 (and, for the linear example, beside the LQR
+with Q = diag(350, 5), R = 3.5, designed for this discrete system with the DARE).
+
+Stabilising: linear example, the spectral radius of (I - B (B^T P B)^-1 B^T P) A below 1 (Definition 2.5.1);
+nonlinear example, the relaxed projection control brings every one of ``judge_states`` random initial states
+(N(0, judge_std^2 I)) within ``judge_tol`` of the origin in ``judge_steps`` steps. Reproducibility over the
+search itself: the whole search is repeated for ``search_seeds`` keys (vmapped) and the fraction ending with a
+stabilising P reported.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxdip import config as C
+from jaxdip import stats
+from jaxdip.control import dlqr
+from jaxdip.control.projection import drift_and_input, projected_closed_loop, relaxed_discrete, state_weight
+from jaxdip.control.spd import P_v
+from jaxdip.experiments import register
+from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.plants import examples2d
+from jaxdip.progress import Progress
+from jaxdip.search import EKI
+from jaxdip.search.eki import align_signs
+from jaxdip.search.p_search import discrete_performance
+
+
+@dataclass
+class EkiExampleConfig:
+    seeds: int = C.field(1000, C.positive, doc="independent searches (search seeds) for the success fraction")
+    seed: int = C.field(0, C.nonneg, doc="base PRNG key")
+    example: str = C.field("linear", C.one_of("linear", "nonlinear"), doc="which §2.7 example")
+    ensemble: int = C.field(50, C.positive, doc="ensemble size J")
+    init_var: float = C.field(0.2, C.positive_finite, doc="members initialised from N(0, init_var I)")
+    K: int = C.field(8, C.positive, doc="steps simulated per performance evaluation")
+    iterations: int = C.field(150, C.positive, doc="search iterations")
+    y_target: list[float] = C.field([0.0, -0.2], C.finite, C.length(2), doc="performance objective yhat")
+    R: list[float] = C.field([0.0002, 0.01], C.positive_finite, C.length(2), doc="variances of yhat's perturbation")
+    sigma_w: float = C.field(1e-3, C.nonneg_finite, doc="std of the members' random perturbation w")
+    s: float = C.field(1e6, C.positive_finite, doc="leading singular value of P_v")
+    restarts: int = C.field(1, C.positive, doc="independent ensembles per search, best final mean kept (thesis: 1)")
+    select_states: int = C.field(64, C.positive, doc="common initial states scoring the restarts' results")
+    n_x0: int = C.field(1, C.positive, doc="initial states per evaluation, shared by the ensemble (thesis: 1)")
+    fail_norm: float = C.field(1e3, C.positive_finite, doc="a state norm above this fails the evaluation")
+    penalty: float = C.field(1000.0, C.positive_finite, doc="y1 of a failed evaluation (the thesis's 1000)")
+    rp_gamma: float = C.field(0.45, C.positive_finite, doc="gamma of (2.18)")
+    rp_alpha: float = C.field(3.0, C.nonneg_finite, doc="exponent alpha of (2.18)")
+    x0: list[float] = C.field([2.0, 1.0], C.finite, C.length(2), doc="initial state of the figures")
+    sim_steps: int = C.field(60, C.positive, doc="steps of the figure simulations")
+    lqr_Q: list[float] = C.field([350.0, 5.0], C.nonneg_finite, C.length(2), doc="reference LQR Q (diagonal)")
+    lqr_R: float = C.field(3.5, C.positive_finite, doc="reference LQR R")
+    judge_states: int = C.field(1000, C.positive, doc="random initial states judging a P by simulation")
+    judge_std: float = C.field(1.0, C.positive_finite, doc="std of those initial states")
+    judge_steps: int = C.field(200, C.positive, doc="steps of those simulations")
+    judge_tol: float = C.field(1e-3, C.positive_finite, doc="final |x| below this counts as stabilised")
+
+
+THESIS_V = {"linear": [-0.9975, -0.07], "nonlinear": [0.9950, 0.1003]}
+
+
+def _plant(cfg):
+    plant = examples2d.linear() if cfg.example == "linear" else examples2d.nonlinear()
+    return plant, plant.default_params()
+
+
+def make_eki(cfg):
+    plant, prm = _plant(cfg)
+    G = discrete_performance(plant, prm, cfg.s, cfg.K, fail_norm=cfg.fail_norm, penalty=cfg.penalty,
+                             n_x0=cfg.n_x0)
+    return EKI(G=G, template=jnp.zeros(2), y_target=jnp.asarray(cfg.y_target), R=jnp.diag(jnp.asarray(cfg.R)),
+               sigma_w=cfg.sigma_w, project=lambda v: v / jnp.linalg.norm(v), align=align_signs)
+
+
+def _single_search(cfg, key):
+    eki = make_eki(cfg)
+    k_init, k_run = jax.random.split(key)
+    members = jnp.sqrt(cfg.init_var) * jax.random.normal(k_init, (cfg.ensemble, 2))
+    members = members / jnp.linalg.norm(members, axis=1, keepdims=True)
+    st = eki.init(members, k_run)
+
+    def body(s, _):
+        s, Y = eki.step(s)
+        return s, Y.mean(axis=0)
+
+    st, hist = jax.lax.scan(body, st, None, length=cfg.iterations)
+    return eki.mean(st), hist
+
+
+def search(cfg, key):
+    """One whole search as a pure function of its key: returns (final normalised mean v, history).
+
+    With ``restarts > 1`` (our extension; the thesis ran one ensemble) independent ensembles run side by side
+    and the final mean scoring the lowest mean y_1 over ``select_states`` common initial states wins. The EKI is
+    a Gaussian, locally linear update: on the nonlinear example it settles in one of two basins depending on
+    the initial ensemble, and a few restarts pick the better one.
+    """
+    if cfg.restarts == 1:
+        return _single_search(cfg, key)
+    keys = jax.random.split(key, cfg.restarts + 1)
+    vs, hists = jax.vmap(lambda k: _single_search(cfg, k))(keys[1:])
+    G = make_eki(cfg).G
+    sel = jax.random.split(keys[0], cfg.select_states)
+    score = jax.vmap(lambda v: jax.vmap(lambda k: G(v, k))(sel)[:, 0].mean())(vs)
+    best = jnp.argmin(score)
+    return vs[best], hists[best]
+
+
+def rp_rollout(cfg, v, x0, steps):
+    plant, prm = _plant(cfg)
+    P = P_v(v, cfg.s)
+
+    def body(x, _):
+        fx, gx = drift_and_input(plant.step, prm, x, plant.m)
+        u = relaxed_discrete(P, fx, gx, x, state_weight(cfg.rp_gamma, cfg.rp_alpha, x))
+        xn = fx + gx @ u
+        return xn, (x, u[0])
+
+    _, (xs, us) = jax.lax.scan(body, jnp.asarray(x0, dtype=jnp.float64), None, length=steps)
+    return xs, us
+
+
+def stabilizes(cfg, v, key, n_states):
+    """Linear: spectral radius test; nonlinear: simulation from n_states random initial states."""
+    plant, prm = _plant(cfg)
+    if cfg.example == "linear":
+        T = projected_closed_loop(jnp.asarray(prm.A), jnp.asarray(prm.B).reshape(2, 1), P_v(v, cfg.s))
+        rho = jnp.max(jnp.abs(jnp.linalg.eigvals(T)))
+        return rho < 1.0, rho
+    x0s = cfg.judge_std * jax.random.normal(key, (n_states, 2))
+    finals = jax.vmap(lambda x0: rp_rollout(cfg, v, x0, cfg.judge_steps)[0][-1])(x0s)
+    norms = jnp.linalg.norm(finals, axis=1)
+    ok = jnp.where(jnp.isfinite(norms), norms < cfg.judge_tol, False)
+    return jnp.all(ok), jnp.mean(ok)
+
+
+def search_success(cfg, base):
+    """Fraction (Wilson 95% CI) of ``cfg.seeds`` independent searches that end with a stabilising P."""
+    batch = max(1, (100 if cfg.example == "nonlinear" else 250) // cfg.restarts)
+    n_judge = min(cfg.judge_states, 200)
+    ok = []
+    bar = Progress(cfg.seeds, desc=f"eki-{cfg.example} searches (restarts={cfg.restarts})")
+    run_batch = jax.jit(jax.vmap(lambda i: stabilizes(cfg, search(cfg, jax.random.fold_in(base, i))[0],
+                                                      jax.random.fold_in(base, 10**6 + i), n_judge)[0]))
+    for start in range(0, cfg.seeds, batch):
+        idx = jnp.arange(start, min(start + batch, cfg.seeds)) + 1
+        ok.append(np.asarray(run_batch(idx)))
+        bar.update(len(idx))
+    ok = np.concatenate(ok)
+    return stats.wilson(int(ok.sum()), len(ok))
+
+
+def run(cfg: EkiExampleConfig) -> Outcome:
+    import matplotlib.pyplot as plt
+
+    plant, prm = _plant(cfg)
+    base = jax.random.PRNGKey(cfg.seed)
+    v, hist = jax.jit(lambda k: search(cfg, k))(jax.random.fold_in(base, 0))
+    v = np.asarray(v)
+    thesis_v = np.asarray(THESIS_V[cfg.example])
+    align = float(abs(v @ thesis_v) / np.linalg.norm(thesis_v))  # v and -v give the same P
+    ok, measure = stabilizes(cfg, jnp.asarray(v), jax.random.fold_in(base, 10**6), cfg.judge_states)
+
+    # repeat the whole search over many keys (vmapped in batches, progress between batches)
+    frac, ci = search_success(cfg, base)
+    single = None
+    if cfg.restarts > 1:  # the thesis's procedure (one ensemble) on the same keys, for comparison
+        single = search_success(dataclasses.replace(cfg, restarts=1), base)
+
+    results = {
+        "v": v.tolist(), "thesis_v": thesis_v.tolist(), "alignment_with_thesis_v": align,
+        "iterations": cfg.iterations, "final_mean_performance": np.asarray(hist[-1]).tolist(),
+        "stabilizing": bool(ok),
+        "search_seeds": cfg.seeds, "stabilizing_fraction": frac, "stabilizing_fraction_ci95": ci,
+        "restarts": cfg.restarts,
+    }
+    if single is not None:
+        results["stabilizing_fraction_single_ensemble"] = single[0]
+        results["stabilizing_fraction_single_ensemble_ci95"] = single[1]
+    if cfg.example == "linear":
+        results["spectral_radius"] = float(measure)
+        thesis_T = projected_closed_loop(jnp.asarray(prm.A), jnp.asarray(prm.B).reshape(2, 1),
+                                         P_v(jnp.asarray(thesis_v), cfg.s))
+        results["thesis_v_spectral_radius"] = float(np.max(np.abs(np.linalg.eigvals(np.asarray(thesis_T)))))
+    else:
+        results["stabilized_fraction_of_initial_states"] = float(measure)
+
+    xs, us = rp_rollout(cfg, jnp.asarray(v), cfg.x0, cfg.sim_steps)
+    xs, us = np.asarray(xs), np.asarray(us)
+    figs = {}
+    k = np.arange(cfg.sim_steps)
+    if cfg.example == "linear":
+        A, B = np.asarray(prm.A), np.asarray(prm.B).reshape(2, 1)
+        K, _, _ = dlqr(A, B, np.diag(cfg.lqr_Q), cfg.lqr_R)
+        K = np.asarray(K)
+        xl, ul = [np.asarray(cfg.x0, dtype=float)], []
+        for _ in range(cfg.sim_steps):
+            u = -(K @ xl[-1])
+            ul.append(u[0])
+            xl.append(A @ xl[-1] + B @ u)
+        xl = np.array(xl[:-1])
+        ul = np.array(ul)
+        results["lqr_gain"] = K.tolist()
+        results["max_abs_u"] = {"rp": float(np.abs(us).max()), "lqr": float(np.abs(ul).max())}
+        fig, ax = plt.subplots(3, 1, figsize=(7, 7), sharex=True)
+        for i in range(2):
+            ax[i].plot(k, xl[:, i], label="LQR")
+            ax[i].plot(k, xs[:, i], label="relaxed projection")
+            ax[i].set_ylabel(f"x{i + 1}")
+        ax[2].plot(k, ul, label="LQR")
+        ax[2].plot(k, us, label="relaxed projection")
+        ax[2].set_ylabel("u")
+        ax[0].legend()
+        ax[0].set_title(f"Fig. 2.1: from x0 = {cfg.x0}")
+        ax[-1].set_xlabel("k")
+        figs["fig2_1"] = fig
+        fig2, ax2 = plt.subplots(figsize=(7, 3.5))
+        ax2.semilogy(k, np.linalg.norm(xl, axis=1), label="LQR")
+        ax2.semilogy(k, np.linalg.norm(xs, axis=1), label="relaxed projection")
+        ax2.set_xlabel("k")
+        ax2.set_ylabel("||x_k||")
+        ax2.legend()
+        ax2.set_title("Fig. 2.2: convergence on a log scale")
+        figs["fig2_2"] = fig2
+        nl, nr = np.linalg.norm(xl, axis=1), np.linalg.norm(xs, axis=1)
+        results["steps_to_reach"] = {
+            f"{th:g}": {"lqr": int(np.argmax(nl < th)) if np.any(nl < th) else None,
+                        "rp": int(np.argmax(nr < th)) if np.any(nr < th) else None}
+            for th in (1.0, 1e-2, 1e-4)}
+    else:
+        fig, ax = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+        ax[0].plot(k, xs[:, 0], label="x1")
+        ax[0].plot(k, xs[:, 1], label="x2")
+        ax[0].legend()
+        ax[0].set_ylabel("state")
+        ax[1].plot(k, us)
+        ax[1].set_ylabel("u")
+        ax[1].set_xlabel("k")
+        ax[0].set_title(f"Fig. 2.3: nonlinear example, relaxed projection from x0 = {cfg.x0}")
+        figs["fig2_3"] = fig
+    fig_h, axh = plt.subplots(figsize=(7, 3))
+    hist = np.asarray(hist)
+    axh.plot(hist[:, 0], label="mean y1 = ||x_K||^2")
+    axh.plot(hist[:, 1], label="mean y2 (angle)")
+    axh.axhline(cfg.y_target[1], ls=":", color="k")
+    axh.set_xlabel("iteration")
+    axh.legend()
+    axh.set_title("ensemble-mean performance")
+    figs["search_history"] = fig_h
+    return Outcome(results, report(cfg, results), figs)
+
+
+def report(cfg, r):
+    ex = cfg.example
+    lines = [
+        f"Ensemble Kalman search for P_v on the {ex} example of thesis §2.7: J = {cfg.ensemble}, K = {cfg.K}, "
+        f"{cfg.iterations} iterations, yhat = {cfg.y_target}, R = diag({cfg.R}), s = {cfg.s:g}.",
+        "",
+        f"- found v = {np.round(r['v'], 4).tolist()} (thesis: {r['thesis_v']}); |cos angle| with the thesis's v "
+        f"= {r['alignment_with_thesis_v']:.4f} (v and -v give the same P)",
+        f"- stabilising: **{r['stabilizing']}**"
+        + (f" (spectral radius {r['spectral_radius']:.4f}; thesis v: {r['thesis_v_spectral_radius']:.4f})"
+           if ex == "linear" else
+           f" (relaxed projection brings {100 * r['stabilized_fraction_of_initial_states']:.1f}% of "
+           f"{cfg.judge_states} random initial states within {cfg.judge_tol} in {cfg.judge_steps} steps)"),
+        f"- over {r['search_seeds']} independent searches, the fraction ending with a stabilising P: "
+        f"**{r['stabilizing_fraction']:.4f}** [{r['stabilizing_fraction_ci95'][0]:.4f}, "
+        f"{r['stabilizing_fraction_ci95'][1]:.4f}]" + (f" with {r['restarts']} restarts per search" if r['restarts'] > 1 else ""),
+    ]
+    if "stabilizing_fraction_single_ensemble" in r:
+        lo, hi = r["stabilizing_fraction_single_ensemble_ci95"]
+        lines.append(f"- the thesis's procedure (one ensemble per search) on the same keys: "
+                     f"{r['stabilizing_fraction_single_ensemble']:.4f} [{lo:.4f}, {hi:.4f}]: the EKI settles in one "
+                     "of two basins (v near 5 deg, stabilising, or near 75 deg, not) depending on the initial "
+                     "ensemble; restarts scored by the mean y1 pick the right one.")
+    if ex == "linear":
+        s = r["steps_to_reach"]
+        lines += [
+            f"- from x0 = {cfg.x0}: max |u| relaxed projection {r['max_abs_u']['rp']:.3g}, LQR "
+            f"{r['max_abs_u']['lqr']:.3g}; steps to reach ||x|| < 1: RP {s['1']['rp']}, LQR {s['1']['lqr']}; "
+            f"< 1e-2: RP {s['0.01']['rp']}, LQR {s['0.01']['lqr']}; < 1e-4: RP {s['0.0001']['rp']}, "
+            f"LQR {s['0.0001']['lqr']}.",
+            "",
+            "The thesis (Fig. 2.1-2.2): relaxed projection is slower than LQR to approach the origin, with less "
+            "overshoot, then converges faster once near it. Compare the step counts above and Fig. 2.2.",
+        ]
+    return "\n".join(lines)
+
+
+@dataclass
+class EkiNonlinearConfig(EkiExampleConfig):
+    """§2.7.2: ensemble 100, K = 4, ~250 iterations, yhat_1 ~ N(0, .002), gamma_k = 0.1 / ||x||^2."""
+
+    example: str = C.field("nonlinear", C.one_of("linear", "nonlinear"), doc="which §2.7 example")
+    ensemble: int = C.field(100, C.positive, doc="ensemble size J")
+    K: int = C.field(4, C.positive, doc="steps simulated per performance evaluation")
+    iterations: int = C.field(250, C.positive, doc="search iterations")
+    R: list[float] = C.field([0.002, 0.01], C.positive_finite, C.length(2), doc="variances of yhat's perturbation")
+    rp_gamma: float = C.field(0.1, C.positive_finite, doc="gamma of (2.18)")
+    rp_alpha: float = C.field(2.0, C.nonneg_finite, doc="exponent alpha of (2.18)")
+    sim_steps: int = C.field(40, C.positive, doc="steps of the figure simulations")
+    restarts: int = C.field(8, C.positive, doc="independent ensembles per search, best final mean kept (thesis: 1)")
+
+
+register(Experiment(id="eki-linear", title="ensemble Kalman search for P, linear example of §2.7",
+                    config_cls=EkiExampleConfig, run=run, quick={"seeds": 20, "iterations": 60},
+                    source="thesis §2.7.1, Fig. 2.1-2.2"))
+register(Experiment(id="eki-nonlinear", title="ensemble Kalman search for P, nonlinear example of §2.7",
+                    config_cls=EkiNonlinearConfig, run=run,
+                    quick={"seeds": 10, "iterations": 80, "judge_states": 100},
+                    source="thesis §2.7.2, Fig. 2.3"))

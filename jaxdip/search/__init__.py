@@ -1,0 +1,5 @@
+"""Derivative-free search: ensemble Kalman inversion over SPD matrices P (thesis §2.6)."""
+
+from jaxdip.search.eki import EKI, EKIState, ensemble_update, run_eki
+
+__all__ = ["EKI", "EKIState", "ensemble_update", "run_eki"]

@@ -1,0 +1,87 @@
+"""lorenz-mhe: gradient w.r.t. gamma, determinism across batching, config file, a small end-to-end run."""
+
+import jaxdip  # noqa: F401  (float64)
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import jax
+import numpy as np
+import pytest
+
+from jaxdip import config as C
+from jaxdip.experiments import get, run_experiment
+from jaxdip.experiments import lorenz_mhe as L
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def test_gradient_cpx_error_wrt_gamma():
+    """d(mean CPX norm error)/d(gamma) by reverse mode agrees with central finite differences."""
+    cfg = L.LorenzMheConfig(seeds=1, duration=0.3)
+    S, P = L.build(cfg)
+    key = jax.random.PRNGKey(3)
+
+    @jax.jit
+    def loss(g):
+        P2 = P._replace(cpx=P.cpx._replace(gamma=g))
+        return L.trial_errors(S, P2, key, 0, cfg.n_steps)["cpx"]["norm"]
+
+    g0 = 0.5
+    ad = float(jax.grad(loss)(g0))
+    dg = 1e-4 * g0
+    fd = float((loss(g0 + dg) - loss(g0 - dg)) / (2 * dg))
+    print(f"\nd e_CPX / d gamma at gamma = {g0}: autodiff {ad:.10g}, central FD {fd:.10g}, "
+          f"rel {abs(ad - fd) / abs(fd):.1e}")
+    assert abs(ad - fd) <= 1e-5 * abs(fd)
+    assert abs(fd) > 1e-3  # the error does depend on gamma: the comparison is not 0 = 0
+
+
+@pytest.mark.slow  # two more compiles of the four-estimator loop (~10 s); the DESIGN property, not an acceptance item
+def test_trial_independent_of_batch():
+    """Trial i gives the same numbers alone and inside a batch (keys are fold_in(base, i))."""
+    cfg = L.LorenzMheConfig(seeds=3, duration=0.05, chunk_steps=20)
+    carry = L.simulate(cfg, progress=False, shard=False)
+    S, P = L.build(cfg)
+    alone = jax.jit(lambda: L.trial_errors(S, P, jax.random.PRNGKey(cfg.seed), 2, cfg.n_steps))()
+    for j, m in enumerate(L.METHODS):
+        batch = carry.sums.norm[2, j] / carry.sums.n[2, j]
+        assert abs(float(alone[m]["norm"]) - batch) <= 1e-12 * batch
+
+
+def test_config_file_mirrors_defaults():
+    cfg = C.load(L.LorenzMheConfig, path=os.path.join(ROOT, "configs", "lorenz-mhe.toml"))
+    assert cfg == L.LorenzMheConfig()
+    with pytest.raises(C.ConfigError) as e:
+        C.load(L.LorenzMheConfig, sets=["scpx_p=4"])
+    assert e.value.key == "scpx_p"
+
+
+def test_small_run_writes_contract(tmp_path):
+    exp = get("lorenz-mhe")
+    cfg = C.load(exp.config_cls, sets=["seeds=4", "duration=0.3", "chunk_steps=100", "record_every=5"])
+    metrics = run_experiment(exp, cfg, str(tmp_path / "out"))
+    res = metrics["results"]
+    for m in ("cpx", "scpx", "ekf", "ekf2"):
+        for k in ("mean_norm_error", "mean_xL_error", "mean_norm_error_ci95", "mean_xL_error_ci95", "diverged"):
+            assert k in res[m], (m, k)
+        assert res[m]["diverged"] == 0
+        assert 0 < res[m]["mean_norm_error"] < 20  # measurement noise std is 5: estimates do track the state
+    files = set(os.listdir(tmp_path / "out"))
+    assert {"metrics.json", "report.md", "config.toml", "errors_per_method.png", "xL_scpx_vs_ekf.png"} <= files
+    with open(tmp_path / "out" / "metrics.json") as fh:
+        assert json.load(fh)["experiment"] == "lorenz-mhe"
+
+
+@pytest.mark.slow
+def test_cli_quick_under_a_minute(tmp_path):
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "jaxdip.cli", "run", "lorenz-mhe", "--quick", "--out", str(tmp_path / "q")],
+                   check=True, cwd=ROOT, env={**os.environ, "JAXDIP_NO_PROGRESS": "1"})
+    wall = time.perf_counter() - t0
+    print(f"\njaxdip run lorenz-mhe --quick: {wall:.1f} s")
+    assert wall < 60
+    assert np.isfinite(json.load(open(tmp_path / "q" / "metrics.json"))["results"]["scpx"]["mean_xL_error"])
