@@ -34,6 +34,7 @@ def _parser():
     r.add_argument("--out", help="output folder (default results/<id>)")
     r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override one config key")
     r.add_argument("--quick", action="store_true", help="reduced run: few seeds, short horizon")
+    r.add_argument("--resume", action="store_true", help="continue an interrupted search from its checkpoint")
 
     c = sub.add_parser("config", help="print an experiment's default config as TOML")
     c.add_argument("id")
@@ -76,7 +77,7 @@ def cmd_run(args) -> int:
     except KeyError as e:
         return _error(e.args[0])
     out = args.out or os.path.join("results", exp.id)
-    metrics = run_experiment(exp, cfg, out)
+    metrics = run_experiment(exp, cfg, out, resume=args.resume)
     print(f"{exp.id}: wrote {out} ({metrics['wall_s']:.1f} s)")
     return 0
 

@@ -9,9 +9,11 @@ from jaxdip.estimators.passthrough import passthrough
 from jaxdip.estimators.run import filter_sequence
 from jaxdip.estimators.proximal import LSMHEParams, ls_mhe, ls_mhe_filter, prox_ls, prox_ls_svd
 from jaxdip.estimators.scpx import scpx_linearized, scpx_lti
+from jaxdip.estimators import bias_observers, continuous, homd, luenberger  # reaction-wheel pendulum
 
 __all__ = [
     "passthrough", "cpx", "kalman", "linearized", "proximal", "scpx", "CPXParams", "cpx_linearized", "cpx_qr",
     "EKFParams", "KFParams", "ekf", "kalman_filter", "AffineStep", "local_model", "LSMHEParams", "ls_mhe",
     "ls_mhe_filter", "prox_ls", "prox_ls_svd", "scpx_linearized", "scpx_lti", "filter_sequence",
 ]
+__all__ += ["bias_observers", "continuous", "homd", "luenberger"]

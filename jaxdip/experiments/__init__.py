@@ -17,13 +17,17 @@ def register(exp: Experiment) -> Experiment:
 def _load_builtin():
     from jaxdip.experiments import dip_controllers  # noqa: F401
     from jaxdip.experiments import dip_lqr  # noqa: F401
+    from jaxdip.experiments import eki_dip  # noqa: F401
     from jaxdip.experiments import eki_examples  # noqa: F401
     from jaxdip.experiments import lorenz_mhe  # noqa: F401
+    from jaxdip.experiments import twip_dmso  # noqa: F401
+    from jaxdip.experiments import rwp_bias  # noqa: F401
 
 
 def registry() -> dict[str, Experiment]:
-    if not _REGISTRY:
-        _load_builtin()
+    # always: importing one experiment module directly registers only that one (module imports are cached,
+    # so this is cheap and registers each experiment once)
+    _load_builtin()
     return dict(_REGISTRY)
 
 

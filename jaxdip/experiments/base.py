@@ -8,6 +8,7 @@ half-written.
 
 from __future__ import annotations
 
+import contextvars
 import json
 import math
 import os
@@ -20,6 +21,27 @@ from typing import Any, Callable
 import jax
 
 from jaxdip import config as cfgmod
+
+
+@dataclass
+class RunContext:
+    """Where the current run writes, for experiments that checkpoint long searches."""
+
+    out_dir: str
+    resume: bool = False
+
+    @property
+    def checkpoint_path(self) -> str:
+        # beside the output folder, not inside it: the folder itself only appears, complete, at the end
+        return os.path.join(os.path.dirname(os.path.abspath(self.out_dir)),
+                            f".{os.path.basename(os.path.abspath(self.out_dir))}.ckpt.npz")
+
+
+_CONTEXT: contextvars.ContextVar[RunContext | None] = contextvars.ContextVar("jaxdip_run", default=None)
+
+
+def current_run() -> RunContext | None:
+    return _CONTEXT.get()
 
 
 @dataclass
@@ -88,16 +110,25 @@ def provenance(exp_id: str, seeds: int, wall_s: float) -> dict:
     }
 
 
-def run_experiment(exp: Experiment, cfg, out_dir: str) -> dict:
-    """Run an experiment with a validated config and write its folder; returns metrics.json's content."""
+def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False) -> dict:
+    """Run an experiment with a validated config and write its folder; returns metrics.json's content.
+
+    Experiments with long searches checkpoint beside ``out_dir`` (``current_run().checkpoint_path``) and, with
+    ``resume``, continue from there; the checkpoint is removed once the folder is complete.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    t0 = time.perf_counter()
-    outcome = exp.run(cfg)
-    wall = time.perf_counter() - t0
+    ctx = RunContext(out_dir, resume)
+    token = _CONTEXT.set(ctx)
+    try:
+        t0 = time.perf_counter()
+        outcome = exp.run(cfg)
+        wall = time.perf_counter() - t0
+    finally:
+        _CONTEXT.reset(token)
     seeds = getattr(cfg, "seeds", 1)
     metrics = {**provenance(exp.id, seeds, wall), "results": outcome.results}
     header = (
@@ -120,4 +151,6 @@ def run_experiment(exp: Experiment, cfg, out_dir: str) -> dict:
             plt.close(fig)
 
     write_atomic_dir(out_dir, write)
+    if os.path.exists(ctx.checkpoint_path):
+        os.remove(ctx.checkpoint_path)
     return metrics

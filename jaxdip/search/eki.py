@@ -12,7 +12,10 @@ rule (and the thesis's own description, "a minimizer of the difference") needs y
 a test checks that the mean converges to the least-squares solution of a linear problem.
 
 Members are pytrees (flattened internally). A member whose performance is not finite gets ``penalty`` (the
-thesis's rule: a diverged simulation scores 1000), so one failure never poisons the statistics. The PRNG key
+thesis's rule: a diverged simulation scores 1000), so one failure never poisons the statistics with NaN.
+``failure="resample"`` goes further, as EnsembleKalmanProcesses.jl does: failed members are left out of the
+statistics and redrawn from the Gaussian of the successful ones, so a cliff of penalties cannot drag the
+ensemble over it; iterations with too few successes are skipped, and a whole chunk of them stops the run with a clear error. The PRNG key
 lives in the state, so a run is reproducible and resumable from any checkpoint.
 """
 
@@ -44,6 +47,27 @@ def ensemble_update(V, Y, Yhat, R, W):
     return V + (Yhat - Y) @ gain_T + W
 
 
+def ensemble_update_resample(V, Y, Yhat, R, W, ok, key):
+    """(2.22) over the successful members only (``ok``); failed members are redrawn from the Gaussian of the
+    updated successful members (the EnsembleKalmanProcesses.jl failure handling). Needs >= 2 successes."""
+    w = ok.astype(V.dtype)
+    n = jnp.maximum(w.sum(), 2.0)
+    vbar = (w[:, None] * V).sum(0) / w.sum()
+    ybar = (w[:, None] * Y).sum(0) / w.sum()
+    dV = (V - vbar) * w[:, None]
+    dY = (Y - ybar) * w[:, None]
+    Cvy = dV.T @ dY / (n - 1)
+    Cyy = dY.T @ dY / (n - 1)
+    gain_T = jnp.linalg.solve(Cyy + R, Cvy.T)
+    Vn = V + (Yhat - Y) @ gain_T + W
+    mu = (w[:, None] * Vn).sum(0) / w.sum()
+    D = (Vn - mu) * w[:, None]
+    cov = D.T @ D / (n - 1) + 1e-12 * jnp.eye(V.shape[1])
+    L = jnp.linalg.cholesky(cov)
+    draws = mu + jax.random.normal(key, V.shape) @ L.T
+    return jnp.where(ok[:, None], Vn, draws)
+
+
 def sanitize(Y, penalty):
     return jnp.where(jnp.isfinite(Y), Y, penalty)
 
@@ -58,6 +82,8 @@ class EKI(NamedTuple):
     sigma_w: float = 0.0
     penalty: float = 1000.0
     project: Optional[Callable] = None  # member pytree -> member pytree, after each update (re-orthonormalise)
+    failure: str = "penalty"  # "penalty" (thesis) or "resample" (failed members redrawn from the successful ones)
+    min_success: int = 2  # resample mode: an iteration with fewer successes leaves the ensemble unchanged
     align: Optional[Callable] = None  # (J, p) flat ensemble -> (J, p), e.g. resolve v ~ -v sign symmetries
 
     def unravel(self):
@@ -75,14 +101,28 @@ class EKI(NamedTuple):
         return sanitize(jnp.atleast_2d(Y.reshape(state.members.shape[0], -1)), self.penalty)
 
     def step(self, state: EKIState):
-        """One iteration; returns (new state, performances of the members before the update)."""
-        k_eval, k_obj, k_w, k_next = jax.random.split(jax.random.fold_in(state.key, state.iteration), 4)
+        """One iteration; returns (new state, performances of the members before the update).
+
+        With ``failure="resample"``, a member is failed when any of its performances reaches ``penalty``; when
+        fewer than two succeed the ensemble is left unchanged (``run_eki`` then stops with an error).
+        """
+        k_eval, k_obj, k_w, k_res = jax.random.split(jax.random.fold_in(state.key, state.iteration), 4)
         Y = self.evaluate(state, k_eval)
         J, m = Y.shape
         Lr = jnp.linalg.cholesky(self.R)
         Yhat = self.y_target + jax.random.normal(k_obj, (J, m)) @ Lr.T
         W = self.sigma_w * jax.random.normal(k_w, state.members.shape)
-        V = ensemble_update(state.members, Y, Yhat, self.R, W)
+        if self.failure == "resample":
+            ok = jnp.all(Y < self.penalty, axis=1)
+            # a shared initial state that (nearly) every member fails on says more about the state than the
+            # members: skip such an iteration rather than collapse the ensemble onto the few survivors
+            enough = ok.sum() >= max(2, self.min_success)
+            V = jnp.where(enough, ensemble_update_resample(state.members, Y, Yhat, self.R, W, ok, k_res),
+                          state.members)
+        elif self.failure == "penalty":
+            V = ensemble_update(state.members, Y, Yhat, self.R, W)
+        else:
+            raise ValueError(f"failure must be 'penalty' or 'resample', got {self.failure!r}")
         if self.project is not None:
             unravel = self.unravel()
             V = jax.vmap(lambda v: ravel_pytree(self.project(unravel(v)))[0])(V)
@@ -109,7 +149,7 @@ def run_eki(eki: EKI, state: EKIState, iterations: int, *, chunk: int = 10, prog
     def advance(st, n_dummy):
         def body(s, _):
             s, Y = eki.step(s)
-            return s, Y.mean(axis=0)
+            return s, (Y.mean(axis=0), jnp.sum(jnp.all(Y < eki.penalty, axis=1)))
 
         return jax.lax.scan(body, st, None, length=n_dummy.shape[0])
 
@@ -117,8 +157,12 @@ def run_eki(eki: EKI, state: EKIState, iterations: int, *, chunk: int = 10, prog
     done = int(state.iteration)
     while done < iterations:
         n = min(chunk, iterations - done)
-        state, ys = advance(state, jnp.zeros(n))
+        state, (ys, n_ok) = advance(state, jnp.zeros(n))
         ys = np.asarray(ys)
+        if eki.failure == "resample" and int(np.max(n_ok)) < max(2, eki.min_success):
+            raise RuntimeError(f"EKI: fewer than {max(2, eki.min_success)} ensemble members succeeded in every one "
+                               f"of iterations {done + 1}..{done + n}; cannot update (widen or move the initial "
+                               "ensemble, or relax the failure bound)")
         history.append(ys)
         done += n
         if progress is not None:

@@ -60,17 +60,22 @@ def discrete_performance(plant, plant_params, s: float, K: int, x0_std: float = 
 
 
 class BasisMember(NamedTuple):
-    V: jnp.ndarray  # (d, N) free basis vectors
+    V: jnp.ndarray  # (N, d): the N free basis vectors as rows (contiguous in the flat member)
     log_s: jnp.ndarray  # (N,) log singular values (keeps them positive under the additive EKI update)
 
 
 def project_member(m: BasisMember) -> BasisMember:
     """Procedure 1 step 8: re-orthonormalise the basis after each update."""
-    return BasisMember(orthonormalize(m.V), m.log_s)
+    return BasisMember(orthonormalize(m.V.T).T, m.log_s)
 
 
 def member_P(m: BasisMember):
-    return P_Vs(m.V, jnp.exp(m.log_s))
+    return P_Vs(m.V.T, jnp.exp(m.log_s))
+
+
+def member_blocks(N: int, d: int):
+    """(start, stop) of each basis vector in the flat member, for ``align_signs``."""
+    return [(i * d, (i + 1) * d) for i in range(N)]
 
 
 class ContinuousSearch(NamedTuple):
@@ -86,9 +91,10 @@ class ContinuousSearch(NamedTuple):
     substeps: int = 2
 
 
-def continuous_performance(plant, plant_params, cfg: ContinuousSearch, n_x0: int = 1):
+def continuous_performance(plant, plant_params, cfg: ContinuousSearch, n_x0: int = 1, penalize: bool = True):
     """G(member, key) of (2.24) for a continuous plant under (2.14) with P = P_{V,s}, averaged over n_x0
-    initial states (the thesis used one)."""
+    initial states (the thesis used one). ``penalize=False`` returns the integral up to the failure instead of
+    the penalty (a smooth objective for gradients)."""
     m = plant.m
 
     def one(P, key):
@@ -110,7 +116,7 @@ def continuous_performance(plant, plant_params, cfg: ContinuousSearch, n_x0: int
 
         (xT, acc, failed), _ = jax.lax.scan(body, (x0, 0.0, False), jnp.arange(cfg.n_steps))
         y = acc / (cfg.n_steps - cfg.t_star_steps)
-        return jnp.where(failed, cfg.penalty, y)
+        return jnp.where(failed & penalize, cfg.penalty, y)
 
     def G(member: BasisMember, key):
         P = member_P(member)

@@ -1,0 +1,305 @@
+"""eki-dip: ensemble Kalman synthesis of a relaxed projection control for the DIP (thesis §3.2.1), and a
+gradient search of the same P parameterisation beside it.
+
+Search (Procedure 1, continuous form): members are two free basis vectors V (rows) and log singular values;
+P = P_{V,s} (2.20); the relaxed projection control (2.14) with gamma = 10 is updated every 1 ms on the printed
+DIP; the state is perturbed by Gaussian noise every 1 ms; performance (2.24) with Q = diag(80, 300, 100) on
+the positions between t* and T; a state norm above 10 ends a simulation with performance 1000. Initial
+ensemble as the thesis describes: v1 the leading eigenvector of the LQR Riccati solution, perturbed; v2 small
+random perturbations of a vector in v1^perp intersected with B^perp; s around [1e6, 1e5].
+
+The thesis writes the state noise as N(0, 5e-5) and the objectives' parameters are not printed; we read 5e-5
+as the standard deviation (see the config) and choose yhat = 0 with R below.
+
+The found P (ensemble mean, re-orthonormalised) is judged by Monte Carlo: relaxed projection with gamma = 40
+from ``seeds`` random near-upright states for ``judge_duration`` s; stabilised = not diverged and the angles
+within ``stabilized_tol`` over the last second.
+
+Gradient search: the same (V, log s) from the same starting point, optimised with Adam on the mean of
+log(2.24) over ``grad_x0`` fresh initial states per step, through the differentiable closed loop. Both are
+compared by their final performance on common evaluation states and by the number of closed-loop simulations
+they used (a gradient step counts its forward simulations; its backward pass costs about as much again).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from jaxdip import checkpoint
+from jaxdip import config as C
+from jaxdip.control import lqr
+from jaxdip.control.projection import relaxed_projection_controller, rp_params
+from jaxdip.estimators import passthrough
+from jaxdip.experiments import register
+from jaxdip.experiments.base import Experiment, Outcome, current_run
+from jaxdip.experiments.common import ball_sampler, fmt_ci, trajectory_summary
+from jaxdip.plants import dip
+from jaxdip.progress import Progress
+from jaxdip.search import EKI, run_eki
+from jaxdip.search.eki import align_signs
+from jaxdip.search.p_search import (
+    BasisMember, ContinuousSearch, continuous_performance, member_blocks, member_P, project_member,
+)
+from jaxdip.sim import Loop, LoopParams, linearize, montecarlo, sensors
+from jaxdip.sim.component import identity
+
+INF = float("inf")
+
+
+@dataclass
+class EkiDipConfig:
+    seeds: int = C.field(1000, C.positive, doc="random near-upright states judging the found P")
+    seed: int = C.field(0, C.nonneg, doc="base PRNG key")
+    ensemble: int = C.field(80, C.positive, doc="ensemble size J")
+    iterations: int = C.field(1000, C.positive, doc="maximum search iterations")
+    chunk: int = C.field(10, C.positive, doc="iterations between progress updates, stop checks and checkpoints")
+    stop_below: float = C.field(2e-4, C.nonneg_finite, doc="stop once the ensemble-mean performance is below this")
+    dt: float = C.field(0.001, C.positive_finite, doc="control period and noise interval (s)")
+    T: float = C.field(3.0, C.positive_finite, doc="simulated time per evaluation (s)")
+    t_star: float = C.field(1.0, C.nonneg_finite, doc="start of the (2.24) window (s)")
+    substeps: int = C.field(2, C.positive, doc="RK4 sub-steps per period in the search")
+    gamma: float = C.field(10.0, C.positive_finite, doc="RP weight during the search")
+    Q: list[float] = C.field([80.0, 300.0, 100.0, 0.0, 0.0, 0.0], C.nonneg_finite, C.length(6),
+                             doc="(2.24) weight on [xc, alpha, theta, velocities]")
+    noise_std: float = C.field(5e-5, C.nonneg_finite, doc="std of the state noise added every period")
+    x0_std: list[float] = C.field([0.01, 0.01, 0.01, 0.0, 0.0, 0.0], C.nonneg_finite, C.length(6),
+                                  doc="std of the random initial state of an evaluation")
+    n_x0: int = C.field(1, C.positive, doc="initial states per evaluation (thesis: 1)")
+    failure: str = C.field("resample", C.one_of("penalty", "resample"),
+                           doc="failed members: thesis penalty only, or also redrawn from the successful ones")
+    min_success: int = C.field(20, C.positive, doc="resample mode: fewer successes skip the iteration")
+    y_target: float = C.field(0.0, C.nonneg_finite, doc="performance objective yhat")
+    R: float = C.field(1e-8, C.positive_finite, doc="variance of the objective's perturbation")
+    sigma_w: float = C.field(1e-4, C.nonneg_finite, doc="std of the members' random perturbation")
+    init_v_std: float = C.field(0.002, C.nonneg_finite, doc="std of the perturbation of the LQR-derived v1")
+    init_v2_std: float = C.field(0.02, C.nonneg_finite, doc="std of the perturbation of v2")
+    init_s: list[float] = C.field([1e6, 1e4], C.positive_finite, C.length(2),
+                                  doc="initial singular values (thesis: [1e6, 1e5], which leaves ~5% of the "
+                                      "initial members stabilising on the printed model; 1e4 leaves ~70%)")
+    init_log_s_std: float = C.field(0.1, C.nonneg_finite, doc="std of the initial log singular values")
+    lqr_Q: list[float] = C.field([30.0, 350.0, 100.0, 0.0, 0.0, 0.0], C.nonneg_finite, C.length(6),
+                                 doc="LQR whose Riccati solution seeds v1")
+    lqr_R: float = C.field(0.1, C.positive_finite, doc="that LQR's R")
+    judge_gamma: float = C.field(40.0, C.positive_finite, doc="RP weight when judging the found P")
+    judge_duration: float = C.field(5.0, C.positive_finite, doc="judging simulations (s)")
+    judge_radius: float = C.field(0.03, C.nonneg_finite, doc="judging initial states uniform in this ball")
+    stabilized_tol: float = C.field(0.02, C.positive_finite, doc="max |alpha|, |theta| over the last second")
+    grad_steps: int = C.field(200, C.nonneg, doc="Adam steps of the gradient search (0 skips it)")
+    grad_lr: float = C.field(0.01, C.positive_finite, doc="Adam learning rate")
+    grad_x0: int = C.field(4, C.positive, doc="initial states per gradient step")
+    eval_states: int = C.field(64, C.positive, doc="common initial states scoring both searches")
+
+    def validate(self):
+        if self.t_star >= self.T:
+            raise C.ConfigError("t_star", f"must be below T = {self.T}")
+
+
+def _search_cfg(cfg, plant):
+    return ContinuousSearch(dt=cfg.dt, n_steps=int(round(cfg.T / cfg.dt)),
+                            t_star_steps=int(round(cfg.t_star / cfg.dt)), gamma=cfg.gamma,
+                            Qpos=jnp.diag(jnp.asarray(cfg.Q)), noise_std=cfg.noise_std,
+                            x0_std=jnp.asarray(cfg.x0_std), substeps=cfg.substeps)
+
+
+def initial_ensemble(cfg, A, B, key):
+    """Thesis §3.2.1: v1 from the LQR Riccati solution, v2 in v1^perp ∩ B^perp, s near [1e6, 1e5]."""
+    _, S, _ = lqr(A, B, jnp.diag(jnp.asarray(cfg.lqr_Q)), cfg.lqr_R)
+    w, U = jnp.linalg.eigh(S)
+    v1 = U[:, -1] * jnp.sign(U[:, -1] @ B[:, 0])
+    # orthonormal basis of the complement of span{v1, B}: the last 4 left singular vectors of [v1, B]
+    Uc = jnp.linalg.svd(jnp.stack([v1, B[:, 0]], axis=1), full_matrices=True)[0][:, 2:]
+    k1, k2, k3, k4 = jax.random.split(key, 4)
+    J = cfg.ensemble
+    v2_dir = Uc @ jax.random.normal(k1, (Uc.shape[1],))
+    v2_dir = v2_dir / jnp.linalg.norm(v2_dir)
+    V1 = v1 + cfg.init_v_std * jax.random.normal(k2, (J, 6))
+    V2 = v2_dir + cfg.init_v2_std * jax.random.normal(k3, (J, 6))
+    log_s = jnp.log(jnp.asarray(cfg.init_s)) + cfg.init_log_s_std * jax.random.normal(k4, (J, 2))
+    members = BasisMember(jnp.stack([V1, V2], axis=1), log_s)
+    return jax.vmap(project_member)(members), v1
+
+
+def judge(cfg, plant, p, member, key_seed):
+    """Monte Carlo of RP with the found P: stabilised fraction over ``seeds`` near-upright states."""
+    n_steps = int(round(cfg.judge_duration / cfg.dt))
+    loop = Loop(plant, cfg.dt, sensors.linear_sensor(cfg.dt), passthrough, relaxed_projection_controller(plant),
+                identity, substeps=10, tail_steps=min(n_steps, int(round(1.0 / cfg.dt))))
+    lp = LoopParams(p, sensors.full_state_params(6), (), rp_params(member_P(member), cfg.judge_gamma, p),
+                    process_noise_std=cfg.noise_std,
+                    state_bound=jnp.asarray([1.0, 1.5708, 1.5708, INF, INF, INF]))
+    res = montecarlo.run(loop, lp, ball_sampler(jnp.zeros(6), cfg.judge_radius), jax.random.PRNGKey(key_seed),
+                         cfg.seeds, n_steps, shard=jax.device_count() > 1 and cfg.seeds >= 512,
+                         desc="eki-dip judge")
+    return trajectory_summary(res, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol)
+
+
+def run(cfg: EkiDipConfig) -> Outcome:
+    import matplotlib.pyplot as plt
+
+    plant = dip.make("printed")
+    p = plant.default_params()
+    A, B = linearize(plant.f, p, jnp.zeros(6), jnp.zeros(1))
+    scfg = _search_cfg(cfg, plant)
+    base = jax.random.PRNGKey(cfg.seed)
+    members0, v1_lqr = initial_ensemble(cfg, A, B, jax.random.fold_in(base, 1))
+    G = continuous_performance(plant, p, scfg, n_x0=cfg.n_x0)
+    eki = EKI(G=G, template=jax.tree_util.tree_map(lambda a: a[0], members0), y_target=jnp.array([cfg.y_target]),
+              R=jnp.array([[cfg.R]]), sigma_w=cfg.sigma_w, project=project_member, failure=cfg.failure,
+              min_success=cfg.min_success,
+              align=lambda V: align_signs(V, member_blocks(2, 6)))
+    state = eki.init(members0, jax.random.fold_in(base, 2))
+
+    # --- the ensemble Kalman search, checkpointed ---------------------------------------------------------
+    ctx = current_run()
+    fp = checkpoint.fingerprint(C.to_dict(cfg))
+    history = np.zeros((0, 1))
+    wall_before = 0.0
+    if ctx is not None and ctx.resume:
+        import os
+
+        if os.path.exists(ctx.checkpoint_path):
+            (state, history), meta = checkpoint.load(ctx.checkpoint_path, (state, jnp.zeros((1, 1))), fp)
+            history = np.asarray(history)[: int(state.iteration)]
+            wall_before = meta.get("wall_s", 0.0)
+    t0 = time.perf_counter()
+    bar = Progress(cfg.iterations, desc="eki-dip search")
+    bar.update(int(state.iteration))
+    hist_prev = history
+
+    def save(st, h):
+        if ctx is not None:
+            full = np.concatenate([hist_prev, h]) if len(hist_prev) else h
+            checkpoint.save(ctx.checkpoint_path, (st, jnp.asarray(full)), fp,
+                            wall_s=wall_before + time.perf_counter() - t0)
+
+    stop = (lambda h: float(h[-1, 0]) < cfg.stop_below) if cfg.stop_below > 0 else None
+    state, hist_new = run_eki(eki, state, cfg.iterations, chunk=cfg.chunk, progress=bar, checkpoint=save,
+                              stop=stop)
+    bar.close()
+    history = np.concatenate([hist_prev, hist_new]) if len(hist_prev) else hist_new
+    eki_wall = wall_before + time.perf_counter() - t0
+    found = eki.mean(state)
+    iters = int(state.iteration)
+
+    # --- common evaluation of any member -------------------------------------------------------------------
+    eval_keys = jax.random.split(jax.random.fold_in(base, 3), cfg.eval_states)
+    G_eval = jax.jit(lambda m: jax.vmap(lambda k: continuous_performance(plant, p, scfg)(m, k)[0])(eval_keys))
+
+    def eval_perf(m):
+        y = np.asarray(G_eval(m))
+        return {"mean": float(y.mean()), "median": float(np.median(y)), "failed": int((y >= scfg.penalty).sum())}
+
+    start_mean = jax.tree_util.tree_map(lambda a: a.mean(0), members0)
+    start_mean = project_member(start_mean)
+    perf_start = eval_perf(start_mean)
+    perf_eki = eval_perf(found)
+
+    # --- gradient search --------------------------------------------------------------------------------------
+    grad = {}
+    if cfg.grad_steps > 0:
+        Gs = continuous_performance(plant, p, scfg, n_x0=1, penalize=False)
+
+        def loss(m, key):
+            m = project_member(m)
+            ys = jax.vmap(lambda k: Gs(m, k)[0])(jax.random.split(key, cfg.grad_x0))
+            return jnp.mean(jnp.log(ys + 1e-12))
+
+        opt = optax.adam(cfg.grad_lr)
+        m = start_mean
+        o = opt.init(m)
+
+        @jax.jit
+        def gstep(m, o, key):
+            val, g = jax.value_and_grad(loss)(m, key)
+            g = jax.tree_util.tree_map(lambda x: jnp.where(jnp.isfinite(x), x, 0.0), g)
+            upd, o = opt.update(g, o, m)
+            return project_member(optax.apply_updates(m, upd)), o, val
+
+        tg = time.perf_counter()
+        gbar = Progress(cfg.grad_steps, desc="eki-dip gradient search")
+        glosses = []
+        for i in range(cfg.grad_steps):
+            m, o, val = gstep(m, o, jax.random.fold_in(jax.random.fold_in(base, 4), i))
+            glosses.append(float(val))
+            gbar.update(1, postfix=f"log perf {glosses[-1]:.3f}")
+        gbar.close()
+        perf_grad = eval_perf(m)
+        grad = {"P_basis": np.asarray(m.V).tolist(), "P_singular_values": np.exp(np.asarray(m.log_s)).tolist(),
+                "steps": cfg.grad_steps, "simulations": cfg.grad_steps * cfg.grad_x0,
+                "wall_s": time.perf_counter() - tg, "performance": perf_grad, "loss_history": glosses}
+        grad["judge"] = judge(cfg, plant, p, m, cfg.seed + 7)
+        grad["stabilized_fraction"] = grad["judge"]["stabilized_fraction"]
+
+    judged = judge(cfg, plant, p, found, cfg.seed + 7)
+    results = {
+        "P_basis": np.asarray(found.V).tolist(),
+        "P_singular_values": np.exp(np.asarray(found.log_s)).tolist(),
+        "v1_lqr": np.asarray(v1_lqr).tolist(),
+        "iterations": iters,
+        "simulations": iters * cfg.ensemble * cfg.n_x0,
+        "wall_s": eki_wall,
+        "stabilized_fraction": judged["stabilized_fraction"],
+        "stabilized_fraction_ci95": judged["stabilized_fraction_ci95"],
+        "judge": judged,
+        "performance_start": perf_start,
+        "performance": perf_eki,
+        "history_mean_performance": history[:, 0].tolist(),
+        "gradient": grad,
+    }
+
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    ax.semilogy(np.arange(1, len(history) + 1), history[:, 0], label="EKI: ensemble-mean performance")
+    if grad:
+        sims_per_iter = cfg.ensemble * cfg.n_x0
+        ax.semilogy(np.arange(1, cfg.grad_steps + 1) * cfg.grad_x0 / sims_per_iter,
+                    np.exp(grad["loss_history"]), label="gradient: geometric-mean performance (x-axis: EKI-equivalent iterations)")
+    ax.set_xlabel("iteration (J simulations each)")
+    ax.set_ylabel("performance (2.24)")
+    ax.legend(fontsize=8)
+    ax.set_title("eki-dip search")
+    return Outcome(results, report(cfg, results), {"search_history": fig})
+
+
+def report(cfg, r):
+    j = r["judge"]
+    lines = [
+        f"Ensemble Kalman search on the printed DIP: J = {cfg.ensemble}, up to {cfg.iterations} iterations "
+        f"(stopped at {r['iterations']}), T = {cfg.T} s, t* = {cfg.t_star} s, gamma = {cfg.gamma}, state noise std "
+        f"{cfg.noise_std} every {cfg.dt * 1e3:g} ms. Wall time of the search: **{r['wall_s']:.1f} s** on this "
+        f"machine ({r['simulations']} closed-loop simulations of {cfg.T} s; the thesis used a 12-core cluster).",
+        "",
+        f"- found P: basis rows {np.round(r['P_basis'], 4).tolist()}, singular values "
+        f"{np.round(r['P_singular_values'], 1).tolist()}",
+        f"- performance (2.24) over {cfg.eval_states} common initial states: start {r['performance_start']['mean']:.3g}"
+        f" -> EKI {r['performance']['mean']:.3g} (failed {r['performance']['failed']})",
+        f"- RP with gamma = {cfg.judge_gamma} from {cfg.seeds} random states in a ball of radius {cfg.judge_radius},"
+        f" {cfg.judge_duration} s: stabilised fraction **{fmt_ci(r['stabilized_fraction'], r['stabilized_fraction_ci95'])}**"
+        f", diverged {j['diverged']}",
+    ]
+    g = r["gradient"]
+    if g:
+        lines += [
+            "",
+            f"Gradient search (Adam, {g['steps']} steps x {cfg.grad_x0} initial states = {g['simulations']} forward "
+            f"simulations plus as many backward passes, {g['wall_s']:.1f} s): performance {g['performance']['mean']:.3g}"
+            f" (failed {g['performance']['failed']}); stabilised fraction "
+            f"{fmt_ci(g['judge']['stabilized_fraction'], g['judge']['stabilized_fraction_ci95'])}.",
+            f"EKI used {r['simulations']} simulations for {r['performance']['mean']:.3g}; the gradient search used "
+            f"{g['simulations']} (x about 2 with backward passes) for {g['performance']['mean']:.3g}: "
+            + ("it reaches the EKI's performance." if g["performance"]["mean"] <= r["performance"]["mean"] else
+               f"it falls short by a factor {g['performance']['mean'] / r['performance']['mean']:.3g}."),
+        ]
+    return "\n".join(lines)
+
+
+register(Experiment(
+    id="eki-dip", title="ensemble Kalman synthesis of relaxed projection control for the DIP", config_cls=EkiDipConfig,
+    run=run, quick={"seeds": 32, "ensemble": 8, "iterations": 4, "chunk": 2, "T": 1.0, "t_star": 0.5,
+                    "grad_steps": 3, "grad_x0": 2, "eval_states": 8, "judge_duration": 2.0},
+    source="thesis §3.2.1, Procedure 1, (2.20), (2.24)"))

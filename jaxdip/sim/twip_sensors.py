@@ -1,0 +1,117 @@
+"""The TWIP robot's sensors as simulated in Stumfoll §7.4 (Table 7.1).
+
+Outputs one measurement per state of ``[x, x_dot, phi, phi_dot]`` (full state, DESIGN.md), from three sensors:
+
+* wheel encoders: the position quantised to ``encoder_quantum`` (0.000147 m: 64 counts x 30:1 gearbox, 90 mm
+  wheels); the velocity is the backward difference of two quantised positions, (p_k - p_{k-1}) / dt, so its
+  resolution is quantum / dt and it lags by dt / 2. At k = 0 there is no previous count and the velocity is 0.
+* accelerometer tilt theta_a (36), simulated directly (as the thesis does) as phi + white noise + walking bias;
+* gyroscope: phi_dot + white noise + walking bias;
+* the tilt rate is the gyro reading itself. On the robot the tilt handed to the observer is the complementary
+  filter (37) of the gyro rate and theta_a; that filter is an estimator
+  (``jaxdip.estimators.complementary.tilt_prefilter``) chained after this sensor with
+  ``jaxdip.sim.component.chain``, so this module outputs theta_a in the tilt channel.
+
+Both inertial errors follow (154)-(155): m = m_true + c + b + w with the constant bias c removed at start-up
+(§4.3: the robot averages its first 100 readings at rest), w white of variance sigma^2 per sample, and b the
+first-order Gauss-Markov walking bias of ``jaxdip.sim.sensors`` (driving noise intensity sigma_b^2, time
+constant tau, discretised exactly). Because the start-up calibration absorbs whatever bias there was, the
+walking bias starts at zero by default (``stationary_start=False``) and wanders from there.
+
+Table 7.1 prints odd units; ``table_7_1`` documents the reading this library takes.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxdip.sim import sensors
+from jaxdip.sim.component import Component
+
+DEG = math.pi / 180.0
+
+
+class TwipSensorParams(NamedTuple):
+    raw: sensors.SensorParams  # 4 channels [p, unused, theta_a, gyro]: noise, walking bias, quantisation
+
+
+class TwipSensorState(NamedTuple):
+    bias: jnp.ndarray  # walking biases of the raw channels
+    p_prev: jnp.ndarray  # previous quantised position (for the velocity difference)
+
+
+def table_7_1():
+    """Table 7.1 in SI units, with the reading of its printed units that this library takes.
+
+    Printed: tilt sigma_r^2 = 4.0397e-6 "rad", sigma_br^2 = 1.8929e-7 "rad/s", tau = 2160 s; gyro
+    sigma_r^2 = 0.0012 "deg/s", sigma_br^2 = 1.0986e-4 "deg/s^2", tau = 1610 s. The entries are variances,
+    so the units must be squares:
+
+    * sigma_r^2 is the per-sample white-noise variance: rad^2 for the tilt (its 4.0397e-6 is the R_33 = 4e-6
+      of (177), which confirms the reading) and (deg/s)^2 for the gyro (std 0.035 deg/s, the size of the
+      MPU-9150's 0.06 deg/s-rms at 92 Hz; read as a standard deviation in deg/s it would be below the gyro's
+      own 0.0076 deg/s resolution).
+    * sigma_br^2 is the intensity of the white noise driving (155) ("w_br is white noise with variance
+      sigma_br^2"): rad^2/s for the tilt and (deg/s)^2/s for the gyro. The stationary bias variances are then
+      sigma_b^2 tau / 2: (0.82 deg)^2 and (0.30 deg/s)^2; over a 20 s run starting from zero the biases wander
+      by about sqrt(sigma_b^2 t) = 0.11 deg and 0.047 deg/s.
+    """
+    return {
+        "tilt_white_std": math.sqrt(4.0397e-6),  # rad
+        "tilt_gm_sigma": math.sqrt(1.8929e-7),  # rad / sqrt(s)
+        "tilt_gm_tau": 2160.0,  # s
+        "gyro_white_std": math.sqrt(0.0012) * DEG,  # rad/s
+        "gyro_gm_sigma": math.sqrt(1.0986e-4) * DEG,  # rad/s / sqrt(s)
+        "gyro_gm_tau": 1610.0,  # s
+        "encoder_quantum": 0.000147,  # m
+    }
+
+
+def twip_sensor_params(tilt_white_std, tilt_gm_sigma, tilt_gm_tau, gyro_white_std, gyro_gm_sigma,
+                       gyro_gm_tau, encoder_quantum, gyro_quantum=0.0) -> TwipSensorParams:
+    z = 0.0
+    raw = sensors.sensor_params(
+        jnp.eye(4),
+        white_std=jnp.array([z, z, tilt_white_std, gyro_white_std]),
+        gm_sigma=jnp.array([z, z, tilt_gm_sigma, gyro_gm_sigma]),
+        gm_tau=jnp.array([1.0, 1.0, tilt_gm_tau, gyro_gm_tau]),
+        quantum=jnp.array([encoder_quantum, z, z, gyro_quantum]),
+    )
+    return TwipSensorParams(raw=raw)
+
+
+def table_7_1_params() -> TwipSensorParams:
+    return twip_sensor_params(**table_7_1())
+
+
+def twip_sensor(dt: float, stationary_start: bool = False, straight_through: bool = False) -> Component:
+    """The sensors above as one loop component; input the true state, output [p, v, theta_a, gyro]_k.
+
+    ``straight_through``: the encoder's value is quantised as always, but its derivative with respect to the
+    true position is taken as 1 instead of the quantiser's almost-everywhere 0. The a.e. derivative is the
+    exact derivative of each simulated path, yet it misses the jumps of the quantiser, which the Monte Carlo
+    mean over seeds does feel (the twip-dmso gradient check measures a factor of about 2 on the DMSO's RMS
+    error). With the straight-through rule the pathwise gradient is that of a quantiser whose error is
+    uniform and independent of the position, which is what the quantisation error looks like once the wheel
+    has crossed many counts.
+    """
+    raw = sensors.linear_sensor(dt, stationary_start=stationary_start)
+
+    def init(params: TwipSensorParams, key, x0):
+        b = raw.init(params.raw, key, x0)
+        return TwipSensorState(b, jnp.zeros((), jnp.float64))
+
+    def step(params: TwipSensorParams, st: TwipSensorState, x, key, k):
+        bias, m = raw.step(params.raw, st.bias, x, key, k)
+        p = m[0]
+        if straight_through:
+            p = x[0] + jax.lax.stop_gradient(p - x[0])
+        v = jnp.where(k == 0, 0.0, (p - st.p_prev) / dt)
+        y = jnp.stack([p, v, m[2], m[3]])
+        return TwipSensorState(bias, p), y
+
+    return Component(init, step)
