@@ -15,6 +15,10 @@ import jax
 import numpy as np
 
 
+class CheckpointMismatch(ValueError):
+    """A checkpoint that does not belong to the run trying to resume from it."""
+
+
 def fingerprint(obj) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
@@ -36,9 +40,9 @@ def load(path: str, like, fingerprint_: str = ""):
     with np.load(path) as z:
         meta = json.loads(bytes(z["__meta__"]).decode())
         if fingerprint_ and meta.get("fingerprint") != fingerprint_:
-            raise ValueError(f"checkpoint {path} was written by a run with a different config")
+            raise CheckpointMismatch(f"checkpoint {path} was written by a run with a different config")
         leaves = [z[f"leaf_{i}"] for i in range(meta["n"])]
     treedef = jax.tree_util.tree_structure(like)
     if treedef.num_leaves != len(leaves):
-        raise ValueError(f"checkpoint {path} does not match the expected state structure")
+        raise CheckpointMismatch(f"checkpoint {path} does not match the expected state structure")
     return jax.tree_util.tree_unflatten(treedef, [jax.numpy.asarray(x) for x in leaves]), meta

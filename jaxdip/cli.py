@@ -77,7 +77,12 @@ def cmd_run(args) -> int:
     except KeyError as e:
         return _error(e.args[0])
     out = args.out or os.path.join("results", exp.id)
-    metrics = run_experiment(exp, cfg, out, resume=args.resume)
+    from jaxdip.checkpoint import CheckpointMismatch
+
+    try:
+        metrics = run_experiment(exp, cfg, out, resume=args.resume)
+    except CheckpointMismatch as e:
+        return _error(f"--resume: {e}")
     print(f"{exp.id}: wrote {out} ({metrics['wall_s']:.1f} s)")
     return 0
 

@@ -22,6 +22,8 @@ def _load_builtin():
     from jaxdip.experiments import lorenz_mhe  # noqa: F401
     from jaxdip.experiments import twip_dmso  # noqa: F401
     from jaxdip.experiments import rwp_bias  # noqa: F401
+    from jaxdip.experiments import twip_extra_control  # noqa: F401
+    from jaxdip.experiments import dip_cpx_ldf  # noqa: F401
 
 
 def registry() -> dict[str, Experiment]:

@@ -1,0 +1,195 @@
+"""Extra control (Stumfoll §6.2): a NumPy reference of one step, the error system with the true F1, F2, gradients."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+from jaxdip import config as C
+from jaxdip.control import extra_control as ec
+from jaxdip.control.twip_lqr import twip_dlqr
+from jaxdip.experiments import twip_extra_control as T
+from jaxdip.plants import twip
+
+
+def _params(**kw):
+    d = twip_dlqr(twip.default_params(), Q=(1.0, 1.0, 0.1, 0.1), R=1.0, dt=0.01)
+    return ec.extra_control_params(d.K, d.A, d.B, **kw)
+
+
+def _numpy_step(p, s, x, k):
+    """Plain NumPy transcription of (182)-(183), (84), (91), (93), (98), (101), (109)-(114) (module doc)."""
+    f = lambda v: np.asarray(v, dtype=np.float64)  # noqa: E731
+    A1, A2, A3, A4, B1, B2 = (float(getattr(p, n)) for n in ("A1", "A2", "A3", "A4", "B1", "B2"))
+    dt, v = float(p.dt), float(p.v_d)
+    M = np.array([[A2, B1], [A4, B2]])
+    x3d, u_d = -np.linalg.solve(M, np.array([A1, A3]) * v)
+    xd = np.array([float(p.x1d0) + v * k * dt, v, x3d, 0.0])
+    umax = float(p.u_max)
+    u_nom = np.clip(float(p.ff) * u_d - (f(p.K) @ (x - xd))[0], -umax, umax)
+    e1, e2 = x[0] - xd[0], x[1] - xd[1]
+    P1 = np.array([1.0, *x, e1, e2, xd[0], xd[1], float(s.u_prev)])
+    ph11 = np.tanh(f(s.V1).T @ P1)
+    ph12 = np.tanh(f(s.W11).T @ ph11)
+    F1 = f(s.W12) @ ph12
+    xb3 = x3d + (-float(p.k1) * e2 - e1 - F1) / float(p.a_virtual)
+    a = dt / (float(p.tau_d) + dt)
+    xb4 = float(s.xbar4_prev) + a * ((xb3 - float(s.xbar3_prev)) / dt - float(s.xbar4_prev))
+    eb2, eb3, eb4 = e2, x[2] - xb3, x[3] - xb4
+    P2 = np.array([1.0, *x, e1, e2, eb3, eb4, xd[0], xd[1], u_nom])
+    ph21 = np.tanh(f(s.V2).T @ P2)
+    ph22 = np.tanh(f(s.W21).T @ ph21)
+    F2 = f(s.W22) @ ph22
+    ue = np.clip((-float(p.k2) * eb4 - F2 - eb3) / B2, -umax, umax)
+    u = np.clip(u_nom + ue, -umax, umax)
+    g = [float(p.gamma11), float(p.gamma12), float(p.gamma21), float(p.gamma22)]
+    sg = [float(p.sigma11), float(p.sigma12), float(p.sigma21), float(p.sigma22)]
+    W11 = f(s.W11) + dt * (-g[0] * (np.outer(ph11, f(s.W11).T @ ph11 + f(p.b1) * eb2) + sg[0] * f(s.W11)))
+    W12 = f(s.W12) + dt * (g[1] * (ph12 * eb2 - sg[1] * f(s.W12)))
+    W21 = f(s.W21) + dt * (-g[2] * (np.outer(ph21, f(s.W21).T @ ph21 + f(p.b2) * eb4) + sg[2] * f(s.W21)))
+    W22 = f(s.W22) + dt * (g[3] * (ph22 * eb4 - sg[3] * f(s.W22)))
+    return u, u_nom, ue, W11, W12, W21, W22, xb3, xb4
+
+
+@pytest.mark.parametrize("virtual", ["printed", "effective"])
+def test_one_step_matches_numpy(virtual):
+    p = _params(virtual=virtual, gamma=0.3, sigma=0.05, v_scale=0.5)
+    p = p._replace(gamma12=jnp.asarray(0.7), sigma21=jnp.asarray(0.02))
+    comp = ec.extra_control(10)
+    key = jax.random.PRNGKey(3)
+    s = comp.init(p, key, jnp.zeros(4))
+    ks = jax.random.split(jax.random.PRNGKey(4), 4)
+    # a mid-run state: non-zero adapted weights and history
+    s = s._replace(W11=0.3 * jax.random.normal(ks[0], (10, 10)), W12=0.5 * jax.random.normal(ks[1], (10,)),
+                   W21=0.3 * jax.random.normal(ks[2], (10, 10)), W22=0.5 * jax.random.normal(ks[3], (10,)),
+                   xbar3_prev=jnp.asarray(0.02), xbar4_prev=jnp.asarray(-0.1), started=jnp.asarray(True),
+                   u_prev=jnp.asarray(0.4))
+    x = np.array([0.31, 0.12, 0.03, -0.05])
+    k = 37
+    s2, u = jax.jit(comp.step)(p, s, jnp.asarray(x), key, k)
+    ref = _numpy_step(p, s, x, k)
+    got = (u[0], s2.u_nom, s2.u_e, s2.W11, s2.W12, s2.W21, s2.W22, s2.xbar3, s2.xbar4_prev)
+    assert abs(float(ref[2])) < float(p.u_max)  # the extra control is not saturated here
+    for name, a, b in zip(("u", "u_nom", "u_e", "W11", "W12", "W21", "W22", "xbar3", "xbar4"), got, ref):
+        np.testing.assert_allclose(np.asarray(a), b, rtol=0, atol=1e-12, err_msg=name)
+    # the update moved the weights (a test that cannot fail is a defect)
+    assert float(jnp.max(jnp.abs(s2.W11 - s.W11))) > 1e-6 and float(jnp.max(jnp.abs(s2.W22 - s.W22))) > 1e-6
+
+
+def test_error_system_with_true_F_decays_as_linear_part():
+    """With F1hat = F1 (96) and F2hat = F2 (104) the error system is linear; check its solution.
+
+    To make F1 a function of the state (not of u, an algebraic loop), the test plant is (87) with B1 = 0:
+    then xbar3 depends on (x1, x2, t), xbar4 = d xbar3/dt on (x1, x2, x3, t) and F2 on (x, t, u_nom), all
+    computed exactly by forward-mode differentiation along the flow. The law's own functions
+    ``virtual_tilt`` and ``extra_law`` are used; the control is continuous (evaluated inside RK4).
+    Exact error dynamics: e1' = e2, e2' = -e1 - k1 e2 + A2 ebar3, ebar3' = ebar4, ebar4' = -ebar3 - k2 ebar4
+    ((106) plus the coupling A2 ebar3 that (97) drops; same eigenvalues).
+    """
+    A = np.array([[0, 1, 0, 0], [0, -0.4, 2.0, 0], [0, 0, 0, 1], [0, -0.3, 5.0, 0]], float)
+    B = np.array([[0.0], [0.0], [0.0], [1.5]])
+    K = np.array([[-1.0, -2.0, 30.0, 6.0]])
+    p = ec.extra_control_params(K, A, B, k1=2.0, k2=3.0, v_d=0.1, u_max=np.inf)
+    A1, A2, A3, A4, B1, B2 = (p.A1, p.A2, p.A3, p.A4, p.B1, p.B2)
+    d1 = lambda x: 0.3 * x[1] * jnp.sin(2.0 * x[0])  # noqa: E731  smooth unmatched term in x1, x2
+    d2 = lambda x: 0.2 * x[1] ** 2 + 0.1 * jnp.sin(x[2])  # noqa: E731
+    x3d, u_d = ec.desired_constants(p)
+
+    def xd(t):
+        return ec.desired_state(p, t)
+
+    def flow_wo_u(x):  # x' without the input (B1 = 0); x4' set to 0: xbar3 and xbar4 do not depend on x4
+        return jnp.stack([x[1], A1 * x[1] + A2 * x[2] + d1(x), x[3], 0.0 * x[3]])
+
+    def F1(x, t):  # (96) with B1 = 0 and x2d' = 0
+        return A1 * x[1] + A2 * x3d + d1(x)
+
+    def xbar3(x, t):
+        e = x - xd(t)
+        return ec.virtual_tilt(p, e[0], e[1], x3d, F1(x, t))
+
+    def ddt(fun):
+        return lambda x, t: jax.jvp(fun, (x, t), (flow_wo_u(x), jnp.ones(())))[1]
+
+    xbar4 = ddt(xbar3)
+    xbar4_dot = ddt(xbar4)
+
+    def control(x, t):
+        u_nom = u_d - (p.K @ (x - xd(t)))[0]
+        F2 = A3 * x[1] + A4 * x[2] + B2 * u_nom + d2(x) - xbar4_dot(x, t)  # (104)
+        return u_nom + ec.extra_law(p, x[2] - xbar3(x, t), x[3] - xbar4(x, t), F2)
+
+    def f(x, t):
+        u = control(x, t)
+        return jnp.stack([x[1], A1 * x[1] + A2 * x[2] + B1 * u + d1(x), x[3], A3 * x[1] + A4 * x[2] + B2 * u + d2(x)])
+
+    def errors(x, t):
+        e = x - xd(t)
+        return jnp.stack([e[0], e[1], x[2] - xbar3(x, t), x[3] - xbar4(x, t)])
+
+    h, n = 2e-3, 4000
+
+    def rk4(carry, _):
+        x, t = carry
+        k1 = f(x, t)
+        k2 = f(x + h / 2 * k1, t + h / 2)
+        k3 = f(x + h / 2 * k2, t + h / 2)
+        k4 = f(x + h * k3, t + h)
+        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        return (x, t + h), errors(x, t + h)
+
+    x0 = jnp.array([0.5, 0.2, 0.05, -0.1])
+    _, E = jax.jit(lambda x0: jax.lax.scan(rk4, (x0, jnp.zeros(())), None, length=n))(x0)
+    E = np.asarray(E)
+    e0 = np.asarray(errors(x0, 0.0))
+    k1, k2, a2 = float(p.k1), float(p.k2), float(A2)
+    M = np.array([[0, 1, 0, 0], [-1, -k1, a2, 0], [0, 0, 0, 1], [0, 0, -1, -k2]])
+    ts = h * np.arange(1, n + 1)
+    pred = np.stack([expm(M * t) @ e0 for t in ts[199::200]])
+    np.testing.assert_allclose(E[199::200], pred, rtol=0, atol=1e-8 * np.abs(e0).max())
+    assert np.abs(E[-1]).max() < 0.25 * np.abs(e0).max()  # it does decay (slowest eigenvalue -0.38 at k2 = 3)
+    # (106) as printed (no A2 ebar3 coupling) has the same eigenvalues but not the same solution
+    M106 = M.copy()
+    M106[1, 2] = 0.0
+    np.testing.assert_allclose(np.sort_complex(np.linalg.eigvals(M)), np.sort_complex(np.linalg.eigvals(M106)))
+    assert np.abs(E[399] - expm(M106 * ts[399]) @ e0).max() > 1e-3
+
+
+def _cfg(**kw):
+    return C.load(T.TwipExtraControlConfig, quick={"seeds": 1, "duration": 1.0, **kw})
+
+
+@pytest.mark.parametrize("virtual", ["printed", "effective"])
+def test_score_gradient_matches_finite_differences(virtual):
+    cfg = _cfg(cases=["param"], virtual=virtual)
+    J, p0 = T.score_fn(cfg, "param", "extra", n_seeds=1)
+    names = ("k1", "k2", "gamma11", "gamma12", "gamma21", "gamma22")
+    theta0 = jnp.stack([getattr(p0, n) for n in names])
+
+    def Jt(theta):
+        return J(p0._replace(**{n: theta[i] for i, n in enumerate(names)}))
+
+    Jj = jax.jit(Jt)
+    g = np.asarray(jax.jit(jax.grad(Jt))(theta0))
+    assert np.all(np.isfinite(g)) and np.abs(g).max() > 0
+    for i in range(len(names)):
+        hh = 1e-6 * max(1.0, abs(float(theta0[i])))
+        e = jnp.zeros(len(names)).at[i].set(hh)
+        fd = (float(Jj(theta0 + e)) - float(Jj(theta0 - e))) / (2 * hh)
+        assert abs(g[i] - fd) <= 1e-4 * max(abs(fd), 1e-2 * np.abs(g).max()), (names[i], g[i], fd)
+
+
+def test_unmodeled_dynamics_and_backlash_wiring():
+    cfg = _cfg()
+    lp = T.loop_params(cfg, "unmodeled_unstable", "lqr")
+    assert float(lp.plant.g1) == 0.75 and float(lp.plant.g2) == 0.4
+    x = jnp.array([0.3, 0.2, 0.1, 0.0])
+    d1, d2 = T.unmodeled(lp.plant, x)
+    assert math.isclose(float(d1), 0.75 * 0.2 * math.sin(180 / math.pi * 0.3)) and math.isclose(float(d2), 0.4 * 0.04)
+    assert float(T.loop_params(cfg, "unmodeled_unstable", "nominal").plant.g1) == 0.0
+    lb = T.loop_params(cfg, "deadzone_backlash", "extra")
+    assert math.isclose(float(lb.sensor.d_plus), 0.1 * math.pi / 180) and float(lb.actuator.d_plus) == 0.5
+    assert float(T.loop_params(cfg, "param", "extra").sensor.d_plus) == 0.0
