@@ -19,8 +19,9 @@ The found P (ensemble mean, re-orthonormalised) is judged by Monte Carlo: relaxe
 from ``seeds`` random near-upright states for ``judge_duration`` s; stabilised = not diverged and the angles
 within ``stabilized_tol`` over the last second.
 
-Gradient search: the same (V, log s) from the same starting point, optimised with Adam on the mean of
-log(2.24) over ``grad_x0`` fresh initial states per step, through the differentiable closed loop. Both are
+Gradient search: the same (V, log s) from the same starting point, optimised with Adam (clipped) on the mean
+of log(2.24) over ``grad_x0`` training initial states (the same ones every step by default), through the
+differentiable closed loop; the best iterate on that loss is kept. Both are
 compared by their final performance on common evaluation states and by the number of closed-loop simulations
 they used (a gradient step counts its forward simulations; its backward pass costs about as much again).
 """
@@ -103,7 +104,9 @@ class EkiDipConfig:
     stabilized_tol: float = C.field(0.02, C.positive_finite, doc="max |alpha|, |theta| over the last second")
     grad_steps: int = C.field(200, C.nonneg, doc="Adam steps of the gradient search (0 skips it)")
     grad_lr: float = C.field(1e-4, C.positive_finite, doc="Adam learning rate (the stable set is narrow: v1 entries move by ~1e-3)")
-    grad_x0: int = C.field(4, C.positive, doc="initial states per gradient step")
+    grad_x0: int = C.field(8, C.positive, doc="initial states per gradient step")
+    grad_clip: float = C.field(1.0, C.positive_finite, doc="gradient clipping (global norm)")
+    grad_common_states: bool = C.field(True, doc="the same training states at every step (else fresh ones)")
     eval_states: int = C.field(64, C.positive, doc="common initial states scoring both searches")
 
     def validate(self):
@@ -223,9 +226,13 @@ def run(cfg: EkiDipConfig) -> Outcome:
             ys = jax.vmap(lambda k: Gs(m, k)[0])(jax.random.split(key, cfg.grad_x0))
             return jnp.mean(jnp.log(ys + 1e-12))
 
-        opt = optax.adam(cfg.grad_lr)
+        # common random numbers: the same training states every step make the loss a deterministic function
+        # of P, so Adam follows its gradient rather than the noise between initial states; the best iterate
+        # on that loss is kept (a step can land on a trajectory that fails)
+        opt = optax.chain(optax.clip_by_global_norm(cfg.grad_clip), optax.adam(cfg.grad_lr))
         m = start_mean
         o = opt.init(m)
+        train_key = jax.random.fold_in(base, 4)
 
         @jax.jit
         def gstep(m, o, key):
@@ -237,11 +244,17 @@ def run(cfg: EkiDipConfig) -> Outcome:
         tg = time.perf_counter()
         gbar = Progress(cfg.grad_steps, desc="eki-dip gradient search")
         glosses = []
+        best, best_val = m, float("inf")
         for i in range(cfg.grad_steps):
-            m, o, val = gstep(m, o, jax.random.fold_in(jax.random.fold_in(base, 4), i))
+            key = train_key if cfg.grad_common_states else jax.random.fold_in(train_key, i)
+            m_new, o, val = gstep(m, o, key)
             glosses.append(float(val))
+            if glosses[-1] < best_val:
+                best, best_val = m, glosses[-1]
+            m = m_new
             gbar.update(1, postfix=f"log perf {glosses[-1]:.3f}")
         gbar.close()
+        m = best
         perf_grad = eval_perf(m)
         grad = {"P_basis": np.asarray(m.V).tolist(), "P_singular_values": np.exp(np.asarray(m.log_s)).tolist(),
                 "steps": cfg.grad_steps, "simulations": cfg.grad_steps * cfg.grad_x0,
