@@ -1,0 +1,319 @@
+"""tune: gradient-based tuning of estimator and controller hyperparameters (``jaxdip.tune``).
+
+For a target (``--set target=...``; implemented: ``cpx``) the experiment tunes the hyperparameters on one set of
+seeds by gradient (optax Adam on log-parameters, forward-mode derivatives through the whole closed loop),
+evaluates them on a disjoint held-out set of seeds, and compares with the documents' values and with a random
+search given the same number of closed-loop simulations.
+
+cpx: gamma of CPX on the DIP stabilisation task of ``dip-cpx-ldf`` (its loop, built by its own ``build``);
+loss per seed = time variance of alpha plus that of theta (deg^2) + ``divergence_penalty`` if it diverged.
+The encoders quantise, so one sample path's loss is piecewise constant in gamma with jumps (finite differences
+of it measure the jumps); ``smoothing = "straight_through"`` differentiates the quantiser as the identity
+(``jaxdip.tune.straight_through_sensor``), ``"none"`` uses the exact pathwise derivative (round' = 0).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxdip import checkpoint as ckpt
+from jaxdip import config as C
+from jaxdip import stats
+from jaxdip.experiments import register
+from jaxdip.experiments.base import Experiment, Outcome, current_run
+from jaxdip.experiments.common import fmt_ci
+from jaxdip.tune import Bounded, Log, mc_objective, random_search, straight_through_sensor, tune
+
+IMPLEMENTED = ("cpx", "rwp")
+PLANNED = ("dmso", "extra", "rp")
+HELDOUT_OFFSET = 1_000_000  # held-out seed i is base seed HELDOUT_OFFSET + i; tuning seeds are 0 .. seeds-1
+
+
+@dataclass
+class TuneConfig:
+    target: str = C.field("cpx", doc=f"what to tune: one of {', '.join(IMPLEMENTED + PLANNED)} "
+                                     f"(implemented: {', '.join(IMPLEMENTED)})")
+    seeds: int = C.field(32, C.positive, doc="tuning seeds (common to every optimiser step with crn = true)")
+    heldout_seeds: int = C.field(256, C.positive, doc="held-out evaluation seeds, disjoint from the tuning seeds")
+    seed: int = C.field(0, C.nonneg, doc="base PRNG key")
+    duration: float = C.field(2.0, C.positive_finite, doc="simulated time per closed loop (s)")
+    substeps: int = C.field(10, C.positive, doc="RK4 sub-steps per period")
+    steps: int = C.field(30, C.positive, doc="optimiser steps (at most)")
+    lr: float = C.field(0.3, C.positive_finite, doc="Adam learning rate (on the log of each hyperparameter)")
+    clip: float = C.field(1.0, C.positive_finite, doc="global-norm gradient clipping")
+    crn: bool = C.field(True, doc="common random numbers: the same seeds' noise at every step (false: resample)")
+    patience: int = C.field(10, C.nonneg, doc="early stopping after this many steps without improvement (0: off)")
+    smoothing: str = C.field("straight_through", C.one_of("straight_through", "none"),
+                             doc="derivative of the encoder quantiser: identity (straight-through) or 0 (exact)")
+    mode: str = C.field("forward", C.one_of("forward", "reverse"), doc="forward- or reverse-mode derivatives")
+    divergence_penalty: float = C.field(1000.0, C.nonneg_finite, doc="added to a diverged seed's loss (deg^2)")
+    search_low: float = C.field(1.0, C.positive_finite, doc="random search / landscape: lowest gamma")
+    search_high: float = C.field(1e5, C.positive_finite, doc="random search / landscape: highest gamma")
+    landscape_points: int = C.field(9, C.positive, doc="points of the loss landscape along gamma")
+    search_factor: float = C.field(10.0, C.positive_finite,
+                                   doc="rwp: random search / landscape log-uniform within paper value x/÷ this")
+    wheel_weight: float = C.field(1e-3, C.nonneg_finite,
+                                  doc="rwp: weight of the integrated squared wheel speed ((rad/s)^2 s) in the loss")
+
+    def validate(self):
+        if self.target not in IMPLEMENTED:
+            if self.target in PLANNED:
+                raise C.ConfigError("target", f"{self.target!r} not implemented yet (implemented: "
+                                              f"{', '.join(IMPLEMENTED)})")
+            raise C.ConfigError("target", f"must be one of {', '.join(map(repr, IMPLEMENTED + PLANNED))}")
+        if self.search_high <= self.search_low:
+            raise C.ConfigError("search_high", "must exceed search_low")
+
+
+# ---- targets ------------------------------------------------------------------------------------------------
+
+
+class Target:
+    """What a target supplies: J(theta, key) on given seeds, the documents' theta, a spec, a sampler."""
+
+    name: str
+    param: str  # the parameter drawn in the landscape
+
+    def objective(self, seeds, smooth: bool):
+        raise NotImplementedError
+
+
+class CPXTarget(Target):
+    name, param = "cpx", "gamma"
+
+    def __init__(self, cfg: TuneConfig, quanta=None):
+        from jaxdip.experiments import dip_cpx_ldf as D
+
+        kw = {} if quanta is None else {"encoder_quanta": list(quanta)}
+        self.dcfg = D.DipCpxLdfConfig(duration=cfg.duration, substeps=cfg.substeps, **kw)
+        loops, params, self.x0_fn, self.n_steps, _ = D.build(self.dcfg)
+        self.loop, self.base = loops["cpx"], params["cpx"]
+        self.paper = {"gamma": jnp.asarray(self.dcfg.cpx_gamma)}
+        self.spec = {"gamma": Log()}
+        self.penalty = cfg.divergence_penalty
+        self.deg2 = D.DEG**2
+        self.lo, self.hi = cfg.search_low, cfg.search_high
+
+    def make_params(self, theta):
+        return self.base._replace(estimator=self.base.estimator._replace(gamma=theta["gamma"]))
+
+    def loss(self, carry, params):
+        st = carry.stats
+        cnt = jnp.maximum(st.count, 1)
+        mean = st.sum_x / cnt
+        var = st.sum_x2 / cnt - mean**2
+        return self.deg2 * (var[1] + var[2]) + self.penalty * carry.diverged
+
+    def objective(self, seeds, smooth: bool):
+        loop = self.loop._replace(sensor=straight_through_sensor(self.dcfg.dt)) if smooth else self.loop
+        return mc_objective(loop, self.make_params, self.x0_fn, self.n_steps, self.loss, seeds)
+
+    def sample(self, key):
+        return {"gamma": jnp.exp(jax.random.uniform(key, minval=math.log(self.lo), maxval=math.log(self.hi)))}
+
+    def grid(self, n):
+        return [{"gamma": jnp.asarray(g)} for g in np.geomspace(self.lo, self.hi, n)]
+
+
+class RWPTarget(Target):
+    """k_p1, k_p2, alpha_p of the HOMD (10) and L0 of the reduced-order bias observer, joint form (24), on the
+    ``rwp-bias`` loop (Table 2 feedback, sensor bias d = -0.08 rad, quantised encoders) from theta0 = 0.1 rad.
+    Loss per seed: int theta^2 dt + wheel_weight * int theta_r'^2 dt (+ the divergence penalty)."""
+
+    name, param = "rwp", "L0"
+
+    def __init__(self, cfg: TuneConfig, quantize=None):
+        from jaxdip.estimators import bias_observers as bo
+        from jaxdip.experiments import rwp_bias as R
+
+        self.rcfg = R.RwpBiasConfig(substeps=cfg.substeps)
+        self.n_steps = int(round(cfg.duration / self.rcfg.dt))
+        hp = R.homd_parameters(self.rcfg)
+        self.jp = bo.joint_params(hp, self.rcfg.L0)
+        self.loop, self.base = R.make_loop(self.rcfg, bo.rwp_joint(self.rcfg.dt, self.rcfg.observer_substeps,
+                                                                   self.rcfg.hold),
+                                           self.jp, self.rcfg.bias, self.n_steps, quantize=quantize)
+        sample = R.x0_sampler(self.rcfg)
+        th0 = self.rcfg.bias_theta0
+        self.x0_fn = lambda key: sample(key, th0)
+        kp1, kp2, ap = self.rcfg.homd_pendulum
+        self.paper = {k: jnp.asarray(v, dtype=jnp.float64)
+                      for k, v in (("k_p1", kp1), ("k_p2", kp2), ("alpha_p", ap), ("L0", self.rcfg.L0))}
+        self.spec = {"k_p1": Log(), "k_p2": Log(), "alpha_p": Bounded(0.5, 1.0), "L0": Log()}
+        self.penalty, self.w = cfg.divergence_penalty, cfg.wheel_weight
+        self.factor = cfg.search_factor
+
+    def make_params(self, theta):
+        pend = self.jp.homd.pend._replace(k1=theta["k_p1"], k2=theta["k_p2"], alpha=theta["alpha_p"])
+        est = self.jp._replace(homd=self.jp.homd._replace(pend=pend), L0=theta["L0"])
+        return self.base._replace(estimator=est)
+
+    def loss(self, carry, params):
+        st, dt = carry.stats, self.rcfg.dt
+        return dt * (st.sum_x2[0] + self.w * st.sum_x2[3]) + self.penalty * carry.diverged
+
+    def objective(self, seeds, smooth: bool):
+        loop = self.loop._replace(sensor=straight_through_sensor(self.rcfg.dt)) if smooth else self.loop
+        return mc_objective(loop, self.make_params, self.x0_fn, self.n_steps, self.loss, seeds)
+
+    def sample(self, key):
+        ks = jax.random.split(key, 4)
+        lf = math.log(self.factor)
+        out = {k: self.paper[k] * jnp.exp(jax.random.uniform(kk, minval=-lf, maxval=lf))
+               for k, kk in zip(("k_p1", "k_p2", "L0"), ks[:3])}
+        out["alpha_p"] = jax.random.uniform(ks[3], minval=0.5 + 1e-3, maxval=1.0)
+        return out
+
+    def grid(self, n):
+        v = float(self.paper["L0"])
+        return [{**self.paper, "L0": jnp.asarray(g)} for g in np.geomspace(v / self.factor, v * self.factor, n)]
+
+
+def make_target(cfg: TuneConfig, **kw) -> Target:
+    return {"cpx": CPXTarget, "rwp": RWPTarget}[cfg.target](cfg, **kw)
+
+
+# ---- run ----------------------------------------------------------------------------------------------------
+
+
+def _scalar(theta):
+    return {k: float(v) for k, v in theta.items()}
+
+
+def run(cfg: TuneConfig, progress: bool = True) -> Outcome:
+    import time
+
+    t_all = time.perf_counter()
+    tg = make_target(cfg)
+    key = jax.random.PRNGKey(cfg.seed)
+    tune_seeds = np.arange(cfg.seeds)
+    held_seeds = HELDOUT_OFFSET + np.arange(cfg.heldout_seeds)
+    J_tune = tg.objective(tune_seeds, smooth=cfg.smoothing == "straight_through")
+    J_eval = jax.jit(tg.objective(tune_seeds, smooth=False))  # forward values are the same; no gradient needed
+    held = jax.jit(tg.objective(held_seeds, smooth=False).per_seed)
+
+    ctx = current_run()
+    res = tune(J_tune, tg.paper, key, steps=cfg.steps, lr=cfg.lr, spec=tg.spec, clip=cfg.clip,
+               common_random_numbers=cfg.crn, early_stop_patience=cfg.patience or None,
+               checkpoint_path=ctx.checkpoint_path if ctx else None, resume=bool(ctx and ctx.resume),
+               fingerprint=ckpt.fingerprint(C.to_dict(cfg)), progress=progress, desc=f"tune {cfg.target}",
+               mode=cfg.mode)
+    sims_grad = res.steps * cfg.seeds
+    # random search with the same number of closed-loop simulations, on the same seeds and key
+    rs = random_search(lambda th: J_eval(th, key), tg.sample, res.steps, jax.random.fold_in(key, 7),
+                       progress=progress, desc=f"random search {cfg.target}")
+    best_rs = rs.loss
+    hit = np.nonzero(np.minimum.accumulate(res.loss_history) <= best_rs)[0]
+    sims_to_rs_best = int((hit[0] + 1) * cfg.seeds) if hit.size else None
+    rs_sims_to_best = int((int(np.argmin(rs.losses)) + 1) * cfg.seeds)
+
+    t0 = time.perf_counter()
+    evals, per_seed = {}, {}
+    for name, th in (("paper", tg.paper), ("tuned", res.theta), ("random_search", rs.theta)):
+        per_seed[name] = np.asarray(held(th, key))
+        evals[name] = stats.mean_ci(per_seed[name])
+    diff = stats.mean_ci(per_seed["tuned"] - per_seed["paper"])  # paired: the same held-out seeds' noise
+    eval_wall = time.perf_counter() - t0
+    land = [float(J_eval(th, key)) for th in tg.grid(cfg.landscape_points)]
+    grid = [float(th[tg.param]) for th in tg.grid(cfg.landscape_points)]
+
+    paper_ci, tuned_ci = evals["paper"][1], evals["tuned"][1]
+    out = {
+        "paper_value": _scalar(tg.paper), "tuned_value": _scalar(res.theta),
+        "random_search_value": _scalar(rs.theta),
+        "loss_paper": evals["paper"][0], "loss_paper_ci95": paper_ci,
+        "loss_tuned": evals["tuned"][0], "loss_tuned_ci95": tuned_ci,
+        "loss_random_search": evals["random_search"][0], "loss_random_search_ci95": evals["random_search"][1],
+        "tuned_below_paper_nonoverlapping": bool(tuned_ci[1] < paper_ci[0]),
+        "loss_tuned_minus_paper": diff[0], "loss_tuned_minus_paper_ci95": diff[1],
+        "simulations_used": sims_grad, "random_search_simulations": int(res.steps * cfg.seeds),
+        "tuning_loss_best": res.loss, "random_search_tuning_loss_best": best_rs,
+        "gradient_simulations_to_reach_random_search_best": sims_to_rs_best,
+        "random_search_simulations_to_its_best": rs_sims_to_best,
+        "steps": res.steps, "stopped_early": res.stopped_early,
+        "trajectory": {"loss": res.loss_history.tolist(),
+                       **{k: np.asarray(v).tolist() for k, v in res.theta_history.items()},
+                       "grad_norm": res.grad_norm_history.tolist()},
+        "random_search_losses": rs.losses.tolist(),
+        "random_search_samples": {k: np.asarray(v).tolist() for k, v in rs.samples.items()},
+        "landscape": {tg.param: grid, "loss": land},
+        "wall_s": {"tune": res.wall_s, "random_search": rs.wall_s, "heldout_eval": eval_wall,
+                   "total": time.perf_counter() - t_all},
+    }
+    results = {cfg.target: out}
+    figures = {"tune_" + cfg.target: figure(cfg, tg, out)}
+    return Outcome(results=results, report=report(cfg, out), figures=figures)
+
+
+def figure(cfg, tg, r):
+    import matplotlib.pyplot as plt
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
+    L = np.asarray(r["trajectory"]["loss"])
+    a1.plot(np.arange(1, len(L) + 1) * cfg.seeds, L, "o-", ms=3, label="gradient (Adam), J at each step")
+    rsl = np.asarray(r["random_search_losses"])
+    a1.plot(np.arange(1, len(rsl) + 1) * cfg.seeds, np.minimum.accumulate(rsl), "s--", ms=3,
+            label="random search, best so far")
+    a1.set_xlabel("closed-loop simulations (tuning seeds x steps)")
+    a1.set_ylabel("J on the tuning seeds")
+    a1.set_title(f"{cfg.target}: J against optimiser steps ({cfg.seeds} seeds/step)")
+    a1.legend(fontsize=8)
+    p = tg.param
+    a2.plot(r["landscape"][p], r["landscape"]["loss"], "o-", ms=3, label="J (tuning seeds)")
+    a2.axvline(r["paper_value"][p], color="C2", ls=":", label=f"paper {r['paper_value'][p]:.4g}")
+    a2.axvline(r["tuned_value"][p], color="C3", ls="--", label=f"tuned {r['tuned_value'][p]:.4g}")
+    a2.set_xscale("log")
+    a2.set_yscale("log")
+    a2.set_xlabel(p)
+    a2.set_ylabel("J")
+    a2.set_title(f"loss landscape along {p}")
+    a2.legend(fontsize=8)
+    for a in (a1, a2):
+        a.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    return fig
+
+
+def report(cfg, r) -> str:
+    p = list(r["paper_value"])
+    fmt = lambda d: ", ".join(f"{k} = {v:.5g}" for k, v in d.items())
+    g = r["gradient_simulations_to_reach_random_search_best"]
+    lines = [
+        f"Target {cfg.target}: tuned {', '.join(p)} on {cfg.seeds} seeds ({cfg.duration} s each, "
+        f"{'common random numbers' if cfg.crn else 'resampled keys'}, Adam lr {cfg.lr} on log-parameters, clip "
+        f"{cfg.clip}, {cfg.mode}-mode derivatives, quantiser derivative: {cfg.smoothing}); {r['steps']} steps"
+        f"{' (stopped early)' if r['stopped_early'] else ''}. Held-out: {cfg.heldout_seeds} disjoint seeds.",
+        "",
+        "| | value | held-out loss (95% interval) |",
+        "|---|---|---|",
+        f"| paper | {fmt(r['paper_value'])} | {fmt_ci(r['loss_paper'], r['loss_paper_ci95'])} |",
+        f"| gradient-tuned | {fmt(r['tuned_value'])} | {fmt_ci(r['loss_tuned'], r['loss_tuned_ci95'])} |",
+        f"| random search ({r['random_search_simulations']} sims) | {fmt(r['random_search_value'])} | "
+        f"{fmt_ci(r['loss_random_search'], r['loss_random_search_ci95'])} |",
+        "",
+        f"Tuned below paper with non-overlapping intervals: {'yes' if r['tuned_below_paper_nonoverlapping'] else 'no'}"
+        f"; paired difference tuned - paper on the same held-out seeds: "
+        f"{fmt_ci(r['loss_tuned_minus_paper'], r['loss_tuned_minus_paper_ci95'])}."
+        f" Best tuning-seed loss: gradient {r['tuning_loss_best']:.5g}, random search "
+        f"{r['random_search_tuning_loss_best']:.5g}; the gradient run reached the random search's best after "
+        f"{g if g is not None else 'never (within its budget)'} simulations, the random search after "
+        f"{r['random_search_simulations_to_its_best']} (a gradient step costs one forward-mode pass per seed, "
+        f"about {r['wall_s']['tune'] / max(r['wall_s']['random_search'], 1e-9):.2g}x the wall time of the random "
+        f"search's evaluations in this run, compilation included).",
+    ]
+    return "\n".join(lines)
+
+
+EXPERIMENT = register(Experiment(
+    id="tune",
+    title="Gradient-based tuning of estimator and controller hyperparameters",
+    config_cls=TuneConfig,
+    run=run,
+    quick={"seeds": 4, "heldout_seeds": 16, "duration": 0.5, "steps": 6, "landscape_points": 5},
+    source="the documents' hyperparameter values (CPX gamma = 150, paper §5) against gradient tuning",
+))

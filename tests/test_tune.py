@@ -1,0 +1,145 @@
+"""jaxdip.tune: transforms, the tuner (quadratic convergence, checkpoint/resume), and the targets' gradients
+against central finite differences."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxdip import config as C
+from jaxdip.experiments import tune as T
+from jaxdip.tune import (Bounded, Log, Softplus, SPDFactor, checkpointed_rollout, random_search, to_constrained,
+                         to_unconstrained, tune, value_and_grad_fn)
+
+
+def test_transforms_round_trip():
+    theta = {"a": jnp.asarray(3.0), "b": jnp.asarray([0.2, 5.0]), "c": jnp.asarray(0.3),
+             "P": jnp.asarray([[2.0, 0.5], [0.5, 1.0]])}
+    spec = {"a": Log(), "b": Softplus(), "c": Bounded(0.0, 1.0), "P": SPDFactor()}
+    back = to_constrained(spec, to_unconstrained(spec, theta))
+    for k in theta:
+        np.testing.assert_allclose(back[k], theta[k], rtol=1e-12)
+    # any unconstrained value maps into the constraint set
+    u = jax.tree_util.tree_map(lambda x: -50.0 * jnp.ones_like(x), to_unconstrained(spec, theta))
+    th = to_constrained(spec, u)
+    assert th["a"] > 0 and jnp.all(th["b"] > 0) and 0 <= th["c"] < 1
+    P = SPDFactor().forward(jnp.asarray([[0.0, 0.0], [9.0, -3.0]]))
+    assert jnp.all(jnp.linalg.eigvalsh(P) > 0)
+
+
+def quadratic(theta, key):
+    # minimum at a = 2, b = [0.5, 3]; key-dependent noise-free (CRN irrelevant)
+    return (jnp.log(theta["a"]) - jnp.log(2.0)) ** 2 + jnp.sum((theta["b"] - jnp.asarray([0.5, 3.0])) ** 2)
+
+
+def test_tuner_converges_on_quadratic():
+    init = {"a": jnp.asarray(10.0), "b": jnp.asarray([2.0, 0.1])}
+    res = tune(quadratic, init, jax.random.PRNGKey(0), steps=300, lr=0.05, spec={"a": Log(), "b": Softplus()},
+               progress=False)
+    np.testing.assert_allclose(res.theta["a"], 2.0, rtol=1e-3)
+    np.testing.assert_allclose(res.theta["b"], [0.5, 3.0], atol=1e-3)
+    assert res.loss_history[-1] < 1e-5 < res.loss_history[0]
+    assert res.theta_history["b"].shape == (300, 2)
+
+
+def test_early_stopping():
+    res = tune(lambda th, k: jnp.asarray(1.0) + 0.0 * th["a"], {"a": jnp.asarray(1.0)}, jax.random.PRNGKey(0),
+               steps=50, early_stop_patience=3, progress=False)
+    assert res.stopped_early and res.steps == 4
+
+
+@pytest.mark.parametrize("mode", ["forward", "reverse"])
+def test_checkpoint_resume_gives_identical_trajectory(tmp_path, mode):
+    init = {"a": jnp.asarray(10.0), "b": jnp.asarray([2.0, 0.1])}
+    noisy = lambda th, k: quadratic(th, k) * (1.0 + 0.1 * jax.random.normal(k))  # resampled keys: key matters
+    kw = dict(steps=12, lr=0.1, spec={"a": Log(), "b": Softplus()}, common_random_numbers=False, progress=False,
+              mode=mode)
+    full = tune(noisy, init, jax.random.PRNGKey(3), **kw)
+    path = str(tmp_path / "ck.npz")
+
+    def boom(step, theta, loss):
+        if step == 4:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        tune(noisy, init, jax.random.PRNGKey(3), checkpoint_path=path, callback=boom, **kw)
+    resumed = tune(noisy, init, jax.random.PRNGKey(3), checkpoint_path=path, resume=True, **kw)
+    np.testing.assert_array_equal(resumed.loss_history, full.loss_history)
+    np.testing.assert_array_equal(resumed.theta_history["b"], full.theta_history["b"])
+    np.testing.assert_array_equal(resumed.theta["a"], full.theta["a"])
+    # a different run refuses the checkpoint
+    with pytest.raises(ValueError):
+        tune(noisy, init, jax.random.PRNGKey(3), checkpoint_path=path, resume=True, fingerprint="other", **kw)
+
+
+def test_random_search_finds_best_sample():
+    res = random_search(lambda th: (th - 0.3) ** 2, lambda k: jax.random.uniform(k), 64, jax.random.PRNGKey(1),
+                        progress=False)
+    assert res.loss == res.losses.min() and abs(float(res.theta) - 0.3) < 0.05
+
+
+def test_unimplemented_target_is_a_config_error():
+    with pytest.raises(C.ConfigError, match="not implemented yet") as e:
+        C.load(T.TuneConfig, sets=["target=dmso"])
+    assert e.value.key == "target"
+    with pytest.raises(C.ConfigError):
+        C.load(T.TuneConfig, sets=["target=nonsense"])
+
+
+def _tiny_cpx(quanta):
+    cfg = C.load(T.TuneConfig, sets=["duration=0.06", "substeps=2"])
+    return T.make_target(cfg, quanta=quanta)
+
+
+def test_cpx_gradient_matches_central_differences():
+    """Without quantisation the loss is smooth in gamma: forward-mode derivative = central FD (rel 1e-4)."""
+    tg = _tiny_cpx([0.0, 0.0, 0.0])
+    J = tg.objective(np.arange(3), smooth=False)
+    key = jax.random.PRNGKey(0)
+    f = lambda lg: J({"gamma": jnp.exp(lg)}, key)
+    lg0 = jnp.log(150.0)
+    vg = jax.jit(value_and_grad_fn(f))  # its value output gives the differences too: one compilation
+    val, g = vg(lg0)
+    h = 1e-4
+    fd = (vg(lg0 + h)[0] - vg(lg0 - h)[0]) / (2 * h)
+    assert abs(float(g)) > 1e-8
+    np.testing.assert_allclose(float(g), float(fd), rtol=1e-4)
+    assert np.isfinite(float(val))
+
+
+@pytest.mark.slow
+def test_reverse_mode_with_checkpointed_chunks_matches_forward():
+    tg = _tiny_cpx([0.0, 0.0, 0.0])
+    key = jax.random.PRNGKey(0)
+    loop = tg.loop
+    x0 = tg.x0_fn(jax.random.PRNGKey(1))
+
+    def f(lg, chunk):
+        carry = checkpointed_rollout(loop, tg.make_params({"gamma": jnp.exp(lg)}), x0, key, tg.n_steps, chunk)
+        return tg.loss(carry, None)
+
+    lg0 = jnp.log(150.0)
+    g_rev = jax.jit(jax.grad(lambda lg: f(lg, 7)))(lg0)
+    g_fwd = jax.jit(value_and_grad_fn(lambda lg: f(lg, 0)))(lg0)[1]
+    np.testing.assert_allclose(float(g_rev), float(g_fwd), rtol=1e-8)
+    np.testing.assert_allclose(float(f(lg0, 7)), float(f(lg0, 0)), rtol=1e-13)
+
+
+def test_rwp_gradient_matches_central_differences():
+    """k_p1, k_p2, alpha_p, L0 through their transforms; unquantised encoders make the loss smooth."""
+    cfg = C.load(T.TuneConfig, sets=["target=rwp", "duration=0.2", "substeps=2"])
+    tg = T.make_target(cfg, quantize=False)
+    J = tg.objective(np.arange(2), smooth=False)
+    key = jax.random.PRNGKey(0)
+    u0 = to_unconstrained(tg.spec, tg.paper)
+    f = lambda u: J(to_constrained(tg.spec, u), key)
+    vg = jax.jit(value_and_grad_fn(f))
+    fj = lambda u: vg(u)[0]
+    _, g = vg(u0)
+    h = 1e-5
+    for k in u0:
+        up, um = dict(u0), dict(u0)
+        up[k], um[k] = u0[k] + h, u0[k] - h
+        fd = (fj(up) - fj(um)) / (2 * h)
+        assert abs(float(g[k])) > 1e-6
+        np.testing.assert_allclose(float(g[k]), float(fd), rtol=1e-4, err_msg=k)
