@@ -58,6 +58,23 @@ import numpy as np
 from jaxdip.plants import rwp
 
 
+
+def first_instability(unstable, gamma_max: float, grid: int, tol: float) -> float:
+    """Smallest gain in (1e-6, gamma_max] where ``unstable(gain)`` turns true: a log grid brackets the first
+    crossing, bisection refines it (inf if none on the grid, 0 if unstable from the start)."""
+    gs = np.geomspace(1e-6, gamma_max, grid)
+    flags = np.array([unstable(g) for g in gs])
+    if not flags.any():
+        return math.inf
+    i = int(np.argmax(flags))
+    if i == 0:
+        return 0.0
+    lo, hi = gs[i - 1], gs[i]
+    while hi - lo > tol * hi:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if unstable(mid) else (mid, hi)
+    return 0.5 * (lo + hi)
+
 def _k(K):
     K = jnp.reshape(jnp.asarray(K, dtype=jnp.float64), (-1,))
     return K[0], K[1], K[2]
@@ -193,18 +210,7 @@ def gamma_bar_eig(p: rwp.RWPParams, K, gamma_max: float = 1e3, grid: int = 2000,
         F[3] -= g * e1
         return float(np.max(np.linalg.eigvals(F).real)) >= 0
 
-    gs = np.geomspace(1e-6, gamma_max, grid)
-    flags = np.array([unstable(g) for g in gs])
-    if not flags.any():
-        return math.inf
-    i = int(np.argmax(flags))
-    if i == 0:
-        return 0.0
-    lo, hi = gs[i - 1], gs[i]
-    while hi - lo > tol * hi:
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if unstable(mid) else (mid, hi)
-    return 0.5 * (lo + hi)
+    return first_instability(unstable, gamma_max, grid, tol)
 
 
 # ---- Proposition 3: the matrix inequalities (27) -----------------------------------------------------------
@@ -386,15 +392,4 @@ def gamma_bar_lowpass_homd_linear(p: rwp.RWPParams, K, kp, kr, gamma_max: float 
     def unstable(gm):
         return float(np.max(np.linalg.eigvals(lowpass_homd_linear_matrix(p, K, kp, kr, gm)[0]).real)) >= 0
 
-    gs = np.geomspace(1e-6, gamma_max, grid)
-    flags = np.array([unstable(gm) for gm in gs])
-    if not flags.any():
-        return math.inf
-    i = int(np.argmax(flags))
-    if i == 0:
-        return 0.0
-    lo, hi = gs[i - 1], gs[i]
-    while hi - lo > tol * hi:
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if unstable(mid) else (mid, hi)
-    return 0.5 * (lo + hi)
+    return first_instability(unstable, gamma_max, grid, tol)
