@@ -52,7 +52,7 @@ from jaxdip import stats
 from jaxdip.control.extra_control import ExtraControlParams, desired_state, extra_control, extra_control_params
 from jaxdip.control.twip_lqr import twip_dlqr
 from jaxdip.estimators.passthrough import passthrough
-from jaxdip.experiments import register
+from jaxdip.experiments import register, twip_dmso
 from jaxdip.experiments.base import Experiment, Outcome
 from jaxdip.plants import twip
 from jaxdip.plants.base import Plant
@@ -212,13 +212,12 @@ def loop_params(cfg: TwipExtraControlConfig, case: str, system: str) -> LoopPara
 
 
 def x0_thesis(cfg: TwipExtraControlConfig):
-    x = np.asarray(cfg.x0, dtype=np.float64)
-    return jnp.asarray([x[0], x[1], x[2] * DEG, x[3] * DEG])
+    return twip_dmso.x0_thesis(cfg)  # same (184) = (179) convention: [m, m/s, deg, deg/s] in the config
 
 
 def initial_state(x0, spread, i, key):
-    u = jax.random.uniform(jax.random.fold_in(key, 0), x0.shape, jnp.float64, -1.0, 1.0)
-    return jnp.where(i == 0, x0, x0 * (1.0 + spread * u))
+    # the DMSO experiment's spread of initial states, on this experiment's own fold of the seed key
+    return twip_dmso.initial_state(x0, spread, i, jax.random.fold_in(key, 0))
 
 
 def n_steps(cfg: TwipExtraControlConfig) -> int:
