@@ -30,7 +30,8 @@ def _numpy_step(p, s, x, k):
     xd = np.array([float(p.x1d0) + v * k * dt, v, x3d, 0.0])
     umax = float(p.u_max)
     u_nom = np.clip(float(p.ff) * u_d - (f(p.K) @ (x - xd))[0], -umax, umax)
-    e1, e2 = x[0] - xd[0], x[1] - xd[1]
+    beta = float(p.beta)  # flat variant: errors of y = x1 - beta x3 and y' = x2 - beta x4
+    e1, e2 = x[0] - xd[0] - beta * (x[2] - xd[2]), x[1] - xd[1] - beta * x[3]
     P1 = np.array([1.0, *x, e1, e2, xd[0], xd[1], float(s.u_prev)])
     ph11 = np.tanh(f(s.V1).T @ P1)
     ph12 = np.tanh(f(s.W11).T @ ph11)
@@ -54,7 +55,7 @@ def _numpy_step(p, s, x, k):
     return u, u_nom, ue, W11, W12, W21, W22, xb3, xb4
 
 
-@pytest.mark.parametrize("virtual", ["printed", "effective"])
+@pytest.mark.parametrize("virtual", ["printed", "effective", "flat"])
 def test_one_step_matches_numpy(virtual):
     p = _params(virtual=virtual, gamma=0.3, sigma=0.05, v_scale=0.5)
     p = p._replace(gamma12=jnp.asarray(0.7), sigma21=jnp.asarray(0.02))
@@ -162,7 +163,7 @@ def _cfg(**kw):
     return C.load(T.TwipExtraControlConfig, quick={"seeds": 1, "duration": 1.0, **kw})
 
 
-@pytest.mark.parametrize("virtual", ["printed", "effective"])
+@pytest.mark.parametrize("virtual", ["printed", "flat"])
 def test_score_gradient_matches_finite_differences(virtual):
     cfg = _cfg(cases=["param"], virtual=virtual)
     J, p0 = T.score_fn(cfg, "param", "extra", n_seeds=1)
@@ -193,3 +194,25 @@ def test_unmodeled_dynamics_and_backlash_wiring():
     lb = T.loop_params(cfg, "deadzone_backlash", "extra")
     assert math.isclose(float(lb.sensor.d_plus), 0.1 * math.pi / 180) and float(lb.actuator.d_plus) == 0.5
     assert float(T.loop_params(cfg, "param", "extra").sensor.d_plus) == 0.0
+
+
+def test_variants_are_checked():
+    cfg = C.load(T.TwipExtraControlConfig, sets=['variants=["k1=4; virtual=printed"]'])
+    v = T.variant_config(cfg, cfg.variants[0])
+    assert v.k1 == 4.0 and v.virtual == "printed" and v.k2 == cfg.k2 and v.variants == []
+    for bad, why in (("n_hidden=3", "may set only"), ("k1=abc", "expected a number"), ("virtual=other", "one of"),
+                     (" ; ", "at least one")):
+        with pytest.raises(C.ConfigError, match=why):
+            C.load(T.TwipExtraControlConfig, sets=[f'variants=["{bad}"]'])
+
+
+def test_flat_law_keeps_unmodeled_unstable_up_where_lqr_falls():
+    """Fig. 8.18's claim on 16 seeds over the full 20 s: LQR alone falls in some seeds, the derived ("flat") law
+    with k1 = 10 keeps every one up; as printed (93) every seed falls (see the module docs for why)."""
+    cfg = C.load(T.TwipExtraControlConfig, sets=["seeds=16", "chunk_seeds=16", "cases=['unmodeled_unstable']"])
+    fn = T.batch_fn(cfg)
+    _, d_lqr = T.run_system(cfg, fn, T.loop_params(cfg, "unmodeled_unstable", "lqr"))
+    _, d_k10 = T.run_system(cfg, fn, T.loop_params(T.variant_config(cfg, "k1=10"), "unmodeled_unstable", "extra"))
+    _, d_pr = T.run_system(cfg, fn, T.loop_params(T.variant_config(cfg, "virtual=printed"), "unmodeled_unstable",
+                                                  "extra"))
+    assert 0 < d_lqr.sum() < 16 and d_k10.sum() == 0 and d_pr.all()

@@ -9,7 +9,7 @@ What is computed at control sample k (time t = k dt), in this order:
 
   desired   x1d = x1d0 + v_d t, x2d = v_d, x3d and u_d from (183) (constants), x4d = 0         (182)-(183)
   nominal   u_nom = sat(u_d - K (x - x_d))   (84) plus the feed-forward u_d (``ff`` = 0 drops it)
-  errors    e1 = x1 - x1d, e2 = x2 - x2d                                                       (91)
+  errors    e1 = x1 - x1d, e2 = x2 - x2d  (91); "flat": e1 -= beta (x3 - x3d), e2 -= beta x4 (below)
   net 1     F1hat = W12^T tanh(W11^T tanh(V1^T P1)),  P1 = [1, x1..x4, e1, e2, x1d, x2d, u]   (109)
   virtual   xbar3 = x3d + A2^-1 (-k1 e2 - e1 - F1hat)                                          (93)
             xbar4_k = xbar4_{k-1} + a ((xbar3_k - xbar3_{k-1}) / dt - xbar4_{k-1}), a = dt / (tau_d + dt),
@@ -58,6 +58,20 @@ Decisions where the printed text is ambiguous or mangled (re-derived; see also t
   xbar4. We use a first-order filtered difference with time constant ``tau_d`` (default 0.05 s, loop gain
   about 2.7 dt / (tau_d + dt) = 0.45 at Nyquist); tau_d = 0 recovers the raw difference.
 
+* The virtual control's gain (``virtual``). (93) inverts A2, the tilt's direct effect on the cart acceleration,
+  as if u did not enter x2' as well. It does (B1 u), and (96) hands B1 (u_nom + u_e) to network 1: holding a
+  tilt x3 takes u = -A4 x3 / B2, so the tilt's net effect on x2' is a = A2 - B1 A4 / B2 (-38.7 for Table 8.1,
+  against A2 = +2.39): the printed law commands the tilt in the wrong direction and the networks cannot learn
+  the 16-fold, sign-reversing correction before the robot falls. Variants:
+    "printed"    a = A2, e1, e2 on the cart (93) as printed;
+    "effective"  a = A2 - B1 A4 / B2, e1, e2 still on the cart: the sign is right but e2' keeps B1 u;
+    "flat"       a = A2 - B1 A4 / B2 and e1, e2 measured on y = x1 - beta x3, y' = x2 - beta x4 with
+                 beta = B1 / B2 (the flat output of the linear model (87)): y'' = (A1 - beta A3) x2 + a x3
+                 + d1 - beta d2 has no u, so (87) in (y, y', x3, x4) is in strict-feedback form, x3 is a
+                 genuine virtual control of (y, y'), and the steps (93)-(106) hold as derived with F1 =
+                 (A1 - beta A3) x2 + a x3d + d1 - beta d2. It also removes the u feedthrough that makes a raw
+                 difference for xbar4 ring (B1 - beta B2 = 0). x1d, x2d, x3d of (182) are unchanged (x4d = 0).
+
 Every number is in ``ExtraControlParams`` (a pytree), so ``jax.grad`` reaches k1, k2, the learning rates, the
 damping factors, the LQR gain and the model coefficients. The network's random input weights V1, V2 are drawn
 in ``init`` from the component's key (uniform in [-v_scale, v_scale]) and live in the state, with the adapted
@@ -75,6 +89,7 @@ from jaxdip.sim.component import Component
 
 N_IN1 = 10  # P1 = [1, x1, x2, x3, x4, e1, e2, x1d, x2d, u]
 N_IN2 = 12  # P2 = [1, x1, x2, x3, x4, e1, e2, ebar3, ebar4, x1d, x2d, u_nom]
+VIRTUAL = ("printed", "effective", "flat")
 
 
 class ExtraControlParams(NamedTuple):
@@ -103,7 +118,8 @@ class ExtraControlParams(NamedTuple):
     u_max: jnp.ndarray  # saturation of u_nom, u_e and u
     extra: jnp.ndarray  # 1: apply u_e; 0: LQR alone (the networks still adapt, unused)
     v_scale: jnp.ndarray  # V1, V2 ~ U(-v_scale, v_scale)
-    a_virtual: jnp.ndarray  # the gain inverted in (93): A2 as printed (see the module doc for the alternative)
+    a_virtual: jnp.ndarray  # the gain inverted in (93): A2 as printed (see the module doc for the alternatives)
+    beta: jnp.ndarray  # 0 as printed; B1/B2 in the "flat" variant: e1, e2 are errors of x1 - beta x3, x2 - beta x4
     tau_d: jnp.ndarray  # time constant (s) of the filtered difference that gives xbar4 (0: raw difference)
     ff: jnp.ndarray  # 1: u_nom includes the desired input u_d of (183); 0: (84) literally, u = -K (x - x_d)
 
@@ -139,17 +155,23 @@ def model_coefficients(A, B):
 def extra_control_params(K, A, B, *, dt=0.01, v_d=0.1, x1d0=0.0, k1=2.5, k2=2.5, n_hidden=10, b=1.0,
                          gamma=0.1, sigma=0.01, u_max=11.1, extra=1.0, v_scale=1.0, ff=1.0,
                          tau_d=0.05, virtual="printed") -> ExtraControlParams:
-    """The §8.2 values by default: k1 = k2 = 2.5, B1 = B2 = ones(10), all gamma = 0.1, all sigma = 0.01."""
+    """The §8.2 values by default: k1 = k2 = 2.5, B1 = B2 = ones(10), all gamma = 0.1, all sigma = 0.01.
+
+    ``virtual``: "printed" (93) as printed; "effective" inverts A2 - B1 A4 / B2 instead of A2; "flat" also
+    measures e1, e2 on the flat output (see the module doc)."""
+    if virtual not in VIRTUAL:
+        raise ValueError(f"virtual must be one of {VIRTUAL}, got {virtual!r}")
     A1, A2, A3, A4, B1, B2 = model_coefficients(jnp.asarray(A), jnp.asarray(B))
     ones = jnp.ones(n_hidden)
     a_virtual = A2 if virtual == "printed" else A2 - B1 * A4 / B2
+    beta = B1 / B2 if virtual == "flat" else jnp.zeros_like(B1)
     return ExtraControlParams(
         K=jnp.reshape(_f(K), (1, 4)), dt=_f(dt), A1=A1, A2=A2, A3=A3, A4=A4, B1=B1, B2=B2, v_d=_f(v_d),
         x1d0=_f(x1d0), k1=_f(k1), k2=_f(k2), b1=_f(b) * ones, b2=_f(b) * ones,
         gamma11=_f(gamma), gamma12=_f(gamma), gamma21=_f(gamma), gamma22=_f(gamma),
         sigma11=_f(sigma), sigma12=_f(sigma), sigma21=_f(sigma), sigma22=_f(sigma),
         u_max=_f(u_max), extra=_f(extra), v_scale=_f(v_scale), ff=_f(ff),
-        tau_d=_f(tau_d), a_virtual=a_virtual)
+        tau_d=_f(tau_d), a_virtual=a_virtual, beta=beta)
 
 
 # ---- the pieces of the law (pure functions, also used by the tests) --------------------------------------
@@ -220,7 +242,9 @@ def extra_control(n_hidden: int = 10) -> Component:
         xd = desired_state(p, k * p.dt)
         x3d, u_d = desired_constants(p)
         u_nom = _sat(p.ff * u_d - (p.K @ (x - xd))[0], p.u_max)
-        e1, e2 = x[0] - xd[0], x[1] - xd[1]
+        # flat output y = x1 - beta x3 (beta = 0: the printed cart errors); xd[3] = 0
+        e1 = x[0] - xd[0] - p.beta * (x[2] - xd[2])
+        e2 = x[1] - xd[1] - p.beta * (x[3] - xd[3])
         P1 = jnp.stack([jnp.ones(()), x[0], x[1], x[2], x[3], e1, e2, xd[0], xd[1], s.u_prev])
         F1hat, phi11, phi12 = network(s.V1, s.W11, s.W12, P1)
         xbar3 = virtual_tilt(p, e1, e2, x3d, F1hat)

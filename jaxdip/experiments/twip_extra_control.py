@@ -25,6 +25,13 @@ is taken as printed (frequency ``d1_freq`` = 180/pi rad/m); "gains 3/4 and 2/5" 
 different scores to the perturbed-LQR (358.42) and nominal (326.10) columns, which would be equal if both
 plants were Table 8.1; we therefore keep Table 8.2 as the perturbed truth there (``nonlinear_truth``).
 
+The extra control's main law is the "flat" variant of ``jaxdip.control.extra_control`` (virtual control through
+the flat output, derived because (93) as printed commands the tilt with the wrong sign and every seed falls) with
+the thesis's numbers (k1 = k2 = 2.5, gamma = 0.1, sigma = 0.01). ``variants`` runs further LQR + extra rows on the
+same seeds, each changing a few controller keys: by default the printed law, the networks switched off
+(gamma = 0: what the networks contribute) and k1 = 10 (from a grid over k1 on 100 seeds: the smallest of 2.5,
+5, 7.5, 10 that kept every unmodeled_unstable seed up with room to spare).
+
 Score (Table 8.3): sum over the samples k = 0 .. N-1 (N = duration/dt, default 20 s at 0.01 s: 2000 terms) of
 the Euclidean norm ||x_k - x_d,k|| of the true state's difference from the desired trajectory (mixed units
 m, m/s, rad, rad/s, as in the thesis). Seeds: seed i draws the networks' random input weights V1, V2 and, for
@@ -74,6 +81,9 @@ THESIS = {
     "deadzone": {"lqr": 358.42, "extra": 181.53, "nominal": 326.10},
     "deadzone_backlash": {"lqr": 1451.9, "extra": 688.17, "nominal": 1434.5},
 }
+# the controller's own keys: a variant changes numbers in ExtraControlParams only (no recompilation)
+VARIANT_KEYS = ("virtual", "k1", "k2", "gamma", "sigma", "b", "v_scale", "tau_d")
+DEFAULT_VARIANTS = ("virtual=printed", "gamma=[0.0, 0.0, 0.0, 0.0]", "k1=10.0")
 FIGS = {"param": ("8.15", "8.16"), "unmodeled": ("8.17", "8.19"), "unmodeled_unstable": ("8.18", "8.19"),
         "deadzone": ("8.20", "8.21"), "deadzone_backlash": ("8.22", "8.23")}
 
@@ -105,8 +115,9 @@ class TwipExtraControlConfig:
     sigma: list[float] = C.field([0.01, 0.01, 0.01, 0.01], C.nonneg_finite, C.length(4),
                                  doc="damping [sigma11, sigma12, sigma21, sigma22] (111)-(114)")
     v_scale: float = C.field(1.0, C.nonneg_finite, doc="random input weights V1, V2 ~ U(-v_scale, v_scale)")
-    virtual: str = C.field("printed", C.one_of("printed", "effective"),
-                           doc="gain inverted in the virtual tilt (93): A2 as printed, or A2 - B1 A4 / B2")
+    virtual: str = C.field("flat", C.one_of("printed", "effective", "flat"),
+                           doc="virtual tilt (93): printed (A2), effective (A2 - B1 A4/B2), flat (that gain, flat-output "
+                               "errors; see jaxdip.control.extra_control)")
     tau_d: float = C.field(0.05, C.nonneg_finite,
                            doc="time constant (s) of the filtered difference giving xbar4 = d xbar3/dt (0: raw)")
     d_gains: list[float] = C.field([0.5, 0.25], C.finite, C.length(2), doc="coefficients of d1, d2 (185)")
@@ -120,9 +131,17 @@ class TwipExtraControlConfig:
     tilt_bound_deg: float = C.field(90.0, C.positive_finite, doc="|phi| above this counts as a fall (diverged)")
     state_bound: list[float] = C.field([100.0, 50.0, 1000.0, 1000.0], C.positive, C.length(4),
                                        doc="|x|, |x_dot|, -, |phi_dot| above these count as diverged (phi: tilt_bound_deg)")
+    variants: list[str] = C.field(list(DEFAULT_VARIANTS),
+                                  doc="further LQR + extra rows on the same seeds, each 'key=value; key=value' over "
+                                      "the controller keys " + ", ".join(VARIANT_KEYS))
     chunk_seeds: int = C.field(250, C.positive, doc="seeds per compiled batch")
 
     def validate(self):
+        for i, spec in enumerate(self.variants):
+            try:
+                variant_config(self, spec)
+            except C.ConfigError as e:
+                raise C.ConfigError(f"variants[{i}]", str(e)) from None
         if not self.cases:
             raise C.ConfigError("cases", "must name at least one case")
         for i, c in enumerate(self.cases):
@@ -130,6 +149,21 @@ class TwipExtraControlConfig:
                 raise C.ConfigError(f"cases[{i}]", f"must be one of {', '.join(map(repr, CASES))}")
         if self.duration < 2 * self.dt:
             raise C.ConfigError("duration", f"must cover at least two samples (dt = {self.dt})")
+
+
+def variant_config(cfg, spec: str):
+    """``cfg`` with the overrides of one ``variants`` entry ('k1=10; virtual=printed') applied and checked."""
+    data = C.to_dict(cfg)
+    data["variants"] = []
+    items = [t.strip() for t in spec.split(";") if t.strip()]
+    if not items:
+        raise C.ConfigError(repr(spec), "a variant needs at least one key=value")
+    for item in items:
+        k, v = C.parse_set(item)
+        if k not in VARIANT_KEYS:
+            raise C.ConfigError(k, f"a variant may set only {', '.join(VARIANT_KEYS)}")
+        data[k] = v
+    return C.from_dict(type(cfg), data)
 
 
 # ---- the plant with unmodeled dynamics (185) -------------------------------------------------------------
@@ -368,11 +402,23 @@ def fig_case(case, traces: dict, cfg):
     return fig, fig2
 
 
+def summarize_variant(s, d, lqr_s, lqr_d) -> dict:
+    m, ci = stats.mean_ci(s, ~d)
+    out = {"score_mean": m, "score_ci95": ci, "diverged": int(d.sum()), "bounded_fraction": float(np.mean(~d)),
+           "improvement": 1.0 - m / stats.mean_ci(lqr_s, ~lqr_d)[0]}
+    ok = ~d & ~lqr_d
+    if ok.any():
+        out["improvement_paired_mean"], out["improvement_paired_ci95"] = stats.mean_ci(1.0 - s[ok] / lqr_s[ok])
+    return out
+
+
 def run(cfg: TwipExtraControlConfig, progress: bool = True) -> Outcome:
     fn = batch_fn(cfg)
     trace = trace_fn(cfg, 0)
     results, figures = {}, {}
-    bar = Progress(len(cfg.cases) * len(SYSTEMS) * cfg.seeds, desc="twip-extra-control", enabled=progress)
+    vcfgs = {spec: variant_config(cfg, spec) for spec in cfg.variants}
+    bar = Progress(len(cfg.cases) * (len(SYSTEMS) + len(vcfgs)) * cfg.seeds, desc="twip-extra-control",
+                   enabled=progress)
     for case in cfg.cases:
         scores, divs, traces = {}, {}, {}
         for sysname in SYSTEMS:
@@ -380,16 +426,59 @@ def run(cfg: TwipExtraControlConfig, progress: bool = True) -> Outcome:
             scores[sysname], divs[sysname] = run_system(cfg, fn, lp, bar)
             traces[sysname] = trace(lp)
         results[case] = summarize_case(scores, divs)
+        results[case]["variants"] = {
+            spec: summarize_variant(*run_system(cfg, fn, loop_params(vc, case, "extra"), bar), scores["lqr"],
+                                    divs["lqr"]) for spec, vc in vcfgs.items()}
         fs, fc = fig_case(case, traces, cfg)
         figures[f"twip-extra-{case}-states"] = fs
         figures[f"twip-extra-{case}-control"] = fc
     bar.close()
+    figures["twip-extra-variants"] = fig_variants(cfg, results)
     imps = [results[c]["improvement"] for c in cfg.cases if c in THESIS]
     results["mean_improvement_table_cases"] = float(np.mean(imps)) if imps else float("nan")
     results["horizon_s"] = cfg.duration
     results["dt_s"] = cfg.dt
     results["score_terms"] = n_steps(cfg)
     return Outcome(results=results, report=report(cfg, results), figures=figures)
+
+
+def fig_variants(cfg, r):
+    """Improvement over LQR alone and fraction of seeds kept up, per case, for the main law and every variant."""
+    import matplotlib.pyplot as plt
+
+    rows = [(f"{cfg.virtual} (main)", lambda c: r[c]["improvement"], lambda c: r[c]["extra_bounded_fraction"])]
+    for spec in cfg.variants:
+        rows.append((spec, lambda c, sp=spec: r[c]["variants"][sp]["improvement"],
+                     lambda c, sp=spec: r[c]["variants"][sp]["bounded_fraction"]))
+    rows.append(("LQR alone", lambda c: 0.0, lambda c: 1.0 - r[c]["lqr_diverged_fraction"]))
+    cases = list(cfg.cases)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
+    w = 0.8 / len(rows)
+    xs = np.arange(len(cases))
+    for j, (name, imp, up) in enumerate(rows):
+        off = xs - 0.4 + (j + 0.5) * w
+        axes[0].bar(off, [100 * np.nan_to_num(imp(c), nan=0.0) for c in cases], w, label=name)
+        for c, case in enumerate(cases):  # no score to show: every seed fell
+            if not np.isfinite(imp(case)):
+                axes[0].text(off[c], 1, "all fell", rotation=90, fontsize=6, ha="center", va="bottom")
+        axes[1].bar(off, [100 * up(c) for c in cases], w, label=name)
+    for c, case in enumerate(cases):
+        if case in THESIS:
+            th = 100 * (1 - THESIS[case]["extra"] / THESIS[case]["lqr"])
+            axes[0].plot([c - 0.4, c + 0.4], [th, th], "k--", lw=1, label="thesis" if c == 0 else None)
+    axes[0].set_ylabel("improvement over LQR (%)")
+    axes[0].set_title("1 - mean score / LQR's (non-diverged seeds)")
+    axes[1].set_ylabel("seeds kept up (%)")
+    axes[1].set_title(f"bounded over {cfg.duration:g} s, {cfg.seeds} seeds")
+    for ax in axes:
+        ax.set_xticks(xs, cases, rotation=20, fontsize=8)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.grid(alpha=0.3, axis="y")
+    axes[1].set_ylim(0, 105)
+    axes[0].set_ylim(-60, 70)
+    axes[0].legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    return fig
 
 
 def _g(v, d=4):
@@ -414,7 +503,8 @@ def report(cfg: TwipExtraControlConfig, r: dict) -> str:
         out.append(f"| {case} | " + " | ".join(cells) + f" | {_g(c['improvement'], 3)} / {_g(th_imp, 3)} | "
                    + " / ".join(str(c[s]["diverged"]) for s in SYSTEMS) + " |")
     out += ["", f"Mean improvement over the thesis's four cases: ours {_g(r['mean_improvement_table_cases'], 3)}, "
-            f"thesis 0.531 (its 53.1%).", ""]
+            f"thesis 0.531 (its 53.1%). Main extra control: virtual = {cfg.virtual}, k1 = {cfg.k1:g}, "
+            f"k2 = {cfg.k2:g}, gamma = {cfg.gamma}.", ""]
     for case in cfg.cases:
         c = r[case]
         extra_best = c["extra"]["score_mean"] < min(c["lqr"]["score_mean"], c["nominal"]["score_mean"])
@@ -423,6 +513,18 @@ def report(cfg: TwipExtraControlConfig, r: dict) -> str:
                 f"LQR diverged in {_g(100 * c['lqr_diverged_fraction'], 3)}%, LQR + extra bounded in "
                 f"{_g(100 * c['extra_bounded_fraction'], 3)}% of seeds.")
         out.append(line)
+    if cfg.variants:
+        out += ["", "Variants of the extra control on the same seeds (`variants`; each changes only the listed keys "
+                    "of the main law):", "",
+                "| case | variant | score mean [95%] | improvement vs LQR (paired [95%]) | bounded |",
+                "|---|---|---|---|---|"]
+        for case in cfg.cases:
+            for spec, v in r[case]["variants"].items():
+                pair = (f" ({_g(v['improvement_paired_mean'], 3)} [{_g(v['improvement_paired_ci95'][0], 3)}, "
+                        f"{_g(v['improvement_paired_ci95'][1], 3)}])" if "improvement_paired_mean" in v else "")
+                out.append(f"| {case} | `{spec}` | {_g(v['score_mean'])} [{_g(v['score_ci95'][0])}, "
+                           f"{_g(v['score_ci95'][1])}] | {_g(v['improvement'], 3)}{pair} | "
+                           f"{_g(100 * v['bounded_fraction'], 3)}% |")
     return "\n".join(out)
 
 
