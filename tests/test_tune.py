@@ -1,5 +1,5 @@
-"""jaxdip.tune: transforms, the tuner (quadratic convergence, checkpoint/resume), and the targets' gradients
-against central finite differences."""
+"""jaxdip.tune: transforms, the tuner (quadratic convergence, checkpoint/resume), and the gradients of every
+target (cpx, rwp, dmso, rp, extra) against central finite differences."""
 
 import jax
 import jax.numpy as jnp
@@ -42,6 +42,26 @@ def test_tuner_converges_on_quadratic():
     assert res.theta_history["b"].shape == (300, 2)
 
 
+def test_rprop_grows_its_step_along_a_one_sided_slope():
+    """The cpx situation: J falls monotonically in log gamma towards a far edge. Rprop's step after k steps of a
+    constant-sign gradient is lr * 1.2**k; Adam's is at most about lr (why the cpx run uses rprop)."""
+    import optax
+
+    J = lambda th, key: -jnp.tanh(0.1 * jnp.log(th["g"]))  # noqa: E731  slope of one sign, shrinking
+    init = {"g": jnp.asarray(150.0)}
+    res = tune(J, init, jax.random.PRNGKey(0), steps=12, lr=0.3, spec={"g": Log()}, optimizer=optax.rprop(0.3),
+               progress=False)
+    steps = np.diff(np.log(np.asarray(res.theta_history["g"])))
+    # optax's Rprop makes a zero first move (no previous sign), then lr, lr * 1.2, lr * 1.2**2, ...
+    np.testing.assert_allclose(steps, [0.0] + [0.3 * 1.2 ** j for j in range(10)], rtol=1e-9, atol=1e-12)
+    moved = float(np.log(res.theta_history["g"][-1] / 150.0))
+    adam = tune(J, init, jax.random.PRNGKey(0), steps=12, lr=0.3, spec={"g": Log()}, clip=None, progress=False)
+    assert np.log(float(adam.theta_history["g"][-1]) / 150.0) <= 0.3 * 11 + 1e-9 < moved
+    assert C.load(T.TuneConfig, sets=["optimizer=rprop"]).optimizer == "rprop"
+    with pytest.raises(C.ConfigError, match="one of"):
+        C.load(T.TuneConfig, sets=["optimizer=sgd"])
+
+
 def test_early_stopping():
     res = tune(lambda th, k: jnp.asarray(1.0) + 0.0 * th["a"], {"a": jnp.asarray(1.0)}, jax.random.PRNGKey(0),
                steps=50, early_stop_patience=3, progress=False)
@@ -78,12 +98,12 @@ def test_random_search_finds_best_sample():
     assert res.loss == res.losses.min() and abs(float(res.theta) - 0.3) < 0.05
 
 
-def test_unimplemented_target_is_a_config_error():
-    with pytest.raises(C.ConfigError, match="not implemented yet") as e:
-        C.load(T.TuneConfig, sets=["target=extra"])
-    assert e.value.key == "target"
-    with pytest.raises(C.ConfigError):
+def test_unknown_target_is_a_config_error():
+    with pytest.raises(C.ConfigError, match="must be one of") as e:
         C.load(T.TuneConfig, sets=["target=nonsense"])
+    assert e.value.key == "target"
+    for t in T.IMPLEMENTED:
+        assert C.load(T.TuneConfig, sets=[f"target={t}"]).target == t
 
 
 def _tiny_cpx(quanta):
@@ -172,3 +192,70 @@ def test_rp_gradient_matches_central_differences():
     cfg = C.load(T.TuneConfig, sets=["target=rp", "duration=0.3"])
     tg = T.make_target(cfg)
     _check_fd(tg, tg.objective(np.arange(2), smooth=False))
+
+
+def test_extra_gradient_matches_central_differences():
+    """k1, k2 and the four learning rates through log, unmodeled TWIP case, Table 8.3's score (2 seeds, 1 s,
+    2 sub-steps: no seed falls, so the score is smooth; measured agreement 1e-8 to 1e-6). The networks adapt
+    from zero weights, so over a shorter horizon the learning rates' derivatives drop towards 1e-6 of J's scale
+    and central differences lose their digits to rounding; h = 1e-3 is where both errors are small."""
+    cfg = C.load(T.TuneConfig, sets=["target=extra", "duration=1.0", "substeps=2"])
+    tg = T.make_target(cfg)
+    J = tg.objective(np.arange(2), smooth=False)
+    assert not np.any(np.asarray(J.diverged(tg.paper, jax.random.PRNGKey(0))))
+    _check_fd(tg, J, h=1e-3)
+
+
+def test_extra_seeds_are_the_experiments_seeds():
+    """Seed i of the target is seed i of twip-extra-control (same V1, V2, x0): the per-seed loss at the
+    documents' values is that experiment's score (no seed diverges here), on the tuning and held-out ranges."""
+    from jaxdip.experiments import twip_extra_control as E
+
+    cfg = C.load(T.TuneConfig, sets=["target=extra", "duration=0.3", "substeps=2"])
+    tg = T.make_target(cfg)
+    seeds = np.asarray([0, 1, T.HELDOUT_OFFSET])
+    mine = np.asarray(tg.objective(seeds, smooth=False).per_seed(tg.paper, jax.random.PRNGKey(0)))
+    ecfg = E.TwipExtraControlConfig(duration=0.3, substeps=2)
+    s, d = E.batch_fn(ecfg)(E.loop_params(ecfg, "unmodeled", "extra"), E.x0_thesis(ecfg), ecfg.init_spread,
+                            jnp.asarray(seeds, dtype=jnp.uint32), jax.random.PRNGKey(0))
+    assert not np.any(np.asarray(d))
+    np.testing.assert_allclose(mine, np.asarray(s), rtol=1e-12)
+    assert len(set(np.round(mine, 9))) == 3  # the seeds differ
+
+
+def _cli(tmp_path, *args):
+    import json
+    import os
+    import subprocess
+    import sys
+
+    out = tmp_path / "o"
+    r = subprocess.run([sys.executable, "-m", "jaxdip.cli", "run", "tune", *args, "--out", str(out)],
+                       capture_output=True, text=True, env=dict(os.environ, JAXDIP_NO_PROGRESS="1"), timeout=600)
+    assert r.returncode == 0, r.stderr
+    return json.loads((out / "metrics.json").read_text())["results"], out
+
+
+@pytest.mark.slow
+def test_extra_tiny_cli_run(tmp_path):
+    """target=extra end to end through the CLI at a tiny scale (2 tuning seeds, 4 held-out, 0.2 s; 20 s)."""
+    sets = ["target=extra", "seeds=2", "heldout_seeds=4", "duration=0.2", "steps=2", "landscape_points=3",
+            "substeps=2"]
+    res, out = _cli(tmp_path, *[a for s in sets for a in ("--set", s)])
+    r = res["extra"]
+    assert set(r["tuned_value"]) == set(T.ExtraTarget.KEYS)
+    assert r["paper_value"] == {"k1": 2.5, "k2": 2.5, "gamma11": 0.1, "gamma12": 0.1, "gamma21": 0.1,
+                                "gamma22": 0.1}
+    assert r["simulations_used"] == r["random_search_simulations"] == 4
+    assert r["heldout_diverged_paper"] == 0
+    assert r["loss_tuned_ci95"][0] <= r["loss_tuned"] <= r["loss_tuned_ci95"][1]
+    assert (out / "tune_extra.png").is_file() and "Held-out seeds diverged" in (out / "report.md").read_text()
+
+
+@pytest.mark.slow
+def test_extra_quick_cli_under_a_minute(tmp_path):
+    import time
+
+    t0 = time.perf_counter()
+    res, _ = _cli(tmp_path, "--quick", "--set", "target=extra")
+    assert time.perf_counter() - t0 < 60 and np.isfinite(res["extra"]["loss_tuned"])

@@ -1,9 +1,10 @@
 """tune: gradient-based tuning of estimator and controller hyperparameters (``jaxdip.tune``).
 
-For a target (``--set target=...``; implemented: ``cpx``, ``rwp``, ``dmso``, ``rp``) the experiment tunes the hyperparameters on one set of
-seeds by gradient (optax Adam on log-parameters, forward-mode derivatives through the whole closed loop),
-evaluates them on a disjoint held-out set of seeds, and compares with the documents' values and with a random
-search given the same number of closed-loop simulations.
+For a target (``--set target=...``: ``cpx``, ``rwp``, ``dmso``, ``rp``, ``extra``) the experiment tunes the
+hyperparameters on one set of seeds by gradient (optax Adam on log-parameters, forward-mode derivatives through
+the whole closed loop), evaluates them on a disjoint held-out set of seeds, and compares with the documents'
+values and with a random search given the same number of closed-loop simulations (also converted to
+evaluation-equivalents with the measured cost of a gradient step).
 
 cpx: gamma of CPX on the DIP stabilisation task of ``dip-cpx-ldf`` (its loop, built by its own ``build``);
 loss per seed = time variance of alpha plus that of theta (deg^2) + ``divergence_penalty`` if it diverged.
@@ -11,9 +12,10 @@ The encoders quantise, so one sample path's loss is piecewise constant in gamma 
 of it measure the jumps); ``smoothing = "straight_through"`` differentiates the quantiser as the identity
 (``jaxdip.tune.straight_through_sensor``), ``"none"`` uses the exact pathwise derivative (round' = 0).
 
-rwp, dmso, rp: see ``RWPTarget``, ``DMSOTarget`` (Gamma and diag K_MSO on the noisy TWIP case of ``twip-dmso``;
-``smoothing`` picks that experiment's ``encoder_gradient``), ``RPTarget`` (gamma of (2.14) on the DIP with a fixed
-LQR-derived P; ``smoothing`` does not apply: no quantiser).
+rwp, dmso, rp, extra: see ``RWPTarget``, ``DMSOTarget`` (Gamma and diag K_MSO on the noisy TWIP case of
+``twip-dmso``; ``smoothing`` picks that experiment's ``encoder_gradient``), ``RPTarget`` (gamma of (2.14) on the
+DIP with a fixed LQR-derived P), ``ExtraTarget`` (k1, k2 and the four learning rates of the TWIP extra control on
+the ``unmodeled`` case, Table 8.3's score); ``smoothing`` does not apply to rp and extra: no quantiser.
 """
 
 from __future__ import annotations
@@ -33,43 +35,44 @@ from jaxdip.experiments.base import Experiment, Outcome, current_run
 from jaxdip.experiments.common import fmt_ci
 from jaxdip.tune import Bounded, Log, mc_objective, random_search, straight_through_sensor, tune
 
-IMPLEMENTED = ("cpx", "rwp", "dmso", "rp")
-PLANNED = ("extra",)
+IMPLEMENTED = ("cpx", "rwp", "dmso", "rp", "extra")
 HELDOUT_OFFSET = 1_000_000  # held-out seed i is base seed HELDOUT_OFFSET + i; tuning seeds are 0 .. seeds-1
 
 
 @dataclass
 class TuneConfig:
-    target: str = C.field("cpx", doc=f"what to tune: one of {', '.join(IMPLEMENTED + PLANNED)} "
-                                     f"(implemented: {', '.join(IMPLEMENTED)})")
+    target: str = C.field("cpx", doc=f"what to tune: one of {', '.join(IMPLEMENTED)}")
     seeds: int = C.field(32, C.positive, doc="tuning seeds (common to every optimiser step with crn = true)")
     heldout_seeds: int = C.field(256, C.positive, doc="held-out evaluation seeds, disjoint from the tuning seeds")
     seed: int = C.field(0, C.nonneg, doc="base PRNG key")
     duration: float = C.field(2.0, C.positive_finite, doc="simulated time per closed loop (s)")
     substeps: int = C.field(10, C.positive, doc="RK4 sub-steps per period")
     steps: int = C.field(30, C.positive, doc="optimiser steps (at most)")
-    lr: float = C.field(0.3, C.positive_finite, doc="Adam learning rate (on the log of each hyperparameter)")
+    lr: float = C.field(0.3, C.positive_finite,
+                        doc="Adam learning rate / Rprop initial step (on the log of each hyperparameter)")
+    optimizer: str = C.field("adam", C.one_of("adam", "rprop"),
+                             doc="adam (after clipping), or rprop: per-coordinate steps that grow x1.2 while the "
+                                 "gradient's sign holds and halve when it flips (clipping does not apply)")
     clip: float = C.field(1.0, C.positive_finite, doc="global-norm gradient clipping")
     crn: bool = C.field(True, doc="common random numbers: the same seeds' noise at every step (false: resample)")
     patience: int = C.field(10, C.nonneg, doc="early stopping after this many steps without improvement (0: off)")
     smoothing: str = C.field("straight_through", C.one_of("straight_through", "none"),
                              doc="derivative of the encoder quantiser: identity (straight-through) or 0 (exact)")
     mode: str = C.field("forward", C.one_of("forward", "reverse"), doc="forward- or reverse-mode derivatives")
-    divergence_penalty: float = C.field(1000.0, C.nonneg_finite, doc="added to a diverged seed's loss (deg^2)")
+    divergence_penalty: float = C.field(1000.0, C.nonneg_finite,
+                                        doc="added to a diverged seed's loss (in the target's loss unit; not rp)")
     search_low: float = C.field(1.0, C.positive_finite, doc="random search / landscape: lowest gamma")
     search_high: float = C.field(1e5, C.positive_finite, doc="random search / landscape: highest gamma")
     landscape_points: int = C.field(9, C.positive, doc="points of the loss landscape along gamma")
     search_factor: float = C.field(10.0, C.positive_finite,
-                                   doc="rwp, dmso, rp: random search / landscape log-uniform within paper value x/÷ this")
+                                   doc="rwp, dmso, rp, extra: random search / landscape log-uniform within paper value "
+                                       "x/÷ this")
     wheel_weight: float = C.field(1e-3, C.nonneg_finite,
                                   doc="rwp: weight of the integrated squared wheel speed ((rad/s)^2 s) in the loss")
 
     def validate(self):
         if self.target not in IMPLEMENTED:
-            if self.target in PLANNED:
-                raise C.ConfigError("target", f"{self.target!r} not implemented yet (implemented: "
-                                              f"{', '.join(IMPLEMENTED)})")
-            raise C.ConfigError("target", f"must be one of {', '.join(map(repr, IMPLEMENTED + PLANNED))}")
+            raise C.ConfigError("target", f"must be one of {', '.join(map(repr, IMPLEMENTED))}")
         if self.search_high <= self.search_low:
             raise C.ConfigError("search_high", "must exceed search_low")
 
@@ -301,8 +304,73 @@ class RPTarget(Target):
         return [{"gamma": jnp.asarray(g)} for g in np.geomspace(v / self.factor, v * self.factor, n)]
 
 
+class ExtraTarget(Target):
+    """k1 (93), k2 (101) and the learning rates gamma11, gamma12, gamma21, gamma22 (111)-(114) of the TWIP
+    extra control (``twip-extra-control``, system ``extra``) on its ``unmodeled`` case (Table 8.2 truth plus
+    the unmodeled accelerations (185)), all through log. Everything else is ``TwipExtraControlConfig``'s
+    default (that experiment owns the law and its variants), except the horizon and the RK4 sub-steps.
+    Loss per seed = Table 8.3's score sum_k ||x_k - x_d,k|| over ``duration`` + the divergence penalty (a
+    diverged seed's state is frozen where it left the bounds, so its score keeps growing with the remaining
+    samples and the gradient still sees *when* it fell). Seed i is that experiment's seed i (network input
+    weights V1, V2 and the x0 spread; seed 0 starts at (184)), under the tune experiment's key."""
+
+    name, param = "extra", "k1"
+    KEYS = ("k1", "k2", "gamma11", "gamma12", "gamma21", "gamma22")
+
+    def __init__(self, cfg: TuneConfig):
+        from jaxdip.experiments import twip_extra_control as E
+
+        self.E = E
+        self.ecfg = E.TwipExtraControlConfig(duration=cfg.duration, substeps=cfg.substeps)
+        self.loop = E.build_loop(self.ecfg)
+        self.lp0 = E.loop_params(self.ecfg, "unmodeled", "extra")
+        self.n_steps = E.n_steps(self.ecfg)
+        self.x0 = E.x0_thesis(self.ecfg)
+        cp = self.lp0.controller
+        self.paper = {k: jnp.asarray(getattr(cp, k), dtype=jnp.float64) for k in self.KEYS}
+        self.spec = {k: Log() for k in self.KEYS}
+        self.penalty, self.factor = cfg.divergence_penalty, cfg.search_factor
+
+    def make_params(self, theta):
+        return self.lp0._replace(controller=self.lp0.controller._replace(**theta))
+
+    def describe(self):
+        # the law is that experiment's and its defaults may change: record the ones this run used
+        return {"twip_extra_control_config": C.to_dict(self.ecfg)}
+
+    def objective(self, seeds, smooth: bool):
+        E, loop, n, x0, spread = self.E, self.loop, self.n_steps, self.x0, self.ecfg.init_spread
+        seeds = jnp.asarray(seeds, dtype=jnp.uint32)
+
+        def score_div(theta, key):
+            lp = self.make_params(theta)
+            return jax.vmap(lambda i: E.simulate_seed(loop, lp, n, x0, spread, i, key))(seeds)
+
+        def per_seed(theta, key):
+            s, d = score_div(theta, key)
+            return s + self.penalty * d
+
+        def J(theta, key):
+            return jnp.mean(per_seed(theta, key))
+
+        J.per_seed = per_seed
+        J.diverged = lambda theta, key: score_div(theta, key)[1]
+        return J
+
+    def sample(self, key):
+        lf = math.log(self.factor)
+        ks = jax.random.split(key, len(self.KEYS))
+        return {k: self.paper[k] * jnp.exp(jax.random.uniform(kk, minval=-lf, maxval=lf))
+                for k, kk in zip(self.KEYS, ks)}
+
+    def grid(self, n):
+        v = float(self.paper[self.param])
+        return [{**self.paper, self.param: jnp.asarray(g)} for g in np.geomspace(v / self.factor, v * self.factor, n)]
+
+
 def make_target(cfg: TuneConfig, **kw) -> Target:
-    return {"cpx": CPXTarget, "rwp": RWPTarget, "dmso": DMSOTarget, "rp": RPTarget}[cfg.target](cfg, **kw)
+    return {"cpx": CPXTarget, "rwp": RWPTarget, "dmso": DMSOTarget, "rp": RPTarget,
+            "extra": ExtraTarget}[cfg.target](cfg, **kw)
 
 
 # ---- run ----------------------------------------------------------------------------------------------------
@@ -322,10 +390,15 @@ def run(cfg: TuneConfig, progress: bool = True) -> Outcome:
     held_seeds = HELDOUT_OFFSET + np.arange(cfg.heldout_seeds)
     J_tune = tg.objective(tune_seeds, smooth=cfg.smoothing == "straight_through")
     J_eval = jax.jit(tg.objective(tune_seeds, smooth=False))  # forward values are the same; no gradient needed
-    held = jax.jit(tg.objective(held_seeds, smooth=False).per_seed)
+    held_obj = tg.objective(held_seeds, smooth=False)
+    held = jax.jit(held_obj.per_seed)
+    held_div = jax.jit(held_obj.diverged) if hasattr(held_obj, "diverged") else None
 
     ctx = current_run()
+    import optax
+
     res = tune(J_tune, tg.paper, key, steps=cfg.steps, lr=cfg.lr, spec=tg.spec, clip=cfg.clip,
+               optimizer=optax.rprop(cfg.lr) if cfg.optimizer == "rprop" else None,
                common_random_numbers=cfg.crn, early_stop_patience=cfg.patience or None,
                checkpoint_path=ctx.checkpoint_path if ctx else None, resume=bool(ctx and ctx.resume),
                fingerprint=ckpt.fingerprint(C.to_dict(cfg)), progress=progress, desc=f"tune {cfg.target}",
@@ -338,12 +411,20 @@ def run(cfg: TuneConfig, progress: bool = True) -> Outcome:
     hit = np.nonzero(np.minimum.accumulate(res.loss_history) <= best_rs)[0]
     sims_to_rs_best = int((hit[0] + 1) * cfg.seeds) if hit.size else None
     rs_sims_to_best = int((int(np.argmin(rs.losses)) + 1) * cfg.seeds)
+    # a forward-mode step carries one tangent per unconstrained coordinate through the same trajectories, so it
+    # costs more than one plain evaluation; its measured steady-state price (compilation excluded) converts the
+    # gradient's simulation count into evaluation-equivalents, the currency of the random search
+    sw, ew = res.step_wall[1:], rs.eval_wall[1:]
+    sw, ew = sw[np.isfinite(sw)], ew[np.isfinite(ew)]
+    step_cost = float(np.median(sw) / np.median(ew)) if sw.size and ew.size else float("nan")
 
     t0 = time.perf_counter()
     evals, per_seed = {}, {}
     for name, th in (("paper", tg.paper), ("tuned", res.theta), ("random_search", rs.theta)):
         per_seed[name] = np.asarray(held(th, key))
         evals[name] = stats.mean_ci(per_seed[name])
+        if held_div is not None:
+            evals[name] += (int(np.sum(held_div(th, key))),)
     diff = stats.mean_ci(per_seed["tuned"] - per_seed["paper"])  # paired: the same held-out seeds' noise
     eval_wall = time.perf_counter() - t0
     land = [float(J_eval(th, key)) for th in tg.grid(cfg.landscape_points)]
@@ -356,12 +437,16 @@ def run(cfg: TuneConfig, progress: bool = True) -> Outcome:
         "loss_paper": evals["paper"][0], "loss_paper_ci95": paper_ci,
         "loss_tuned": evals["tuned"][0], "loss_tuned_ci95": tuned_ci,
         "loss_random_search": evals["random_search"][0], "loss_random_search_ci95": evals["random_search"][1],
+        **({f"heldout_diverged_{n}": evals[n][2] for n in evals} if held_div is not None else {}),
         "tuned_below_paper_nonoverlapping": bool(tuned_ci[1] < paper_ci[0]),
         "loss_tuned_minus_paper": diff[0], "loss_tuned_minus_paper_ci95": diff[1],
         "simulations_used": sims_grad, "random_search_simulations": int(res.steps * cfg.seeds),
         "tuning_loss_best": res.loss, "random_search_tuning_loss_best": best_rs,
         "gradient_simulations_to_reach_random_search_best": sims_to_rs_best,
         "random_search_simulations_to_its_best": rs_sims_to_best,
+        "gradient_step_cost_in_evaluations": step_cost,
+        "gradient_evaluation_equivalents_to_reach_random_search_best":
+            None if sims_to_rs_best is None else sims_to_rs_best * step_cost,
         "steps": res.steps, "stopped_early": res.stopped_early,
         "trajectory": {"loss": res.loss_history.tolist(),
                        **{k: np.asarray(v).tolist() for k, v in res.theta_history.items()},
@@ -372,6 +457,8 @@ def run(cfg: TuneConfig, progress: bool = True) -> Outcome:
         "wall_s": {"tune": res.wall_s, "random_search": rs.wall_s, "heldout_eval": eval_wall,
                    "total": time.perf_counter() - t_all},
     }
+    if hasattr(tg, "describe"):
+        out.update(tg.describe())
     results = {cfg.target: out}
     figures = {"tune_" + cfg.target: figure(cfg, tg, out)}
     return Outcome(results=results, report=report(cfg, out), figures=figures)
@@ -412,10 +499,12 @@ def report(cfg, r) -> str:
     num = lambda v: f"{v:.5g}" if np.ndim(v) == 0 else "[" + ", ".join(f"{x:.4g}" for x in v) + "]"
     fmt = lambda d: ", ".join(f"{k} = {num(v)}" for k, v in d.items())
     g = r["gradient_simulations_to_reach_random_search_best"]
+    n_tan = sum(int(np.size(v)) for v in r["paper_value"].values())
     lines = [
         f"Target {cfg.target}: tuned {', '.join(p)} on {cfg.seeds} seeds ({cfg.duration} s each, "
-        f"{'common random numbers' if cfg.crn else 'resampled keys'}, Adam lr {cfg.lr} on log-parameters, clip "
-        f"{cfg.clip}, {cfg.mode}-mode derivatives, quantiser derivative: {cfg.smoothing}); {r['steps']} steps"
+        f"{'common random numbers' if cfg.crn else 'resampled keys'}, {'Adam lr' if cfg.optimizer == 'adam' else 'Rprop initial step'} {cfg.lr} on "
+        f"log-parameters, clip {cfg.clip}, {cfg.mode}-mode derivatives, quantiser derivative: "
+        f"{cfg.smoothing if cfg.target in ('cpx', 'rwp', 'dmso') else 'n/a, no quantiser'}); {r['steps']} steps"
         f"{' (stopped early)' if r['stopped_early'] else ''}. Held-out: {cfg.heldout_seeds} disjoint seeds.",
         "",
         "| | value | held-out loss (95% interval) |",
@@ -425,15 +514,23 @@ def report(cfg, r) -> str:
         f"| random search ({r['random_search_simulations']} sims) | {fmt(r['random_search_value'])} | "
         f"{fmt_ci(r['loss_random_search'], r['loss_random_search_ci95'])} |",
         "",
+        *([f"Held-out seeds diverged (each counted with the penalty {cfg.divergence_penalty:g}): paper "
+           f"{r['heldout_diverged_paper']}, tuned {r['heldout_diverged_tuned']}, random search "
+           f"{r['heldout_diverged_random_search']} of {cfg.heldout_seeds}.", ""]
+          if "heldout_diverged_paper" in r else []),
         f"Tuned below paper with non-overlapping intervals: {'yes' if r['tuned_below_paper_nonoverlapping'] else 'no'}"
         f"; paired difference tuned - paper on the same held-out seeds: "
         f"{fmt_ci(r['loss_tuned_minus_paper'], r['loss_tuned_minus_paper_ci95'])}."
         f" Best tuning-seed loss: gradient {r['tuning_loss_best']:.5g}, random search "
-        f"{r['random_search_tuning_loss_best']:.5g}; the gradient run reached the random search's best after "
-        f"{g if g is not None else 'never (within its budget)'} simulations, the random search after "
-        f"{r['random_search_simulations_to_its_best']} (a gradient step costs one forward-mode pass per seed, "
-        f"about {r['wall_s']['tune'] / max(r['wall_s']['random_search'], 1e-9):.2g}x the wall time of the random "
-        f"search's evaluations in this run, compilation included).",
+        f"{r['random_search_tuning_loss_best']:.5g}; the gradient run "
+        f"{f'reached the random search best after {g} simulations' if g is not None else 'did not reach the random search best within its budget'}"
+        f", the random search found it after "
+        f"{r['random_search_simulations_to_its_best']}. A gradient step (one forward-mode pass per seed carrying "
+        f"{n_tan} tangent{'s' if n_tan > 1 else ''}) cost "
+        f"{r['gradient_step_cost_in_evaluations']:.3g}x a plain evaluation in wall time (medians, compilation "
+        f"excluded), so in evaluation-equivalents the gradient run needed "
+        f"{'n/a' if g is None else format(r['gradient_evaluation_equivalents_to_reach_random_search_best'], '.4g')}"
+        f" simulations to reach the random search's best.",
     ]
     return "\n".join(lines)
 

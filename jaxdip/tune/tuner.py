@@ -32,6 +32,9 @@ class TuneResult(NamedTuple):
     steps: int  # steps taken
     stopped_early: bool
     wall_s: float
+    # wall time of each step taken in this call (the first includes compilation; NaN for steps restored from a
+    # checkpoint): the cost of a gradient step against a plain evaluation is measured, not assumed
+    step_wall: Optional[np.ndarray] = None
 
 
 class _State(NamedTuple):
@@ -134,13 +137,16 @@ def tune(objective: Callable, init_params, key, *, steps: int = 100, lr: float =
     done = int(st.step)
     bar = Progress(steps, desc=desc, enabled=progress)
     bar.update(done)
+    step_wall = [float("nan")] * done
     stopped = bool(early_stop_patience is not None and done > 0 and int(st.since_best) >= early_stop_patience)
     while done < steps and not stopped:
         k = key if common_random_numbers else jax.random.fold_in(key, done)
+        ts = time.perf_counter()
         loss, g = value_and_grad(st.u, k)
         st = apply(st, loss, g)
         done += 1
         lv = float(loss)
+        step_wall.append(time.perf_counter() - ts)
         bar.update(1, postfix=f"J={lv:.4g} best={float(st.best_loss):.4g}")
         stopped = early_stop_patience is not None and int(st.since_best) >= early_stop_patience
         if checkpoint_path is not None and (done % checkpoint_every == 0 or done == steps or stopped):
@@ -153,7 +159,7 @@ def tune(objective: Callable, init_params, key, *, steps: int = 100, lr: float =
         theta=to_constrained(spec, st.best_u), loss=float(st.best_loss),
         theta_history=jax.tree_util.tree_map(lambda h: np.asarray(h[:n]), st.theta_hist),
         loss_history=np.asarray(st.loss_hist[:n]), grad_norm_history=np.asarray(st.gnorm_hist[:n]),
-        steps=n, stopped_early=bool(stopped), wall_s=time.perf_counter() - t0)
+        steps=n, stopped_early=bool(stopped), wall_s=time.perf_counter() - t0, step_wall=np.asarray(step_wall))
 
 
 class SearchResult(NamedTuple):
@@ -162,6 +168,7 @@ class SearchResult(NamedTuple):
     samples: Any  # pytree of arrays, leading axis = budget
     losses: np.ndarray
     wall_s: float
+    eval_wall: Optional[np.ndarray] = None  # wall time of each evaluation (the first includes compilation)
 
 
 def random_search(objective_eval: Callable, sampler: Callable, budget: int, key, *, progress: bool = True,
@@ -170,16 +177,18 @@ def random_search(objective_eval: Callable, sampler: Callable, budget: int, key,
     if budget < 1:
         raise ValueError(f"budget must be >= 1, got {budget}")
     t0 = time.perf_counter()
-    samples, losses = [], []
+    samples, losses, walls = [], [], []
     bar = Progress(budget, desc=desc, enabled=progress)
     for i in range(budget):
         th = sampler(jax.random.fold_in(key, i))
         samples.append(th)
+        ts = time.perf_counter()
         losses.append(float(objective_eval(th)))
+        walls.append(time.perf_counter() - ts)
         bar.update(1, postfix=f"best={np.nanmin(losses):.4g}")
     bar.close()
     losses = np.asarray(losses)
     finite = np.where(np.isfinite(losses), losses, np.inf)
     b = int(np.argmin(finite))
     stacked = jax.tree_util.tree_map(lambda *a: np.stack([np.asarray(x) for x in a]), *samples)
-    return SearchResult(samples[b], float(losses[b]), stacked, losses, time.perf_counter() - t0)
+    return SearchResult(samples[b], float(losses[b]), stacked, losses, time.perf_counter() - t0, np.asarray(walls))
