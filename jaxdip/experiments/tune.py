@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 
 from jaxdip import checkpoint as ckpt
 from jaxdip import config as C
@@ -88,6 +89,17 @@ class Target:
 
     def objective(self, seeds, smooth: bool):
         raise NotImplementedError
+
+    def log_uniform_around(self, names, keys):
+        """Random-search draws: each named paper value times exp(U(-log factor, log factor)), one key each."""
+        lf = math.log(self.factor)
+        return {k: self.paper[k] * jnp.exp(jax.random.uniform(kk, jnp.shape(self.paper[k]), minval=-lf, maxval=lf))
+                for k, kk in zip(names, keys)}
+
+    def grid(self, n):
+        """The landscape: ``param`` on a geometric grid within paper value x/÷ factor, the others at the paper's."""
+        v = float(self.paper[self.param])
+        return [{**self.paper, self.param: jnp.asarray(g)} for g in np.geomspace(v / self.factor, v * self.factor, n)]
 
 
 class CPXTarget(Target):
@@ -170,15 +182,10 @@ class RWPTarget(Target):
 
     def sample(self, key):
         ks = jax.random.split(key, 4)
-        lf = math.log(self.factor)
-        out = {k: self.paper[k] * jnp.exp(jax.random.uniform(kk, minval=-lf, maxval=lf))
-               for k, kk in zip(("k_p1", "k_p2", "L0"), ks[:3])}
+        out = self.log_uniform_around(("k_p1", "k_p2", "L0"), ks[:3])
         out["alpha_p"] = jax.random.uniform(ks[3], minval=0.5 + 1e-3, maxval=1.0)
         return out
 
-    def grid(self, n):
-        v = float(self.paper["L0"])
-        return [{**self.paper, "L0": jnp.asarray(g)} for g in np.geomspace(v / self.factor, v * self.factor, n)]
 
 
 class DMSOTarget(Target):
@@ -239,14 +246,7 @@ class DMSOTarget(Target):
         return J
 
     def sample(self, key):
-        lf = math.log(self.factor)
-        k1, k2 = jax.random.split(key)
-        return {"Gamma": self.paper["Gamma"] * jnp.exp(jax.random.uniform(k1, minval=-lf, maxval=lf)),
-                "K": self.paper["K"] * jnp.exp(jax.random.uniform(k2, (4,), minval=-lf, maxval=lf))}
-
-    def grid(self, n):
-        v = float(self.paper["Gamma"])
-        return [{**self.paper, "Gamma": jnp.asarray(g)} for g in np.geomspace(v / self.factor, v * self.factor, n)]
+        return self.log_uniform_around(("Gamma", "K"), jax.random.split(key))
 
 
 class RPTarget(Target):
@@ -296,12 +296,7 @@ class RPTarget(Target):
         return J
 
     def sample(self, key):
-        lf = math.log(self.factor)
-        return {"gamma": self.paper["gamma"] * jnp.exp(jax.random.uniform(key, minval=-lf, maxval=lf))}
-
-    def grid(self, n):
-        v = float(self.paper["gamma"])
-        return [{"gamma": jnp.asarray(g)} for g in np.geomspace(v / self.factor, v * self.factor, n)]
+        return self.log_uniform_around(("gamma",), (key,))
 
 
 class ExtraTarget(Target):
@@ -320,11 +315,9 @@ class ExtraTarget(Target):
     def __init__(self, cfg: TuneConfig):
         from jaxdip.experiments import twip_extra_control as E
 
-        self.E = E
         self.ecfg = E.TwipExtraControlConfig(duration=cfg.duration, substeps=cfg.substeps)
-        self.loop = E.build_loop(self.ecfg)
+        self.scores = E.seed_scores(self.ecfg)
         self.lp0 = E.loop_params(self.ecfg, "unmodeled", "extra")
-        self.n_steps = E.n_steps(self.ecfg)
         self.x0 = E.x0_thesis(self.ecfg)
         cp = self.lp0.controller
         self.paper = {k: jnp.asarray(getattr(cp, k), dtype=jnp.float64) for k in self.KEYS}
@@ -339,12 +332,10 @@ class ExtraTarget(Target):
         return {"twip_extra_control_config": C.to_dict(self.ecfg)}
 
     def objective(self, seeds, smooth: bool):
-        E, loop, n, x0, spread = self.E, self.loop, self.n_steps, self.x0, self.ecfg.init_spread
         seeds = jnp.asarray(seeds, dtype=jnp.uint32)
 
         def score_div(theta, key):
-            lp = self.make_params(theta)
-            return jax.vmap(lambda i: E.simulate_seed(loop, lp, n, x0, spread, i, key))(seeds)
+            return self.scores(self.make_params(theta), self.x0, self.ecfg.init_spread, seeds, key)
 
         def per_seed(theta, key):
             s, d = score_div(theta, key)
@@ -358,14 +349,7 @@ class ExtraTarget(Target):
         return J
 
     def sample(self, key):
-        lf = math.log(self.factor)
-        ks = jax.random.split(key, len(self.KEYS))
-        return {k: self.paper[k] * jnp.exp(jax.random.uniform(kk, minval=-lf, maxval=lf))
-                for k, kk in zip(self.KEYS, ks)}
-
-    def grid(self, n):
-        v = float(self.paper[self.param])
-        return [{**self.paper, self.param: jnp.asarray(g)} for g in np.geomspace(v / self.factor, v * self.factor, n)]
+        return self.log_uniform_around(self.KEYS, jax.random.split(key, len(self.KEYS)))
 
 
 def make_target(cfg: TuneConfig, **kw) -> Target:
@@ -395,8 +379,6 @@ def run(cfg: TuneConfig, progress: bool = True) -> Outcome:
     held_div = jax.jit(held_obj.diverged) if hasattr(held_obj, "diverged") else None
 
     ctx = current_run()
-    import optax
-
     res = tune(J_tune, tg.paper, key, steps=cfg.steps, lr=cfg.lr, spec=tg.spec, clip=cfg.clip,
                optimizer=optax.rprop(cfg.lr) if cfg.optimizer == "rprop" else None,
                common_random_numbers=cfg.crn, early_stop_patience=cfg.patience or None,

@@ -271,24 +271,28 @@ def simulate_seed(loop: Loop, lp: LoopParams, n: int, x0, spread, i, base_key):
     return score_of(lp, rec, loop.dt), carry.diverged
 
 
-def batch_fn(cfg: TwipExtraControlConfig):
+def seed_scores(cfg: TwipExtraControlConfig):
+    """(LoopParams, x0, spread, seed indices, key) -> (scores, diverged), vmapped over the seeds, not jitted
+    (the one per-seed Monte Carlo map of this experiment: batches, ``score_fn`` and the tune target use it)."""
     loop = build_loop(cfg)
     n = n_steps(cfg)
-    return jax.jit(jax.vmap(lambda lp, x0, spread, i, key: simulate_seed(loop, lp, n, x0, spread, i, key),
-                            in_axes=(None, None, None, 0, None)))
+    return jax.vmap(lambda lp, x0, spread, i, key: simulate_seed(loop, lp, n, x0, spread, i, key),
+                    in_axes=(None, None, None, 0, None))
+
+
+def batch_fn(cfg: TwipExtraControlConfig):
+    return jax.jit(seed_scores(cfg))
 
 
 def score_fn(cfg: TwipExtraControlConfig, case: str = "param", system: str = "extra", n_seeds: int = 1):
     """(controller params -> mean score over seeds 0..n_seeds-1): the differentiable objective of a tuner."""
-    loop = build_loop(cfg)
-    n = n_steps(cfg)
+    scores = seed_scores(cfg)
     lp0 = loop_params(cfg, case, system)
     x0 = x0_thesis(cfg)
     key = jax.random.PRNGKey(cfg.seed)
 
     def J(cp: ExtraControlParams):
-        lp = lp0._replace(controller=cp)
-        s, _ = jax.vmap(lambda i: simulate_seed(loop, lp, n, x0, cfg.init_spread, i, key))(jnp.arange(n_seeds))
+        s, _ = scores(lp0._replace(controller=cp), x0, cfg.init_spread, jnp.arange(n_seeds), key)
         return jnp.mean(s)
 
     return J, lp0.controller
@@ -342,6 +346,16 @@ def run_system(cfg, fn, lp, bar=None):
     return np.concatenate(scores), np.concatenate(divs)
 
 
+def versus_lqr(s, d, lqr_s, lqr_d) -> dict:
+    """improvement = 1 - mean score / LQR's (each over its own non-diverged seeds), and its paired form over the
+    seeds where neither diverged."""
+    out = {"improvement": 1.0 - stats.mean_ci(s, ~d)[0] / stats.mean_ci(lqr_s, ~lqr_d)[0]}
+    ok = ~d & ~lqr_d
+    if ok.any():
+        out["improvement_paired_mean"], out["improvement_paired_ci95"] = stats.mean_ci(1.0 - s[ok] / lqr_s[ok])
+    return out
+
+
 def summarize_case(scores: dict, divs: dict) -> dict:
     out = {}
     for sysname in SYSTEMS:
@@ -351,13 +365,9 @@ def summarize_case(scores: dict, divs: dict) -> dict:
         frac, fci = stats.wilson(int(d.sum()), len(d))
         out[sysname] = {"score_mean": m, "score_ci95": ci, "score_median": med, "score_seed0": float(s[0]),
                         "diverged": int(d.sum()), "diverged_fraction": frac, "diverged_fraction_ci95": fci}
+    out.update(versus_lqr(scores["extra"], divs["extra"], scores["lqr"], divs["lqr"]))
     ok = ~divs["lqr"] & ~divs["extra"]
-    out["improvement"] = 1.0 - out["extra"]["score_mean"] / out["lqr"]["score_mean"]
     if ok.any():
-        ratio = 1.0 - scores["extra"][ok] / scores["lqr"][ok]
-        m, ci = stats.mean_ci(ratio)
-        out["improvement_paired_mean"] = m
-        out["improvement_paired_ci95"] = ci
         out["extra_better_fraction"] = float(np.mean(scores["extra"][ok] < scores["lqr"][ok]))
     out["extra_bounded_fraction"] = float(np.mean(~divs["extra"]))
     out["lqr_diverged_fraction"] = float(np.mean(divs["lqr"]))
@@ -404,12 +414,8 @@ def fig_case(case, traces: dict, cfg):
 
 def summarize_variant(s, d, lqr_s, lqr_d) -> dict:
     m, ci = stats.mean_ci(s, ~d)
-    out = {"score_mean": m, "score_ci95": ci, "diverged": int(d.sum()), "bounded_fraction": float(np.mean(~d)),
-           "improvement": 1.0 - m / stats.mean_ci(lqr_s, ~lqr_d)[0]}
-    ok = ~d & ~lqr_d
-    if ok.any():
-        out["improvement_paired_mean"], out["improvement_paired_ci95"] = stats.mean_ci(1.0 - s[ok] / lqr_s[ok])
-    return out
+    return {"score_mean": m, "score_ci95": ci, "diverged": int(d.sum()), "bounded_fraction": float(np.mean(~d)),
+            **versus_lqr(s, d, lqr_s, lqr_d)}
 
 
 def run(cfg: TwipExtraControlConfig, progress: bool = True) -> Outcome:
