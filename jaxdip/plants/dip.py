@@ -91,7 +91,7 @@ def solve_sym3(m11, m12, m13, m22, m23, m33, b1, b2, b3):
 
 def f_printed(p: DIPParams, x, u):
     """Equations of motion as printed in thesis §3.1.1, with Mw in the cart mass."""
-    xc, a, th, xcd, ad, thd = x[0], x[1], x[2], x[3], x[4], x[5]
+    _xc, a, th, xcd, ad, thd = x[0], x[1], x[2], x[3], x[4], x[5]
     V = jnp.reshape(u, (-1,))[0]
     s_a, c_a = jnp.sin(a), jnp.cos(a)
     s_at, c_at = jnp.sin(a + th), jnp.cos(a + th)
