@@ -21,6 +21,7 @@ import numpy as np
 
 from jaxdip import config as C
 from jaxdip.experiments import dip_lqr
+from jaxdip.outdir import write_file_atomic
 from jaxdip.plants.dip import DIPParams
 from jaxdip.sim import montecarlo
 from jaxdip.sim.loop import advance, init_carry
@@ -83,6 +84,15 @@ def matmul_peak(n=1024):
     return 2 * n**3 / t
 
 
+def is_bench_file(text: str) -> bool:
+    """Whether ``text`` is a bench.json that jaxdip wrote (so ``--out`` may replace it)."""
+    try:
+        d = json.loads(text)
+    except ValueError:
+        return False
+    return isinstance(d, dict) and (d.get("tool") == "jaxdip bench" or {"machine", "periods_per_s"} <= set(d))
+
+
 def run_bench(quick: bool = False, out: str = "bench.json") -> dict:
     cfg = C.load(dip_lqr.DipLqrConfig)
     loop, params, x0_fn, _ = dip_lqr.build(cfg)
@@ -132,6 +142,7 @@ def run_bench(quick: bool = False, out: str = "bench.json") -> dict:
 
     best = max(v for k, v in rows.items())
     result = {
+        "tool": "jaxdip bench",
         "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "devices": jax.device_count(),
                     "backend": jax.default_backend(), "jax_version": jax.__version__},
         "periods_per_s": {**rows, "numpy_loop": np_rate},
@@ -143,9 +154,7 @@ def run_bench(quick: bool = False, out: str = "bench.json") -> dict:
         "n_periods": n_periods,
         "quick": quick,
     }
-    with open(out + ".tmp", "w") as fh:
-        json.dump(result, fh, indent=2)
-    os.replace(out + ".tmp", out)
+    write_file_atomic(out, json.dumps(result, indent=2))
     w = max(len(k) for k in result["periods_per_s"])
     for k, v in result["periods_per_s"].items():
         ratio = result["ratio_vs_numpy"].get(k)

@@ -52,7 +52,7 @@ def test_list_and_unknown_experiment():
     r = jaxdip("list")
     assert r.returncode == 0 and "dip-lqr" in r.stdout.split()
     r = jaxdip("run", "dip-lqq")
-    assert r.returncode == 2 and r.stderr.startswith("error: unknown experiment 'dip-lqq'")
+    assert r.returncode == 2 and r.stderr.startswith("error: dip-lqq: unknown experiment")
 
 
 def test_run_writes_contract_and_is_reproducible(tmp_path):

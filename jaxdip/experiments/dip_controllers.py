@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip.control import feedback_params, lqr, state_feedback
 from jaxdip.control.power_series import power_series_controller, ps_params
@@ -59,6 +60,11 @@ class DipControllersConfig:
     state_bound: list[float] = C.field([1.0, 1.5708, 1.5708, INF, INF, INF], C.positive, C.length(6),
                                        doc="|x_i| above this counts as divergence")
     stabilized_tol: float = C.field(0.02, C.positive_finite, doc="max |alpha|, |theta| over the last second")
+
+    def loads(self) -> list[Load]:
+        n = steps_of(self.duration, self.dt)
+        return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds, n),
+                Load("the noise-free trajectory", ("duration",), 1, n, saved=20 * n)]
 
     def validate(self):
         weight_matrix("Q", self.Q, 6)

@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.control.power_series import power_series_controller, ps_params
@@ -90,6 +91,12 @@ class DipCpxLdfConfig:
     sweep_max: float = C.field(1e5, C.positive_finite, doc="gamma sweep: largest gamma")
     sweep_seeds: int = C.field(100, C.positive, doc="gamma sweep: seeds per gamma")
     figure_seed: int = C.field(0, C.nonneg, doc="seed of the trial shown in the velocity-estimate figure")
+
+    def loads(self) -> list[Load]:
+        n = steps_of(self.duration, self.dt)
+        return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds, n),
+                Load("the gamma sweep", ("sweep_seeds", "duration"), self.sweep_seeds, n),
+                Load("the velocity-estimate trial", ("duration",), 1, n, saved=80 * n)]
 
     def validate(self):
         weight_matrix("Q", self.Q, 6)

@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip.control import feedback_params, lqr, state_feedback
 from jaxdip.estimators import passthrough
@@ -45,6 +46,11 @@ class DipLqrConfig:
     stabilized_tol: float = C.field(0.02, C.positive_finite,
                                     doc="stabilised: max |alpha|, |theta| over the last second below this (rad)")
     record_every: int = C.field(10, C.positive, doc="keep every n-th period for the figures")
+
+    def loads(self) -> list[Load]:
+        n = steps_of(self.duration, self.dt)
+        return [Load("the Monte Carlo", ("seeds", "duration", "record_every"), self.seeds, n,
+                     saved=2 * (n // self.record_every))]
 
     def validate(self):
         weight_matrix("Q", self.Q, 6)

@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.resources import Load
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.control import dlqr
@@ -64,6 +65,14 @@ class EkiExampleConfig:
     judge_std: float = C.field(1.0, C.positive_finite, doc="std of those initial states")
     judge_steps: int = C.field(200, C.positive, doc="steps of those simulations")
     judge_tol: float = C.field(1e-3, C.positive_finite, doc="final |x| below this counts as stabilised")
+
+    def loads(self) -> list[Load]:
+        # searches run in vmapped batches of up to 250 (with their restarts side by side)
+        batch = min(self.seeds, 250) * self.restarts
+        return [Load("the batch of searches", ("seeds", "ensemble", "iterations"), batch * self.ensemble,
+                     self.iterations, saved=4 * self.iterations // self.ensemble + 16),
+                Load("the judging rollouts", ("judge_states", "judge_steps"), self.judge_states, self.judge_steps,
+                     saved=3 * self.judge_steps)]
 
 
 THESIS_V = {"linear": [-0.9975, -0.07], "nonlinear": [0.9950, 0.1003]}

@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.estimators.cpx import CPXParams, cpx_linearized
@@ -74,6 +75,11 @@ class LorenzMheConfig:
     chunk_steps: int = C.field(1000, C.positive, doc="samples per compiled chunk (progress granularity)")
     figure_trial: int = C.field(0, C.nonneg, doc="trial shown in the xL figure")
     record_every: int = C.field(10, C.positive, doc="keep every n-th sample of the figure trial")
+
+    def loads(self) -> list[Load]:
+        n = steps_of(self.duration, self.h)
+        return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds, n, state=4096),
+                Load("the figure trial", ("duration", "record_every"), 1, n, saved=12 * (n // self.record_every))]
 
     def validate(self):
         if self.scpx_p > 3:

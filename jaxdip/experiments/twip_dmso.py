@@ -56,6 +56,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.control import feedback_params, state_feedback
@@ -148,6 +149,11 @@ class TwipDmsoConfig:
                                   "estimate converges in 0.25 s)")
     tilt_bound_deg: float = C.field(90.0, C.positive_finite, doc="|phi| above this counts as a fall (diverged)")
     chunk_seeds: int = C.field(64, C.positive, doc="seeds per compiled batch")
+
+    def loads(self) -> list[Load]:
+        n = max(steps_of(self.duration, self.dt), steps_of(self.duration_fine, self.dt_fine))
+        return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds, n, saved=48 * n),
+                Load("the deterministic cases", ("det_seeds", "duration"), self.det_seeds, n, saved=48 * n)]
 
     def validate(self):
         for i, c in enumerate(self.cases):

@@ -54,6 +54,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.control.extra_control import ExtraControlParams, desired_state, extra_control, extra_control_params
@@ -135,6 +136,11 @@ class TwipExtraControlConfig:
                                   doc="further LQR + extra rows on the same seeds, each 'key=value; key=value' over "
                                       "the controller keys " + ", ".join(VARIANT_KEYS))
     chunk_seeds: int = C.field(250, C.positive, doc="seeds per compiled batch")
+
+    def loads(self) -> list[Load]:
+        n = steps_of(self.duration, self.dt)
+        return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds, n, saved=24 * n,
+                     state=64 * self.n_hidden + 256)]
 
     def validate(self):
         for i, spec in enumerate(self.variants):
