@@ -212,6 +212,8 @@ def _dare(A, B, Q, R, iters):
     G = B @ jnp.linalg.solve(R, B.T)
     X = _sda(A, G, Q, iters)
     # the fallback only replaces a non-finite doubling result, so well-posed problems keep their numbers
+    if not isinstance(X, jax.core.Tracer):  # an eager call decides in Python and compiles one branch, not both
+        return X if bool(jnp.all(jnp.isfinite(X))) else _dare_regularised(A, B, Q, R, G, iters)
     return jax.lax.cond(jnp.all(jnp.isfinite(X)), lambda: X, lambda: _dare_regularised(A, B, Q, R, G, iters))
 
 
