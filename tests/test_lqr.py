@@ -234,6 +234,7 @@ def test_traced_calls_never_raise_and_codes_vmap():
     As = jnp.stack([jnp.diag(jnp.array([-1.0, -1.0])), jnp.asarray(A)])
     _, codes = jax.jit(jax.vmap(care_checked, in_axes=(0, None, None, None)))(As, B, Q, R1)
     assert np.asarray(codes).tolist() == [RiccatiCode.OK, RiccatiCode.NOT_STABILISING]
+    assert RiccatiCode.describe(codes[1]).startswith("not stabilising")
 
 
 def test_error_if_failed_is_opt_in_inside_jit():
