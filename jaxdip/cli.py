@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import re
 import shlex
@@ -133,9 +134,18 @@ def _out_of_memory(e: BaseException) -> bool:
     return isinstance(e, MemoryError) or "RESOURCE_EXHAUSTED" in str(e) or "Out of memory" in str(e)
 
 
+def _riccati_keys(cfg) -> str:
+    """The config keys that shape a Riccati design, to point the user at what to change."""
+    names = [f.name for f in dataclasses.fields(cfg)] if dataclasses.is_dataclass(cfg) else []
+    keys = [n for n in names if n in ("Q", "R", "Q_lqr", "R_lqr", "Qk", "Rk", "W", "V")
+            or n.startswith(("Q_", "R_", "lqr_"))]
+    return ", ".join(keys) if keys else "the weights"
+
+
 def cmd_run(args, argv=None) -> int:
     from jaxdip.checkpoint import CheckpointMismatch
     from jaxdip.config import ConfigError
+    from jaxdip.control.riccati import RiccatiError
     from jaxdip.experiments import run_experiment
     from jaxdip.experiments.base import RunContext
     from jaxdip.outdir import OutputError
@@ -161,6 +171,8 @@ def cmd_run(args, argv=None) -> int:
             return _error(f"{e.key}: {e.why}")
         except CheckpointMismatch as e:
             return _error(f"--resume: {e}")
+        except RiccatiError as e:
+            return _error(f"{_riccati_keys(cfg)}: {e}")
         except KeyboardInterrupt:
             return _interrupted(ckpt, argv)
         except Exception as e:
@@ -175,6 +187,7 @@ def cmd_reproduce(args, argv=None) -> int:
     from jaxdip import config as C
     from jaxdip import outdir
     from jaxdip.config import ConfigError
+    from jaxdip.control.riccati import RiccatiError
     from jaxdip.experiments import registry, run_experiment
     from jaxdip.outdir import OutputError
 
@@ -206,6 +219,8 @@ def cmd_reproduce(args, argv=None) -> int:
                 sections.append(re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", rf"![\1]({exp_id}/\2)", body))
         except (ConfigError, OutputError) as e:
             return _error(f"{e.key}: {e.why}")
+        except RiccatiError as e:
+            return _error(f"{exp_id}: {_riccati_keys(cfgs[exp_id])}: {e}")
         except KeyboardInterrupt:
             print(f"interrupted: the experiments finished before it are in {args.out}", file=sys.stderr)
             return 130

@@ -162,6 +162,8 @@ CASES = [
     ("set_Q_ragged", [*RUN, "--set", "Q=[[1,0,0,0,0,0],[1.0]]", "--out", "o"], "Q"),
     ("set_Q_mixed", [*RUN, "--set", "Q=[1,[2]]", "--out", "o"], "Q"),
     ("set_Q_not_psd", [*RUN, "--set", "Q=[-1,0,0,0,0,0]", "--out", "o"], "Q"),
+    # PSD but leaves the cart position unseen: no stabilising CARE solution
+    ("set_Q_not_detectable", [*RUN, "--set", "Q=[0,350,100,0,0,0]", "--out", "o"], "Q, R"),
     ("set_seed_expression", [*RUN, "--set", "seed=2**70", "--out", "o"], "seed"),
     ("set_seed_huge", [*RUN, "--set", f"seed={BIG}", "--out", "o"], "seed"),
     ("set_seed_negative", [*RUN, "--set", "seed=-1", "--out", "o"], "seed"),
