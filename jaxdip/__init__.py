@@ -18,8 +18,8 @@ __version__ = "0.1.0"
 from jaxdip import plants, sim  # noqa: E402,F401
 from jaxdip import control, estimators  # noqa: E402,F401
 from jaxdip.engine import (  # noqa: E402,F401
-    RESULTS, Actuator, Aux, Ball, Controller, DiscretePlant, Estimator, FanOut, FanOutAux, Identity, Legacy,
-    LegacyPlant, Loop, Passthrough, Plant, Rollout, Sample, Sensor, Solution, State, init_state, linearize,
+    RESULTS, Actuator, Aux, Ball, Controller, DiscretePlant, Estimator, FanOut, FanOutAux, Identity, KeySchedule,
+    Legacy, LegacyPlant, Loop, Passthrough, Plant, Rollout, Sample, Sensor, Solution, State, init_state, linearize,
     metrics, monte_carlo, param, simulate,
 )
 from jaxdip.sim import sensors  # noqa: E402,F401

@@ -91,11 +91,12 @@ class Gaussian(eqx.Module):
     """A toy Monte Carlo target with one hyperparameter; counts how often it is traced."""
 
     mean: jax.Array = jd.param(0.0)
+    scale: jax.Array = jd.param(1.0)
     traces = [0]
 
     def __call__(self, key):
         Gaussian.traces[0] += 1
-        return self.mean + jax.random.normal(key, (2,))
+        return self.mean + self.scale * jax.random.normal(key, (2,))
 
 
 def test_sweep_compiles_once_and_equals_separate_runs():
@@ -110,6 +111,9 @@ def test_sweep_compiles_once_and_equals_separate_runs():
                                    rtol=1e-14)
     # the unswept program, traced once for all four values
     assert Gaussian.traces[0] == 2
+    # several leaves at once
+    both = jd.monte_carlo(Gaussian(), key, 9, sweep=(lambda g: (g.mean, g.scale), (means, jnp.zeros(4))))
+    np.testing.assert_array_equal(np.asarray(both), np.broadcast_to(np.asarray(means)[:, None, None], (4, 9, 2)))
 
 
 def test_rollout_sweep_over_a_hyperparameter_compiles_once():
@@ -134,7 +138,7 @@ def test_rollout_sweep_over_a_hyperparameter_compiles_once():
 
 
 def test_grad_through_monte_carlo_matches_central_differences():
-    r = dip_rollout(steps=60, substeps=1)  # one RK4 step per period: a smaller program to differentiate
+    r = dip_rollout(steps=30, substeps=1)  # one RK4 step per period: a smaller program to differentiate
     key = jax.random.PRNGKey(4)
 
     def cost(scale):

@@ -281,3 +281,72 @@ def test_native_and_legacy_components_reproduce_the_original_loop():
         sol = simulate(loop, x0, key, n, save=lambda s: (s.x, s.xhat, s.u, s.y))
         for a, b in zip(sol.saved, (rec.x, rec.xhat, rec.u, rec.y)):
             np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-15)
+
+
+def test_native_estimators_equal_their_init_step_versions():
+    """KalmanFilter and CPX as Modules give the numbers of kalman() and cpx_qr() with the same parameters."""
+    from jaxdip.estimators import CPXParams, KFParams, cpx_qr, filter_sequence, kalman_filter
+
+    model = jd.zoh(*jd.linearize(Pendulum()), DT)
+    rng = np.random.default_rng(0)
+    T = 50
+    ys, us = jnp.asarray(rng.normal(size=(T, 2))), jnp.asarray(rng.normal(size=(T, 1)))
+    us_prev = jnp.concatenate([jnp.zeros((1, 1)), us[:-1]])
+    x0 = jnp.array([0.3, -0.1])
+
+    def run(est):
+        def body(s, inp):
+            k, y, u = inp
+            s, out, aux = est.step(s, y, u, None, k)
+            return s, (out, aux)
+
+        return jax.lax.scan(body, est.init(None, x0), (jnp.arange(T), ys, us_prev))[1]
+
+    kf = jd.estimators.KalmanFilter(model.Phi, model.W, np.eye(2), 1e-4 * np.eye(2), 0.1 * np.eye(2), np.eye(2),
+                                    xhat0=np.array([0.1, 0.0]))
+    ref = filter_sequence(kalman_filter(), KFParams(kf.Phi, kf.W, kf.C, kf.Q, kf.R, kf.P0, kf.xhat0), ys, us_prev, x0)
+    out, P = jax.jit(run)(kf)
+    np.testing.assert_array_equal(out, ref[1])
+    assert P.shape == (T, 2, 2) and np.all(np.linalg.eigvalsh(np.asarray(P)) > 0)
+    for output in ("prediction", "current"):
+        cpx = jd.estimators.CPX(gamma=20.0, model=model, C=np.eye(2), xhat0=np.zeros(2), output=output)
+        ref = filter_sequence(cpx_qr(output), CPXParams(cpx.gamma, cpx.model, cpx.C, cpx.xhat0), ys, us_prev, x0)
+        out, current = jax.jit(run)(cpx)
+        np.testing.assert_array_equal(out, ref[1])
+        if output == "current":
+            np.testing.assert_array_equal(current, out)
+
+
+class TwoStreams(jd.KeySchedule):
+    """An older convention (as in lorenz-mhe): one init key for all, and period k's key split in two, the first
+    half for the measurement, the second for the process noise."""
+
+    def init(self, key):
+        k = jax.random.fold_in(key, 1)
+        return k, k, k, k
+
+    def period(self, base, k):
+        kk = jax.random.fold_in(base, k)
+        eps, eta = jax.random.split(kk)
+        return eps, kk, kk, kk, eta
+
+
+class RawNoise(jd.Sensor):
+    std: jax.Array = jd.param()
+
+    def step(self, state, x, key, k):
+        return state, x + self.std * jax.random.normal(key, x.shape), None
+
+
+def test_key_schedule_decides_which_key_drives_which_noise():
+    plant = Blowup(gain=1.0)  # x_{k+1} = x_k + u_k, u = 0: the increments are the process noise
+    loop = jd.Loop(plant=plant, sensor=RawNoise(0.5), estimator=jd.Passthrough(),
+                   controller=jd.control.StateFeedback(jnp.zeros((1, 1))), dt=1.0, process_noise_std=0.1,
+                   keys=TwoStreams())
+    key = jax.random.PRNGKey(6)
+    sol = simulate(loop, jnp.array([0.0]), key, 20, save=lambda s: (s.x, s.y))
+    x, y = (np.asarray(a)[:, 0] for a in sol.saved)
+    for k in range(19):
+        eps, eta = jax.random.split(jax.random.fold_in(jax.random.fold_in(key, 2), k))
+        np.testing.assert_allclose(y[k] - x[k], 0.5 * float(jax.random.normal(eps, (1,))[0]), rtol=1e-12)
+        np.testing.assert_allclose(x[k + 1] - x[k], 0.1 * float(jax.random.normal(eta, (1,))[0]), rtol=1e-9)

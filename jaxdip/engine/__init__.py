@@ -6,11 +6,14 @@ from jaxdip.engine.roles import (
     Actuator, Controller, DiscretePlant, Estimator, FanOut, FanOutAux, Identity, Legacy, LegacyPlant, Passthrough,
     Plant, Sensor, linearize, param,
 )
-from jaxdip.engine.simulate import RESULTS, Aux, Loop, Sample, Solution, State, init_state, simulate
+from jaxdip.engine.simulate import (
+    RESULTS, Aux, KeySchedule, Loop, Sample, Solution, State, init_state, simulate,
+)
 from jaxdip.engine.driver import Ball, Rollout, device_mesh, monte_carlo
 
 __all__ = [
     "metrics", "Actuator", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux", "Identity",
-    "Legacy", "LegacyPlant", "Passthrough", "Plant", "Sensor", "linearize", "param", "RESULTS", "Aux", "Loop",
+    "Legacy", "LegacyPlant", "Passthrough", "Plant", "Sensor", "linearize", "param", "RESULTS", "Aux",
+    "KeySchedule", "Loop",
     "Sample", "Solution", "State", "init_state", "simulate", "Ball", "Rollout", "device_mesh", "monte_carlo",
 ]

@@ -216,9 +216,9 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
             from jax.sharding import NamedSharding, PartitionSpec
 
             idx = jax.device_put(idx, NamedSharding(device_mesh(devices), PartitionSpec("seeds")))
-        if not rollout:
+        if not rollout or len(sizes) == 1:  # the whole horizon at once: one program, one dispatch
             outs.append(wait(_batch(_m_call, fn, where, values, key, idx, None, 0)))
-            bar.update(1)
+            bar.update(fn.steps if rollout else 1)
             continue
         state = _batch(_m_init, fn, where, values, key, idx, None, 0)
         saved = []

@@ -11,8 +11,8 @@ One sample period k, in the order the laboratory loops run:
 Randomness, from the trajectory's key ``key`` (seed i of a Monte Carlo run has ``key = fold_in(base, i)``):
 the component states start from ``split(fold_in(key, 1), 4)`` (sensor, estimator, controller, actuator) and
 period k uses ``split(fold_in(fold_in(key, 2), k), 5)`` (sensor, estimator, controller, actuator, process
-noise). Results therefore do not depend on how a run is chunked in time or batched over seeds. (The driver
-draws a random initial state from ``fold_in(key, 0)``.)
+noise); ``KeySchedule`` holds this convention. Results therefore do not depend on how a run is chunked in
+time or batched over seeds. (The driver draws a random initial state from ``fold_in(key, 0)``.)
 
 Failure is data: once x_{k+1} is non-finite or leaves the bound ``|x - plant.equilibrium()| <= state_bound``,
 the trajectory's ``result`` code is set (``RESULTS``), the plant state is frozen at the last good x_k, and the
@@ -41,11 +41,31 @@ class RESULTS(enum.IntEnum):
     out_of_bounds = 2  # |x - equilibrium| exceeded state_bound in some component
 
 
+class KeySchedule(eqx.Module):
+    """How a trajectory's key is divided among the roles: the library's convention (module docstring).
+
+    Subclass it only to reproduce an older random stream exactly when moving code onto the engine; every
+    trajectory of a new experiment should use this default."""
+
+    def init(self, key):
+        """Keys of the sensor, estimator, controller and actuator ``init``."""
+        return jax.random.split(jax.random.fold_in(key, 1), 4)
+
+    def base(self, key):
+        """The per-trajectory key the period keys are folded from (computed once, outside the scan)."""
+        return jax.random.fold_in(key, 2)
+
+    def period(self, base, k):
+        """Keys of the sensor, estimator, controller, actuator and process noise at period ``k``."""
+        return jax.random.split(jax.random.fold_in(base, k), 5)
+
+
 class Loop(eqx.Module):
     """A closed loop: its components (each with its own hyperparameters) and the sampling structure.
 
     ``dt`` and ``substeps`` are static; ``process_noise_std`` (std of Gaussian noise added to the state after
-    every period, scalar or per state) and ``state_bound`` (per state or scalar) are traced leaves.
+    every period, scalar or per state) and ``state_bound`` (per state or scalar) are traced leaves. ``keys``
+    divides the trajectory's key among the roles (leave the default).
     """
 
     plant: Any
@@ -57,6 +77,7 @@ class Loop(eqx.Module):
     substeps: int = eqx.field(default=10, static=True)
     process_noise_std: jax.Array = param(0.0)
     state_bound: jax.Array = param(jnp.inf)
+    keys: KeySchedule = eqx.field(default_factory=KeySchedule)
 
 
 class Aux(NamedTuple):
@@ -101,10 +122,9 @@ class Solution(NamedTuple):
     result: jax.Array  # RESULTS code
 
 
-def _period(loop: Loop, st: State, step_key):
+def _period(loop: Loop, st: State, base):
     """One period without failure handling: (new component states, x_{k+1}, u_k, sample)."""
-    key = jax.random.fold_in(step_key, st.k)
-    k_sens, k_est, k_ctrl, k_act, k_proc = jax.random.split(key, 5)
+    k_sens, k_est, k_ctrl, k_act, k_proc = loop.keys.period(base, st.k)
     s_sens, y, a_sens = loop.sensor.step(st.sensor, st.x, k_sens, st.k)
     s_est, xhat, a_est = loop.estimator.step(st.estimator, y, st.u_prev, k_est, st.k)
     s_ctrl, u, a_ctrl = loop.controller.step(st.controller, xhat, k_ctrl, st.k)
@@ -116,8 +136,8 @@ def _period(loop: Loop, st: State, step_key):
     return (s_sens, s_est, s_ctrl, s_act), x_next, u, sample
 
 
-def _step(loop: Loop, metrics, step_key, st: State):
-    comps, x_next, u, sample = _period(loop, st, step_key)
+def _step(loop: Loop, metrics, base, st: State):
+    comps, x_next, u, sample = _period(loop, st, base)
     dev = jnp.abs(x_next - loop.plant.equilibrium())
     code = jnp.where(~jnp.all(jnp.isfinite(x_next)), RESULTS.nonfinite,
                      jnp.where(jnp.any(dev > loop.state_bound), RESULTS.out_of_bounds, RESULTS.ok))
@@ -143,7 +163,7 @@ def _step(loop: Loop, metrics, step_key, st: State):
 def init_state(loop: Loop, x0, key, metrics=None) -> State:
     """The state before period 0 of the trajectory with key ``key`` starting at ``x0``."""
     x0 = jnp.asarray(x0, dtype=jnp.result_type(float))
-    k_sens, k_est, k_ctrl, k_act = jax.random.split(jax.random.fold_in(key, 1), 4)
+    k_sens, k_est, k_ctrl, k_act = loop.keys.init(key)
     st = State(
         k=jnp.zeros((), jnp.int32),
         x=x0,
@@ -159,7 +179,7 @@ def init_state(loop: Loop, x0, key, metrics=None) -> State:
     if metrics is None:
         return st
     # the reducers size their states from the shapes of one period's sample (traced abstractly, not run)
-    template = jax.eval_shape(lambda s, kk: _period(loop, s, kk)[3], st, jax.random.fold_in(key, 2))
+    template = jax.eval_shape(lambda s, b: _period(loop, s, b)[3], st, loop.keys.base(key))
     return st._replace(metrics=_metrics.init(metrics, template))
 
 
@@ -182,10 +202,10 @@ def simulate(loop: Loop, x0, key, steps: int, *, save: Optional[Callable] = None
     if save_every < 1:
         raise ValueError(f"save_every must be >= 1, got {save_every}")
     st = init_state(loop, x0, key, metrics) if start is None else start
-    step_key = jax.random.fold_in(key, 2)
+    base = loop.keys.base(key)
 
     def step(c):
-        return _step(loop, metrics, step_key, c)
+        return _step(loop, metrics, base, c)
 
     if save is None:
         st, saved = jax.lax.scan(lambda c, _: (step(c)[0], None), st, None, length=steps)

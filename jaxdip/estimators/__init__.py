@@ -5,7 +5,7 @@ from jaxdip.engine.roles import FanOut, Passthrough
 from jaxdip.estimators.cpx import CPX, CPXParams, cpx_linearized, cpx_qr
 from jaxdip.estimators.kalman import EKFParams, KFParams, ekf
 from jaxdip.estimators.kalman import kalman as kalman_filter
-from jaxdip.estimators.kalman_filter import KalmanFilter
+from jaxdip.estimators.kf import KalmanFilter
 from jaxdip.estimators.linearized import AffineStep, local_model
 from jaxdip.estimators.passthrough import passthrough
 from jaxdip.estimators.run import filter_sequence
