@@ -97,5 +97,27 @@ def trajectory_summary(res, state_names, stab_idx, stab_tol) -> dict:
     return out
 
 
+def loop_summary(sol, state_names, stab_idx, stab_tol) -> dict:
+    """``trajectory_summary`` for a ``jaxdip.monte_carlo`` Solution whose metrics are ``{"x": Moments("x"),
+    "u": Moments("u"), "tail": Window(MaxAbs("x"), ...)}``: the same quantities, keys and formulas."""
+    from jaxdip import stats
+    from jaxdip.engine import RESULTS
+
+    m = jax.tree_util.tree_map(np.asarray, sol.metrics)
+    failed = np.asarray(sol.result) != RESULTS.ok
+    ok = ~failed
+    stab = ok & np.all(m["tail"][:, list(stab_idx)] < stab_tol, axis=1)
+    frac, ci = stats.wilson(int(stab.sum()), len(stab))
+    out = {"stabilized_fraction": frac, "stabilized_fraction_ci95": ci, "diverged": int(failed.sum()), "states": {}}
+    x, u = m["x"], m["u"]
+    for i, name in enumerate(state_names):
+        out["states"][name] = {**stats.with_ci("mean", x["mean"][:, i], ok), **stats.with_ci("var", x["var"][:, i], ok),
+                               **stats.with_ci("mean_abs", x["mean_abs"][:, i], ok),
+                               **stats.with_ci("var_abs", x["var_abs"][:, i], ok)}
+    out["u"] = {**stats.with_ci("mean_abs", u["mean_abs"][:, 0], ok), **stats.with_ci("var", u["var"][:, 0], ok),
+                **stats.with_ci("var_abs", u["var_abs"][:, 0], ok)}
+    return out
+
+
 def fmt_ci(v, ci, digits=4):
     return f"{v:.{digits}g} [{ci[0]:.{digits}g}, {ci[1]:.{digits}g}]"
