@@ -76,7 +76,7 @@ def reference(loop, x0, key, steps):
     # one compiled call per component and period (eager op-by-op dispatch would take seconds)
     sensor, estimator, controller, actuator = (eqx.filter_jit(c.step) for c in comps)
     u_prev = np.zeros(1)
-    result, failed_at = 0, -1
+    result, failed_at, failed_x = 0, -1, np.zeros(2)
     rows = []
     bound = np.asarray(loop.state_bound)
     for k in range(steps):
@@ -91,9 +91,9 @@ def reference(loop, x0, key, steps):
             jax.random.normal(kk[4], (2,)))
         if result == 0:
             if not np.all(np.isfinite(xn)):
-                result, failed_at = 1, k + 1
+                result, failed_at, failed_x = 1, k + 1, xn
             elif np.any(np.abs(xn) > bound):
-                result, failed_at = 2, k + 1
+                result, failed_at, failed_x = 2, k + 1, xn
         rows.append(dict(k=k, x=x.copy(), xhat=np.asarray(xhat), u=u, live=result == 0))
         if result == 0:
             x = xn
@@ -114,7 +114,7 @@ def reference(loop, x0, key, steps):
         "band": {"step": (outside[-1] + 1) if outside else 0,
                  "settled": bool(live) and (not outside or outside[-1] < live[-1]["k"])},
     }
-    return rows, metrics, result, failed_at, x
+    return rows, metrics, result, (failed_at, failed_x), x
 
 
 def save_x_xhat_u(s):
@@ -123,7 +123,7 @@ def save_x_xhat_u(s):
 
 def check_against_reference(loop, x0, key):
     sol = simulate(loop, x0, key, N, save=save_x_xhat_u, metrics=METRICS)
-    rows, ref, result, failed_at, x_final = reference(loop, x0, key, N)
+    rows, ref, result, (failed_at, failed_x), x_final = reference(loop, x0, key, N)
     for j, name in enumerate(("x", "xhat", "u")):
         np.testing.assert_allclose(np.asarray(sol.saved[j]), np.array([r[name] for r in rows]), rtol=1e-12,
                                    atol=1e-12)
@@ -137,6 +137,7 @@ def check_against_reference(loop, x0, key):
     assert int(m["band"]["step"]) == ref["band"]["step"]
     assert bool(m["band"]["settled"]) == ref["band"]["settled"]
     assert int(sol.result) == result and int(sol.final.failed_at) == failed_at
+    np.testing.assert_allclose(np.asarray(sol.final.failed_x), failed_x, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(np.asarray(sol.final.x), x_final, rtol=1e-12, atol=1e-15)
     return sol, rows
 
@@ -177,7 +178,7 @@ def test_nonfinite_state_is_its_own_code():
                       metrics=jd.metrics.MaxAbs("x"))
     # 1 -> 1e120 -> 1e240 -> inf: the state at index 3 is the first non-finite one
     assert int(sol.result) == jd.RESULTS.nonfinite
-    assert int(sol.final.failed_at) == 3
+    assert int(sol.final.failed_at) == 3 and float(sol.final.failed_x[0]) == np.inf
     np.testing.assert_array_equal(np.asarray(sol.saved[3:, 0]), 1e240)
     assert float(sol.metrics[0]) == 1e120  # periods 0 and 1 counted (x = 1, 1e120); period 2 made inf
 

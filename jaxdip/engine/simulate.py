@@ -112,6 +112,7 @@ class State(NamedTuple):
     u_prev: jax.Array
     result: jax.Array  # RESULTS code
     failed_at: jax.Array  # index of the first bad state (-1 while ok)
+    failed_x: jax.Array  # the first bad state itself (what crossed which bound); zeros while ok
     metrics: Any  # reducer states
 
 
@@ -143,7 +144,9 @@ def _step(loop: Loop, metrics, base, st: State):
                      jnp.where(jnp.any(dev > loop.state_bound), RESULTS.out_of_bounds, RESULTS.ok))
     was_ok = st.result == RESULTS.ok
     result = jnp.where(was_ok, code, st.result).astype(jnp.int32)
-    failed_at = jnp.where(was_ok & (code != RESULTS.ok), st.k + 1, st.failed_at)
+    fails_now = was_ok & (code != RESULTS.ok)
+    failed_at = jnp.where(fails_now, st.k + 1, st.failed_at)
+    failed_x = jnp.where(fails_now, x_next, st.failed_x)
     live = result == RESULTS.ok  # this period counts only if the trajectory is still alive after it
     new = State(
         k=st.k + 1,
@@ -155,6 +158,7 @@ def _step(loop: Loop, metrics, base, st: State):
         u_prev=u,
         result=result,
         failed_at=failed_at,
+        failed_x=failed_x,
         metrics=_metrics.update(metrics, st.metrics, sample, live),
     )
     return new, sample
@@ -174,6 +178,7 @@ def init_state(loop: Loop, x0, key, metrics=None) -> State:
         u_prev=jnp.zeros(loop.plant.m, x0.dtype),
         result=jnp.asarray(RESULTS.ok, jnp.int32),
         failed_at=jnp.full((), -1, jnp.int32),
+        failed_x=jnp.zeros_like(x0),
         metrics=None,
     )
     if metrics is None:

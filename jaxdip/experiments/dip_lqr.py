@@ -19,7 +19,7 @@ from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome
-from jaxdip.experiments.common import band_figure, fmt_ci, loop_summary, weight_matrix
+from jaxdip.experiments.common import band_figure, failure_lines, fmt_ci, loop_summary, weight_matrix
 from jaxdip.plants import dip
 
 INF = float("inf")
@@ -85,7 +85,7 @@ def simulate(cfg: DipLqrConfig, progress: bool = True, shard: bool | None = None
 
 
 def summarize(cfg: DipLqrConfig, sol: jd.Solution) -> dict:
-    return loop_summary(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol)
+    return loop_summary(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt, bound=cfg.state_bound)
 
 
 # Thesis Table 3.1, LQR column: the laboratory system over a typical 20 s interval (units not printed).
@@ -101,17 +101,17 @@ def report(cfg: DipLqrConfig, r: dict) -> str:
         f"- stabilised fraction: **{fmt_ci(r['stabilized_fraction'], r['stabilized_fraction_ci95'])}** "
         f"(max |alpha|, |theta| over the last second < {cfg.stabilized_tol} rad)",
         f"- diverged: {r['diverged']} of {cfg.seeds}",
-        "",
-        "Per-trajectory time averages, then mean over seeds with 95% intervals:",
-        "",
-        "| state | mean | var | mean abs |",
-        "|---|---|---|---|",
+        *failure_lines(r, cfg.seeds),
     ]
-    for name, s in r["states"].items():
-        lines.append(f"| {name} | {fmt_ci(s['mean'], s['mean_ci95'])} | {fmt_ci(s['var'], s['var_ci95'])} | "
-                     f"{fmt_ci(s['mean_abs'], s['mean_abs_ci95'])} |")
-    lines.append(f"| u (V) | | {fmt_ci(r['u']['var'], r['u']['var_ci95'])} | "
-                 f"{fmt_ci(r['u']['mean_abs'], r['u']['mean_abs_ci95'])} |")
+    if r["states"]:
+        survivors = cfg.seeds - r["diverged"]
+        lines += ["", f"Per-trajectory time averages, then mean over the {survivors} seeds that did not diverge, "
+                  "with 95% intervals:", "", "| state | mean | var | mean abs |", "|---|---|---|---|"]
+        for name, s in r["states"].items():
+            lines.append(f"| {name} | {fmt_ci(s['mean'], s['mean_ci95'])} | {fmt_ci(s['var'], s['var_ci95'])} | "
+                         f"{fmt_ci(s['mean_abs'], s['mean_abs_ci95'])} |")
+        lines.append(f"| u (V) | | {fmt_ci(r['u']['var'], r['u']['var_ci95'])} | "
+                     f"{fmt_ci(r['u']['mean_abs'], r['u']['mean_abs_ci95'])} |")
     lines += [
         "",
         "For orientation only: thesis Table 3.1 (LQR column) gives laboratory means/variances of |alpha| 3.4/3.03, "
