@@ -56,7 +56,8 @@ def band_figure(t, series: dict, ylabel: str = "", title: str = ""):
         ax.axhline(0.0, color="k", lw=0.5)
         ax.set_ylabel(f"{name} {ylabel}".strip())
         ax.grid(alpha=0.3)
-    axes[0, 0].legend(loc="upper right", fontsize=8)
+    if axes[0, 0].get_legend_handles_labels()[0]:  # an empty panel (no surviving seed) has nothing to label
+        axes[0, 0].legend(loc="upper right", fontsize=8)
     axes[-1, 0].set_xlabel("time (s)")
     if title:
         axes[0, 0].set_title(title)
