@@ -12,7 +12,6 @@ repeated run has ``results`` identical to an uninterrupted one.
 
 from __future__ import annotations
 
-import contextvars
 import json
 import math
 import os
@@ -40,13 +39,6 @@ class RunContext:
                             f".{os.path.basename(os.path.abspath(self.out_dir))}.ckpt.npz")
 
 
-_CONTEXT: contextvars.ContextVar[RunContext | None] = contextvars.ContextVar("jaxdip_run", default=None)
-
-
-def current_run() -> RunContext | None:
-    return _CONTEXT.get()
-
-
 @dataclass
 class Outcome:
     results: dict
@@ -60,7 +52,7 @@ class Experiment:
     id: str
     title: str
     config_cls: type
-    run: Callable[[Any], Outcome]
+    run: Callable[[Any, RunContext | None], Outcome]  # run(cfg, ctx): ctx says where to checkpoint
     quick: dict = field(default_factory=dict)  # overrides applied by --quick
     source: str = ""  # which document, table or figure it reproduces
 
@@ -104,7 +96,7 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
     """Run an experiment with a validated config and write its folder; returns metrics.json's content.
 
     Raises ``ConfigError`` (resources) or ``outdir.OutputError`` (destination) before anything is compiled.
-    Experiments with long searches checkpoint beside ``out_dir`` (``current_run().checkpoint_path``) and, with
+    Experiments with long searches checkpoint beside ``out_dir`` (``ctx.checkpoint_path`` of the ``RunContext`` passed to ``run``) and, with
     ``resume``, continue from there; the checkpoint is removed once the folder is complete. ``stop_requested``
     is asked once more before the folder is moved into place, so an interrupt that a library swallowed still
     leaves no folder behind.
@@ -118,13 +110,9 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
     staging = outdir.prepare(out_dir, exp.id, force=force)
     ctx = RunContext(out_dir, resume)
     try:
-        token = _CONTEXT.set(ctx)
-        try:
-            t0 = time.perf_counter()
-            outcome = exp.run(cfg)
-            wall = time.perf_counter() - t0
-        finally:
-            _CONTEXT.reset(token)
+        t0 = time.perf_counter()
+        outcome = exp.run(cfg, ctx)
+        wall = time.perf_counter() - t0
         seeds = getattr(cfg, "seeds", 1)
         metrics = {**provenance(exp.id, seeds, wall), "results": outcome.results, "timing": outcome.timing}
         header = (

@@ -24,7 +24,7 @@ from jaxdip.control.projection import relaxed_projection_controller, rp_params
 from jaxdip.control.spd import P_v, P_Vs, surface_normal
 from jaxdip.estimators import passthrough
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import ball_sampler, fmt_ci, trajectory_summary, weight_matrix
 from jaxdip.plants import dip
 from jaxdip.sim import Loop, LoopParams, linearize, montecarlo, rollout, sensors
@@ -96,7 +96,7 @@ def linear_rp_eigs(A, B, P, gamma):
     return np.asarray(jnp.linalg.eigvals(A - B @ Kc))
 
 
-def run(cfg: DipControllersConfig) -> Outcome:
+def run(cfg: DipControllersConfig, ctx: RunContext | None = None) -> Outcome:
     import matplotlib.pyplot as plt
 
     plant = dip.make("printed")

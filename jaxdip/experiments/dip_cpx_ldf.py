@@ -39,7 +39,7 @@ from jaxdip.estimators.cpx import CPXParams, cpx_qr
 from jaxdip.estimators.ldf import dip_ldf_params, ldf
 from jaxdip.estimators.run import filter_sequence
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import ball_sampler, fmt_ci, trajectory_summary, weight_matrix
 from jaxdip.plants import dip
 from jaxdip.progress import Progress
@@ -311,7 +311,7 @@ def sweep_figure(cfg, sw, gamma_crit):
 # ---- run and report -----------------------------------------------------------------------------------------
 
 
-def run(cfg: DipCpxLdfConfig, progress: bool = True) -> Outcome:
+def run(cfg: DipCpxLdfConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:
     loops, params, x0_fn, n_steps, (model, Cmat) = build(cfg)
     crit = gamma_criterion(cfg)
     results = {}

@@ -18,7 +18,7 @@ import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import band_figure, failure_lines, fmt_ci, loop_summary, weight_matrix
 from jaxdip.plants import dip
 
@@ -122,7 +122,7 @@ def report(cfg: DipLqrConfig, r: dict) -> str:
     return "\n".join(lines)
 
 
-def run(cfg: DipLqrConfig) -> Outcome:
+def run(cfg: DipLqrConfig, ctx: RunContext | None = None) -> Outcome:
     sol = simulate(cfg)
     results = summarize(cfg, sol)
     ok = np.asarray(sol.result) == jd.RESULTS.ok

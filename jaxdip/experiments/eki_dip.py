@@ -43,7 +43,7 @@ from jaxdip.control import lqr
 from jaxdip.control.projection import relaxed_projection_controller, rp_params
 from jaxdip.estimators import passthrough
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome, current_run
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import ball_sampler, fmt_ci, trajectory_summary
 from jaxdip.plants import dip
 from jaxdip.progress import Progress
@@ -162,7 +162,7 @@ def judge(cfg, plant, p, member, key_seed):
     return trajectory_summary(res, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol)
 
 
-def run(cfg: EkiDipConfig) -> Outcome:
+def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
     import matplotlib.pyplot as plt
 
     plant = dip.make("printed")
@@ -180,7 +180,6 @@ def run(cfg: EkiDipConfig) -> Outcome:
     state = eki.init(members0, jax.random.fold_in(base, 2))
 
     # --- the ensemble Kalman search, checkpointed ---------------------------------------------------------
-    ctx = current_run()
     fp = checkpoint.fingerprint(C.to_dict(cfg))
     history = np.zeros((0, 1))
     wall_before = 0.0

@@ -29,7 +29,7 @@ from jaxdip.control import dlqr
 from jaxdip.control.projection import drift_and_input, projected_closed_loop, relaxed_discrete, state_weight
 from jaxdip.control.spd import P_v
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import examples2d
 from jaxdip.progress import Progress
 from jaxdip.search import EKI
@@ -169,7 +169,7 @@ def search_success(cfg, base):
     return stats.wilson(int(ok.sum()), len(ok))
 
 
-def run(cfg: EkiExampleConfig) -> Outcome:
+def run(cfg: EkiExampleConfig, ctx: RunContext | None = None) -> Outcome:
     import matplotlib.pyplot as plt
 
     plant, prm = _plant(cfg)

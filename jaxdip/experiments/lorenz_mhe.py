@@ -37,7 +37,7 @@ from jaxdip.estimators.cpx import CPXParams, cpx_linearized
 from jaxdip.estimators.kalman import EKFParams, ekf
 from jaxdip.estimators.scpx import scpx_linearized
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import lorenz
 from jaxdip.progress import Progress
 from jaxdip.sim import rk4_zoh
@@ -489,7 +489,7 @@ def figures(cfg: LorenzMheConfig, per_trial: dict, rec):
     return {"errors_per_method": fig1, "xL_scpx_vs_ekf": fig2}
 
 
-def run(cfg: LorenzMheConfig) -> Outcome:
+def run(cfg: LorenzMheConfig, ctx: RunContext | None = None) -> Outcome:
     carry = simulate(cfg)
     results, per_trial = summarize(cfg, carry)
     rec = record_trial(cfg)

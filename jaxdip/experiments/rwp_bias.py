@@ -31,7 +31,7 @@ from jaxdip.estimators import bias_observers as bo
 from jaxdip.estimators import homd
 from jaxdip.estimators import luenberger as lu
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import rwp
 from jaxdip.progress import Progress
 from jaxdip.sim import Loop, LoopParams, actuators, montecarlo, sensors
@@ -688,7 +688,7 @@ def claims(cfg, r):
 # ---- run --------------------------------------------------------------------------------------------------------
 
 
-def run(cfg: RwpBiasConfig) -> Outcome:
+def run(cfg: RwpBiasConfig, ctx: RunContext | None = None) -> Outcome:
     a, curves_a = part_a(cfg)
     b, curve_b = part_b(cfg)
     c, curves_c = part_c(cfg)

@@ -33,7 +33,7 @@ from jaxdip import checkpoint as ckpt
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome, current_run
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import fmt_ci
 from jaxdip.tune import Bounded, Log, mc_objective, random_search, straight_through_sensor, tune
 
@@ -370,7 +370,7 @@ def _scalar(theta):
     return {k: float(v) if np.ndim(v) == 0 else np.asarray(v, dtype=float).tolist() for k, v in theta.items()}
 
 
-def run(cfg: TuneConfig, progress: bool = True) -> Outcome:
+def run(cfg: TuneConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:
     import time
 
     t_all = time.perf_counter()
@@ -384,7 +384,6 @@ def run(cfg: TuneConfig, progress: bool = True) -> Outcome:
     held = jax.jit(held_obj.per_seed)
     held_div = jax.jit(held_obj.diverged) if hasattr(held_obj, "diverged") else None
 
-    ctx = current_run()
     res = tune(J_tune, tg.paper, key, steps=cfg.steps, lr=cfg.lr, spec=tg.spec, clip=cfg.clip,
                optimizer=optax.rprop(cfg.lr) if cfg.optimizer == "rprop" else None,
                common_random_numbers=cfg.crn, early_stop_patience=cfg.patience or None,

@@ -65,7 +65,7 @@ from jaxdip.estimators.complementary import complementary_params, tilt_prefilter
 from jaxdip.estimators.dmso import DMSOParams, dmso, dmso_params, dmso_sequence, selection_matrix
 from jaxdip.estimators.kalman import KFParams, kalman
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import weight_matrix
 from jaxdip.plants import twip
 from jaxdip.progress import Progress
@@ -584,7 +584,7 @@ def fig_uncertainty(name, tr: Trace, dt):
 # ---- the experiment ---------------------------------------------------------------------------------------
 
 
-def run(cfg: TwipDmsoConfig, progress: bool = True) -> Outcome:
+def run(cfg: TwipDmsoConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:
     specs = case_specs(cfg)
     total = sum(s.n_seeds * n_steps(s) * len(s.estimators) for s in specs)
     bar = Progress(total, desc="twip-dmso", enabled=progress)

@@ -61,7 +61,7 @@ from jaxdip.control.extra_control import ExtraControlParams, desired_state, extr
 from jaxdip.control.twip_lqr import twip_dlqr
 from jaxdip.estimators.passthrough import passthrough
 from jaxdip.experiments import register, twip_dmso
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import twip
 from jaxdip.plants.base import Plant
 from jaxdip.progress import Progress
@@ -424,7 +424,7 @@ def summarize_variant(s, d, lqr_s, lqr_d) -> dict:
             **versus_lqr(s, d, lqr_s, lqr_d)}
 
 
-def run(cfg: TwipExtraControlConfig, progress: bool = True) -> Outcome:
+def run(cfg: TwipExtraControlConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:
     fn = batch_fn(cfg)
     trace = trace_fn(cfg, 0)
     results, figures = {}, {}
