@@ -25,6 +25,29 @@ def _use_all_cores():
             os.environ["XLA_FLAGS"] = (flags + f" --xla_force_host_platform_device_count={n}").strip()
 
 
+def _compile_cache(enabled: bool) -> None:
+    """Keep XLA's compiled code on disk so a second run of the same loops skips compilation.
+
+    The folder is ``$JAXDIP_CACHE_DIR``, else ``$XDG_CACHE_HOME/jaxdip/xla`` (``~/.cache/jaxdip/xla``). JAX keys
+    each entry by the computation, the jaxlib version and the XLA flags (so the host device count), so a stale
+    entry is never used; it only saves time. ``--no-compile-cache`` turns it off for one run.
+    """
+    if not enabled:
+        return
+    folder = os.environ.get("JAXDIP_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "jaxdip", "xla")
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as e:
+        print(f"warning: compilation cache off: cannot create {folder}: {e.strerror or e}", file=sys.stderr)
+        return
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", folder)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)  # a threshold would make the cache depend on load
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with the project's one-line errors: ``error: <flag>: <why>`` and exit 2, no usage block."""
 
@@ -67,6 +90,9 @@ def _parser():
     rp.add_argument("--quick", action="store_true")
     rp.add_argument("--out", default="results")
     rp.add_argument("--force", action="store_true", help="replace jaxdip result folders of other experiments")
+    for q in (r, b, rp):
+        q.add_argument("--no-compile-cache", action="store_true",
+                       help="do not read or write the on-disk cache of compiled code (see JAXDIP_CACHE_DIR)")
     return p
 
 
@@ -262,6 +288,7 @@ def main(argv=None) -> int:
             return _error(f"--{flag}: empty path")
     if args.cmd in ("run", "reproduce", "bench"):
         _use_all_cores()
+        _compile_cache(not args.no_compile_cache)
     if args.cmd == "list":
         from jaxdip.experiments import registry
 

@@ -111,3 +111,25 @@ def test_all_seeds_diverged_is_reported_not_averaged(tmp_path):
     assert 0 < f["time_to_failure_s"]["min"] <= f["time_to_failure_s"]["max"] <= 0.2
     report = (out / "report.md").read_text()
     assert "all 8 seeds diverged" in report and "nan" not in report.lower()
+
+
+def test_compilation_cache_is_written_and_reused(tmp_path):
+    """A second run of the same experiment finds its compiled loops on disk (and the results are unchanged);
+    --no-compile-cache leaves the folder alone."""
+    cache = tmp_path / "xla"
+    env = dict(os.environ, JAXDIP_NO_PROGRESS="1", JAXDIP_CACHE_DIR=str(cache))
+    args = ["run", "dip-lqr", "--quick", "--seeds", "4", "--set", "duration=0.2", "--set", "record_every=1"]
+    off = subprocess.run([sys.executable, "-m", "jaxdip.cli", *args, "--no-compile-cache", "--out",
+                          str(tmp_path / "a")], capture_output=True, text=True, env=env, timeout=300)
+    assert off.returncode == 0, off.stderr
+    assert not cache.exists()
+    for out in ("b", "c"):
+        r = subprocess.run([sys.executable, "-m", "jaxdip.cli", *args, "--out", str(tmp_path / out)],
+                           capture_output=True, text=True, env=env, timeout=300)
+        assert r.returncode == 0, r.stderr
+        if out == "b":
+            entries = sorted(os.listdir(cache))
+            assert entries
+    assert sorted(os.listdir(cache)) == entries  # the second run added nothing: every loop came from disk
+    res = [json.loads((tmp_path / o / "metrics.json").read_text())["results"] for o in "abc"]
+    assert res[0] == res[1] == res[2]
