@@ -20,8 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxdip as jd
-from jaxdip import config as C
-from jaxdip.experiments import dip_lqr
+from jaxdip.scenarios.dip_lqr import dip_lqr
 from jaxdip.outdir import write_file_atomic
 from jaxdip.plants.dip import DIPParams
 
@@ -93,10 +92,10 @@ def is_bench_file(text: str) -> bool:
 
 
 def run_bench(quick: bool = False, out: str = "bench.json") -> dict:
-    cfg = C.load(dip_lqr.DipLqrConfig)
     n_periods = 200 if quick else 1000
-    r = dip_lqr.build(cfg)
-    r = jd.Rollout(r.loop, r.x0, n_periods, metrics=r.metrics)  # the statistics, no stored trajectory
+    dt, substeps, noise_std = 0.001, 10, (1e-3, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2)
+    r = dip_lqr(dt=dt, substeps=substeps, noise_std=noise_std, duration=n_periods * dt,
+                record_every=None)  # the statistics, no stored trajectory
     key = jax.random.PRNGKey(0)
 
     def batched(batch, shard):
@@ -114,10 +113,10 @@ def run_bench(quick: bool = False, out: str = "bench.json") -> dict:
         rows["jax_batch_4096_sharded"] = batched(4096, shard=True)
 
     K = np.asarray(r.loop.controller.K)
-    noise = np.asarray(cfg.noise_std)
+    noise = np.asarray(noise_std)
     n_np = 100 if quick else 500
     t = time.perf_counter()
-    numpy_loop(K, noise, np.full(6, 0.01), n_np, cfg.dt, cfg.substeps)
+    numpy_loop(K, noise, np.full(6, 0.01), n_np, dt, substeps)
     np_rate = n_np / (time.perf_counter() - t)
 
     # FLOPs of one period, from a loop-free program (one RK4 sub-step, one period)
@@ -131,7 +130,7 @@ def run_bench(quick: bool = False, out: str = "bench.json") -> dict:
     cost = cost[0] if isinstance(cost, (list, tuple)) else cost
     flops_sub = float(cost.get("flops", float("nan")))
     # one period = `substeps` RK4 steps; the sensor/controller part is counted once per period
-    flops_period = flops_sub * cfg.substeps
+    flops_period = flops_sub * substeps
     peak = matmul_peak(512 if quick else 1024)
 
     best = max(v for k, v in rows.items())

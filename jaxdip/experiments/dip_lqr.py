@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 import jaxdip as jd
@@ -21,6 +20,7 @@ from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import band_figure, failure_lines, fmt_ci, loop_summary, weight_matrix
 from jaxdip.plants import dip
+from jaxdip.scenarios.dip_lqr import dip_lqr
 
 INF = float("inf")
 
@@ -59,24 +59,11 @@ class DipLqrConfig:
             raise C.ConfigError("record_every", f"must divide the number of periods ({steps})")
 
 
-def angles(sample):
-    """What the band figure needs from each recorded period: alpha and theta."""
-    return sample.x[1:3]
-
-
 def build(cfg: DipLqrConfig) -> jd.Rollout:
-    """One Monte Carlo trial: the loop, initial states uniform in a ball, what to record and the metrics."""
-    plant = dip.DIP(variant=cfg.variant)
-    K, _, _ = jd.control.lqr(*jd.linearize(plant), weight_matrix("Q", cfg.Q, 6), cfg.R)
-    n_steps = int(round(cfg.duration / cfg.dt))
-    loop = jd.Loop(plant=plant, sensor=jd.sensors.WhiteNoise(cfg.noise_std), estimator=jd.Passthrough(),
-                   controller=jd.control.StateFeedback(K), dt=cfg.dt, substeps=cfg.substeps,
-                   state_bound=cfg.state_bound)
-    tail = min(n_steps, int(round(1.0 / cfg.dt)))  # the last second decides "stabilised"
-    metrics = {"x": jd.metrics.Moments("x"), "u": jd.metrics.Moments("u"),
-               "tail": jd.metrics.Window(jd.metrics.MaxAbs("x"), start=n_steps - tail)}
-    return jd.Rollout(loop, jd.Ball(jnp.zeros(6), cfg.init_radius), n_steps, save=angles,
-                      save_every=cfg.record_every, metrics=metrics)
+    """One Monte Carlo trial (the library's dip_lqr scenario with this config's values)."""
+    return dip_lqr(variant=cfg.variant, dt=cfg.dt, substeps=cfg.substeps, duration=cfg.duration,
+                   Q=weight_matrix("Q", cfg.Q, 6), R=cfg.R, noise_std=cfg.noise_std, init_radius=cfg.init_radius,
+                   state_bound=cfg.state_bound, record_every=cfg.record_every)
 
 
 def simulate(cfg: DipLqrConfig, progress: bool = True, shard: bool | None = None) -> jd.Solution:
