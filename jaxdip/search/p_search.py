@@ -140,21 +140,24 @@ def rp_performance(plant, P, cfg: ContinuousSearch, key, penalize: bool = True):
     return jnp.where(failed & penalize, cfg.penalty, y)
 
 
-def performances(plant, cfg: ContinuousSearch, member: BasisMember, key, n: int, penalize: bool = True):
-    """(2.24) of ``member``'s P from ``n`` initial states (keys ``split(key, n)``), as a vector."""
-    P = member_P(member)
-    return jax.vmap(lambda k: rp_performance(plant, P, cfg, k, penalize))(jax.random.split(key, n))
-
-
 def continuous_performance(plant, cfg: ContinuousSearch, n_x0: int = 1, penalize: bool = True):
     """G(member, key) of (2.24) for a continuous engine plant under (2.14) with P = P_{V,s}, averaged over
-    n_x0 initial states (the thesis used one). ``penalize=False`` returns the integral up to the failure
-    instead of the penalty (a smooth objective for gradients)."""
+    n_x0 initial states (keys ``split(key, n_x0)``; the thesis used one). ``penalize=False`` returns the
+    integral up to the failure instead of the penalty (a smooth objective for gradients)."""
 
     def G(member: BasisMember, key):
-        return jnp.atleast_1d(performances(plant, cfg, member, key, n_x0, penalize).mean())
+        P = member_P(member)
+        ys = jax.vmap(lambda k: rp_performance(plant, P, cfg, k, penalize))(jax.random.split(key, n_x0))
+        return jnp.atleast_1d(ys.mean())
 
     return G
+
+
+@eqx.filter_jit
+def performances(plant, cfg: ContinuousSearch, member: BasisMember, key, n: int, penalize: bool = True):
+    """``n`` independent evaluations G(member, k) (one initial state each), k in ``split(key, n)``: a vector."""
+    G = continuous_performance(plant, cfg, 1, penalize)
+    return jax.vmap(lambda k: G(member, k)[0])(jax.random.split(key, n))
 
 
 def iterate(eki, state, iterations: int):

@@ -1,0 +1,1 @@
+"""Scenarios shared by an experiment and a tuning target: builders with plain keyword arguments."""
