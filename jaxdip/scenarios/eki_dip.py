@@ -28,6 +28,7 @@ SEARCH_Q = (80.0, 300.0, 100.0, 0.0, 0.0, 0.0)  # (2.24) weight on [xc, alpha, t
 NOISE_STD = 5e-5  # the thesis's N(0, 5e-5), read as a standard deviation
 X0_STD = (0.01, 0.01, 0.01, 0.0, 0.0, 0.0)
 STATE_BOUND = (1.0, 1.5708, 1.5708, INF, INF, INF)
+JUDGE_GAMMA = 40.0  # the weight of (2.14) the thesis runs the found P with (§3.2.2)
 
 
 def plant() -> dip.DIP:
@@ -48,7 +49,7 @@ def search_setup(*, dt: float = 0.001, T: float = 3.0, t_star: float = 1.0, gamm
                             substeps=substeps)
 
 
-def judge_rollout(P, *, gamma: float = 40.0, dt: float = 0.001, duration: float = 5.0, radius: float = 0.03,
+def judge_rollout(P, *, gamma: float = JUDGE_GAMMA, dt: float = 0.001, duration: float = 5.0, radius: float = 0.03,
                   noise_std: float = NOISE_STD, substeps: int = 10, state_bound=STATE_BOUND) -> jd.Rollout:
     """(2.14) with P and ``gamma`` on the printed DIP, every state measured exactly, state noise every period,
     initial states uniform in a ball of ``radius`` around upright; metrics: state and input moments and the
