@@ -28,6 +28,7 @@ they used (a gradient step counts its forward simulations; its backward pass cos
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -161,13 +162,11 @@ class GradientLoss(NamedTuple):
         return jnp.mean(jnp.log(ys + 1e-12))
 
 
-def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
-    import matplotlib.pyplot as plt
-
+def build(cfg: EkiDipConfig, base):
+    """The search: the plant, the evaluation setup, the EKI process and its initial state, and the LQR's v1."""
     plant = S.plant()
     A, B = jd.linearize(plant)
     scfg = _search_cfg(cfg)
-    base = jax.random.PRNGKey(cfg.seed)
     members0, v1_lqr = initial_ensemble(cfg, A, B, jax.random.fold_in(base, 1))
     G0 = continuous_performance(plant, scfg, n_x0=cfg.n_x0)
     G = (lambda m, k: jnp.log(G0(m, k))) if cfg.log_performance else G0
@@ -175,23 +174,22 @@ def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
               R=jnp.array([[cfg.R]]), sigma_w=cfg.sigma_w, project=project_member, failure=cfg.failure,
               min_success=cfg.min_success, penalty=float(np.log(scfg.penalty)) if cfg.log_performance else scfg.penalty,
               align=lambda V: align_signs(V, member_blocks(2, 6)))
-    state = eki.init(members0, jax.random.fold_in(base, 2))
+    return plant, scfg, eki, eki.init(members0, jax.random.fold_in(base, 2)), members0, v1_lqr
 
-    # --- the ensemble Kalman search, checkpointed ---------------------------------------------------------
+
+def ensemble_search(cfg: EkiDipConfig, eki, state, ctx: RunContext | None):
+    """run_eki to ``cfg.iterations`` (or the early stop), checkpointed after every chunk to
+    ``ctx.checkpoint_path`` and continued from it with ``ctx.resume``. Returns (state, history, wall time)."""
     fp = checkpoint.fingerprint(C.to_dict(cfg))
-    history = np.zeros((0, 1))
+    hist_prev = np.zeros((0, 1))
     wall_before = 0.0
-    if ctx is not None and ctx.resume:
-        import os
-
-        if os.path.exists(ctx.checkpoint_path):
-            (state, history), meta = checkpoint.load(ctx.checkpoint_path, (state, jnp.zeros((1, 1))), fp)
-            history = np.asarray(history)[: int(state.iteration)]
-            wall_before = meta.get("wall_s", 0.0)
+    if ctx is not None and ctx.resume and os.path.exists(ctx.checkpoint_path):
+        (state, hist_prev), meta = checkpoint.load(ctx.checkpoint_path, (state, jnp.zeros((1, 1))), fp)
+        hist_prev = np.asarray(hist_prev)[: int(state.iteration)]
+        wall_before = meta.get("wall_s", 0.0)
     t0 = time.perf_counter()
     bar = Progress(cfg.iterations, desc="eki-dip search")
     bar.update(int(state.iteration))
-    hist_prev = history
 
     def save(st, h):
         if ctx is not None:
@@ -205,36 +203,44 @@ def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
                               stop=stop)
     bar.close()
     history = np.concatenate([hist_prev, hist_new]) if len(hist_prev) else hist_new
-    eki_wall = wall_before + time.perf_counter() - t0
+    return state, history, wall_before + time.perf_counter() - t0
+
+
+def gradient_search(cfg: EkiDipConfig, plant, scfg, start, key):
+    """Adam (clipped) on the mean log (2.24) over ``grad_x0`` training states through ``jaxdip.tune``, the
+    basis re-orthonormalised after every step, the best iterate kept.
+
+    Common random numbers: the same training states every step make the loss a deterministic function of P,
+    so Adam follows its gradient rather than the noise between initial states; a step can land on a
+    trajectory that fails, whose NaN derivatives count as 0."""
+    return tune(GradientLoss(plant, scfg, cfg.grad_x0), start, key, steps=cfg.grad_steps, lr=cfg.grad_lr,
+                clip=cfg.grad_clip, common_random_numbers=cfg.grad_common_states, mode="reverse",
+                project=project_member, zero_nonfinite_grads=True, desc="eki-dip gradient search")
+
+
+def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
+    base = jax.random.PRNGKey(cfg.seed)
+    plant, scfg, eki, state, members0, v1_lqr = build(cfg, base)
+    state, history, eki_wall = ensemble_search(cfg, eki, state, ctx)
     found = eki.mean(state)
     iters = int(state.iteration)
 
-    # --- common evaluation of any member -------------------------------------------------------------------
-    def eval_perf(m):
+    def eval_perf(m):  # (2.24) on common evaluation states
         y = np.asarray(performances(plant, scfg, m, jax.random.fold_in(base, 3), cfg.eval_states))
         return {"mean": float(y.mean()), "median": float(np.median(y)), "failed": int((y >= scfg.penalty).sum())}
 
-    start_mean = jax.tree_util.tree_map(lambda a: a.mean(0), members0)
-    start_mean = project_member(start_mean)
+    start_mean = project_member(jax.tree_util.tree_map(lambda a: a.mean(0), members0))
     perf_start = eval_perf(start_mean)
     perf_eki = eval_perf(found)
 
-    # --- gradient search --------------------------------------------------------------------------------------
     grad = {}
     if cfg.grad_steps > 0:
-        # common random numbers: the same training states every step make the loss a deterministic function
-        # of P, so Adam follows its gradient rather than the noise between initial states; the best iterate
-        # on that loss is kept (a step can land on a trajectory that fails, whose NaN derivatives count as 0)
         tg = time.perf_counter()
-        res = tune(GradientLoss(plant, scfg, cfg.grad_x0), start_mean, jax.random.fold_in(base, 4),
-                   steps=cfg.grad_steps, lr=cfg.grad_lr, clip=cfg.grad_clip,
-                   common_random_numbers=cfg.grad_common_states, mode="reverse", project=project_member,
-                   zero_nonfinite_grads=True, desc="eki-dip gradient search")
+        res = gradient_search(cfg, plant, scfg, start_mean, jax.random.fold_in(base, 4))
         m = res.theta
-        perf_grad = eval_perf(m)
         grad = {"P_basis": np.asarray(m.V).tolist(), "P_singular_values": np.exp(np.asarray(m.log_s)).tolist(),
                 "steps": cfg.grad_steps, "simulations": cfg.grad_steps * cfg.grad_x0,
-                "performance": perf_grad, "loss_history": [float(x) for x in res.loss_history]}
+                "performance": eval_perf(m), "loss_history": [float(x) for x in res.loss_history]}
         grad_wall = time.perf_counter() - tg
         grad["judge"] = judge(cfg, m, cfg.seed + 7)
         grad["stabilized_fraction"] = grad["judge"]["stabilized_fraction"]
@@ -254,6 +260,13 @@ def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
         "history_mean_performance": history[:, 0].tolist(),
         "gradient": grad,
     }
+    timing = {"search_wall_s": eki_wall, **({"gradient_search_wall_s": grad_wall} if grad else {})}
+    return Outcome(results, report(cfg, results, timing), {"search_history": figure(cfg, history, grad)},
+                   timing=timing)
+
+
+def figure(cfg, history, grad):
+    import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 3.5))
     h_plot = np.exp(history[:, 0]) if cfg.log_performance else history[:, 0]
@@ -267,8 +280,7 @@ def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
     ax.set_ylabel("performance (2.24)")
     ax.legend(fontsize=8)
     ax.set_title("eki-dip search")
-    timing = {"search_wall_s": eki_wall, **({"gradient_search_wall_s": grad_wall} if grad else {})}
-    return Outcome(results, report(cfg, results, timing), {"search_history": fig}, timing=timing)
+    return fig
 
 
 def report(cfg, r, timing):

@@ -9,8 +9,9 @@ with Q = diag(350, 5), R = 3.5, designed for this discrete system with the DARE)
 Stabilising: linear example, the spectral radius of (I - B (B^T P B)^-1 B^T P) A below 1 (Definition 2.5.1);
 nonlinear example, the relaxed projection control brings every one of ``judge_states`` random initial states
 (N(0, judge_std^2 I)) within ``judge_tol`` of the origin in ``judge_steps`` steps. Reproducibility over the
-search itself: the whole search is repeated for ``search_seeds`` keys (vmapped) and the fraction ending with a
-stabilising P reported.
+search itself: the whole search is repeated for ``search_seeds`` keys (seeds 1.. of ``jd.monte_carlo``, in
+batches) and the fraction ending with a stabilising P reported. Every closed loop (the (2.23) evaluations, the
+judging and figure rollouts) runs through ``jd.simulate``; the EKI iterations are ``jaxdip.search.p_search``'s.
 """
 
 from __future__ import annotations
@@ -67,7 +68,7 @@ class EkiExampleConfig:
     judge_tol: float = C.field(1e-3, C.positive_finite, doc="final |x| below this counts as stabilised")
 
     def loads(self) -> list[Load]:
-        # searches run in vmapped batches of up to 250 (with their restarts side by side)
+        # searches run in Monte Carlo batches of up to 250 (with their restarts side by side)
         batch = min(self.seeds, 250) * self.restarts
         return [Load("the batch of searches", ("seeds", "ensemble", "iterations"), batch * self.ensemble,
                      self.iterations, saved=4 * self.iterations // self.ensemble + 16),
@@ -167,7 +168,7 @@ def run(cfg: EkiExampleConfig, ctx: RunContext | None = None) -> Outcome:
     align = float(abs(v @ thesis_v) / np.linalg.norm(thesis_v))  # v and -v give the same P
     ok, measure = stabilizes(cfg, jnp.asarray(v), jax.random.fold_in(base, 10**6), cfg.judge_states)
 
-    # repeat the whole search over many keys (vmapped in batches, progress between batches)
+    # repeat the whole search over many keys (Monte Carlo batches, progress between batches)
     frac, ci = search_success(cfg, base)
     single = None
     if cfg.restarts > 1:  # the thesis's procedure (one ensemble) on the same keys, for comparison
