@@ -117,6 +117,11 @@ def rp_rollout(cfg, v, steps, x0=None) -> jd.Rollout:
                       save=state_and_input)
 
 
+def initial_state(rollout):
+    """Where a sweep over initial states goes (module-level: the compiled sweep is reused across calls)."""
+    return rollout.x0
+
+
 def lqr_rollout(cfg, K, steps) -> jd.Rollout:
     loop = jd.Loop(plant=_plant(cfg), sensor=jd.Identity(), estimator=jd.Passthrough(),
                    controller=StateFeedback(K), dt=1.0, substeps=1)
@@ -132,7 +137,7 @@ def stabilizes(cfg, v, key, n_states):
         return rho < 1.0, rho
     # the initial states are one draw of the key, swept through one deterministic rollout
     x0s = cfg.judge_std * jax.random.normal(key, (n_states, 2))
-    sol = jd.monte_carlo(rp_rollout(cfg, v, cfg.judge_steps), key, 1, sweep=(lambda r: r.x0, x0s))
+    sol = jd.monte_carlo(rp_rollout(cfg, v, cfg.judge_steps), key, 1, sweep=(initial_state, x0s))
     last = cfg.judge_steps - 1  # judged at x_{steps-1}, the last recorded state
     norms = jnp.linalg.norm(sol.saved[0][:, 0, last], axis=1)
     fa = sol.final.failed_at[:, 0]
