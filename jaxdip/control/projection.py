@@ -22,11 +22,13 @@ derived here, and the tests check it against simulation.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple, Optional
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.roles import Controller, param
 from jaxdip.sim.component import stateless
 
 
@@ -103,6 +105,50 @@ def relaxed_projection_controller(plant, kind: str = "continuous", linear_input:
         return relaxed_discrete(p.P, fx, gx, x, g_k)
 
     return stateless(law)
+
+
+def _model_map(model, x, u):
+    # the controller's model as f(params, x, u) for drift_and_input; module-level, one function for jit
+    return model.vector_field(x, u) if model.continuous else model.step(x, u)
+
+
+class RelaxedProjection(Controller):
+    """The relaxed projection control as an engine controller: (2.14) (``kind="continuous"``) or (2.10)
+    (``"discrete"``) with the state-dependent weight (2.18) gamma / ||x - x_ref||^alpha, or the projection
+    (2.9) with ``projection_only``. ``model`` is the controller's model of the plant (an engine plant, which
+    may differ from the simulated one); f(x) and g(x) come from it by autodiff at the estimate.
+
+    Fields are those of ``RPParams`` and the options of ``relaxed_projection_controller``, and ``step`` is that
+    component's law with ``self`` as its params, so the numbers are the same (tested).
+    """
+
+    model: Any
+    P: jax.Array = param()
+    gamma: jax.Array = param(0.0)
+    alpha: jax.Array = param(0.0)
+    x_ref: Optional[jax.Array] = None
+    kind: str = eqx.field(default="continuous", static=True)
+    linear_input: bool = eqx.field(default=False, static=True)
+    projection_only: bool = eqx.field(default=False, static=True)
+
+    def __check_init__(self):
+        if self.kind not in ("continuous", "discrete"):
+            raise ValueError(f"kind must be 'continuous' or 'discrete', got {self.kind!r}")
+
+    def step(self, state, xhat, key, k):
+        m = self.model
+        x_ref = jnp.zeros(self.P.shape[0]) if self.x_ref is None else self.x_ref
+        x = xhat - x_ref
+        fx, gx = drift_and_input(_model_map, m, xhat, m.m)
+        if self.linear_input:
+            gx = drift_and_input(_model_map, m, x_ref, m.m)[1]
+        fx = fx - x_ref if not m.continuous else fx
+        if self.projection_only:
+            return state, projection(self.P, fx, gx), None
+        g_k = state_weight(self.gamma, self.alpha, x)
+        if self.kind == "continuous":
+            return state, relaxed_continuous(self.P, fx, gx, x, g_k), None
+        return state, relaxed_discrete(self.P, fx, gx, x, g_k), None
 
 
 def projected_closed_loop(A, B, P):

@@ -64,7 +64,8 @@ class Loop(eqx.Module):
     """A closed loop: its components (each with its own hyperparameters) and the sampling structure.
 
     ``dt`` and ``substeps`` are static; ``process_noise_std`` (std of Gaussian noise added to the state after
-    every period, scalar or per state) and ``state_bound`` (per state or scalar) are traced leaves. ``keys``
+    every period, scalar or per state), ``state_bound`` (per state or scalar) and ``norm_bound`` (on the
+    Euclidean norm of the deviation) are traced leaves. ``keys``
     divides the trajectory's key among the roles (leave the default).
     """
 
@@ -78,6 +79,9 @@ class Loop(eqx.Module):
     process_noise_std: jax.Array = param(0.0)
     state_bound: jax.Array = param(jnp.inf)
     keys: KeySchedule = eqx.field(default_factory=KeySchedule)
+    # a bound on the Euclidean norm of x - equilibrium (the failure rule of the thesis's Procedure 1: a state
+    # norm above it ends a simulation); crossing it counts as out_of_bounds, like state_bound
+    norm_bound: jax.Array = param(jnp.inf)
 
 
 class Aux(NamedTuple):
@@ -139,9 +143,10 @@ def _period(loop: Loop, st: State, base):
 
 def _step(loop: Loop, metrics, base, st: State):
     comps, x_next, u, sample = _period(loop, st, base)
-    dev = jnp.abs(x_next - loop.plant.equilibrium())
+    dev = x_next - loop.plant.equilibrium()
+    out = jnp.any(jnp.abs(dev) > loop.state_bound) | (jnp.linalg.norm(dev) > loop.norm_bound)
     code = jnp.where(~jnp.all(jnp.isfinite(x_next)), RESULTS.nonfinite,
-                     jnp.where(jnp.any(dev > loop.state_bound), RESULTS.out_of_bounds, RESULTS.ok))
+                     jnp.where(out, RESULTS.out_of_bounds, RESULTS.ok))
     was_ok = st.result == RESULTS.ok
     result = jnp.where(was_ok, code, st.result).astype(jnp.int32)
     fails_now = was_ok & (code != RESULTS.ok)

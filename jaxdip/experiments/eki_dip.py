@@ -28,34 +28,31 @@ they used (a gradient step counts its forward simulations; its backward pass cos
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
+import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import checkpoint
 from jaxdip import config as C
-from jaxdip.control import lqr
-from jaxdip.control.projection import relaxed_projection_controller, rp_params
-from jaxdip.estimators import passthrough
 from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.common import ball_sampler, fmt_ci, trajectory_summary
+from jaxdip.experiments.common import fmt_ci, loop_summary
 from jaxdip.plants import dip
 from jaxdip.progress import Progress
+from jaxdip.scenarios import eki_dip as S
 from jaxdip.search import EKI, run_eki
 from jaxdip.search.eki import align_signs
 from jaxdip.search.p_search import (
-    BasisMember, ContinuousSearch, continuous_performance, member_blocks, member_P, project_member,
+    BasisMember, continuous_performance, member_blocks, member_P, performances, project_member,
 )
-from jaxdip.sim import Loop, LoopParams, linearize, montecarlo, sensors
-from jaxdip.sim.component import identity
-
-INF = float("inf")
+from jaxdip.tune import tune
 
 
 @dataclass
@@ -123,18 +120,14 @@ class EkiDipConfig:
             raise C.ConfigError("t_star", f"must be below T = {self.T}")
 
 
-def _search_cfg(cfg, plant):
-    return ContinuousSearch(dt=cfg.dt, n_steps=int(round(cfg.T / cfg.dt)),
-                            t_star_steps=int(round(cfg.t_star / cfg.dt)), gamma=cfg.gamma,
-                            Qpos=jnp.diag(jnp.asarray(cfg.Q)), noise_std=cfg.noise_std,
-                            x0_std=jnp.asarray(cfg.x0_std), substeps=cfg.substeps)
+def _search_cfg(cfg):
+    return S.search_setup(dt=cfg.dt, T=cfg.T, t_star=cfg.t_star, gamma=cfg.gamma, Q=cfg.Q, noise_std=cfg.noise_std,
+                          x0_std=cfg.x0_std, substeps=cfg.substeps)
 
 
 def initial_ensemble(cfg, A, B, key):
     """Thesis §3.2.1: v1 from the LQR Riccati solution, v2 in v1^perp ∩ B^perp, s near [1e6, 1e5]."""
-    _, S, _ = lqr(A, B, jnp.diag(jnp.asarray(cfg.lqr_Q)), cfg.lqr_R)
-    w, U = jnp.linalg.eigh(S)
-    v1 = U[:, -1] * jnp.sign(U[:, -1] @ B[:, 0])
+    v1 = S.lqr_direction(A, B, cfg.lqr_Q, cfg.lqr_R)
     # orthonormal basis of the complement of span{v1, B}: the last 4 left singular vectors of [v1, B]
     Uc = jnp.linalg.svd(jnp.stack([v1, B[:, 0]], axis=1), full_matrices=True)[0][:, 2:]
     k1, k2, k3, k4 = jax.random.split(key, 4)
@@ -148,52 +141,55 @@ def initial_ensemble(cfg, A, B, key):
     return jax.vmap(project_member)(members), v1
 
 
-def judge(cfg, plant, p, member, key_seed):
+def judge(cfg, member, key_seed):
     """Monte Carlo of RP with the found P: stabilised fraction over ``seeds`` near-upright states."""
-    n_steps = int(round(cfg.judge_duration / cfg.dt))
-    loop = Loop(plant, cfg.dt, sensors.linear_sensor(cfg.dt), passthrough, relaxed_projection_controller(plant),
-                identity, substeps=10, tail_steps=min(n_steps, int(round(1.0 / cfg.dt))))
-    lp = LoopParams(p, sensors.full_state_params(6), (), rp_params(member_P(member), cfg.judge_gamma, p),
-                    process_noise_std=cfg.noise_std,
-                    state_bound=jnp.asarray([1.0, 1.5708, 1.5708, INF, INF, INF]))
-    res = montecarlo.run(loop, lp, ball_sampler(jnp.zeros(6), cfg.judge_radius), jax.random.PRNGKey(key_seed),
-                         cfg.seeds, n_steps, shard=jax.device_count() > 1 and cfg.seeds >= 512,
-                         desc="eki-dip judge")
-    return trajectory_summary(res, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol)
+    rollout = S.judge_rollout(member_P(member), gamma=cfg.judge_gamma, dt=cfg.dt, duration=cfg.judge_duration,
+                              radius=cfg.judge_radius, noise_std=cfg.noise_std)
+    sol = jd.monte_carlo(rollout, jax.random.PRNGKey(key_seed), cfg.seeds, progress=True, desc="eki-dip judge")
+    return loop_summary(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol)
 
 
-def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
-    import matplotlib.pyplot as plt
+class GradientLoss(NamedTuple):
+    """The gradient search's loss: the mean of log (2.24) (no penalty: the integral up to a failure) over
+    ``n`` initial states split from the key, at the re-orthonormalised member."""
 
-    plant = dip.make("printed")
-    p = plant.default_params()
-    A, B = linearize(plant.f, p, jnp.zeros(6), jnp.zeros(1))
-    scfg = _search_cfg(cfg, plant)
-    base = jax.random.PRNGKey(cfg.seed)
+    plant: object
+    scfg: object
+    n: int
+
+    def __call__(self, m, key):
+        ys = performances(self.plant, self.scfg, project_member(m), key, self.n, penalize=False)
+        return jnp.mean(jnp.log(ys + 1e-12))
+
+
+def build(cfg: EkiDipConfig, base):
+    """The search: the plant, the evaluation setup, the EKI process and its initial state, and the LQR's v1."""
+    plant = S.plant()
+    A, B = jd.linearize(plant)
+    scfg = _search_cfg(cfg)
     members0, v1_lqr = initial_ensemble(cfg, A, B, jax.random.fold_in(base, 1))
-    G0 = continuous_performance(plant, p, scfg, n_x0=cfg.n_x0)
+    G0 = continuous_performance(plant, scfg, n_x0=cfg.n_x0)
     G = (lambda m, k: jnp.log(G0(m, k))) if cfg.log_performance else G0
     eki = EKI(G=G, template=jax.tree_util.tree_map(lambda a: a[0], members0), y_target=jnp.array([cfg.y_target]),
               R=jnp.array([[cfg.R]]), sigma_w=cfg.sigma_w, project=project_member, failure=cfg.failure,
               min_success=cfg.min_success, penalty=float(np.log(scfg.penalty)) if cfg.log_performance else scfg.penalty,
               align=lambda V: align_signs(V, member_blocks(2, 6)))
-    state = eki.init(members0, jax.random.fold_in(base, 2))
+    return plant, scfg, eki, eki.init(members0, jax.random.fold_in(base, 2)), members0, v1_lqr
 
-    # --- the ensemble Kalman search, checkpointed ---------------------------------------------------------
+
+def ensemble_search(cfg: EkiDipConfig, eki, state, ctx: RunContext | None):
+    """run_eki to ``cfg.iterations`` (or the early stop), checkpointed after every chunk to
+    ``ctx.checkpoint_path`` and continued from it with ``ctx.resume``. Returns (state, history, wall time)."""
     fp = checkpoint.fingerprint(C.to_dict(cfg))
-    history = np.zeros((0, 1))
+    hist_prev = np.zeros((0, 1))
     wall_before = 0.0
-    if ctx is not None and ctx.resume:
-        import os
-
-        if os.path.exists(ctx.checkpoint_path):
-            (state, history), meta = checkpoint.load(ctx.checkpoint_path, (state, jnp.zeros((1, 1))), fp)
-            history = np.asarray(history)[: int(state.iteration)]
-            wall_before = meta.get("wall_s", 0.0)
+    if ctx is not None and ctx.resume and os.path.exists(ctx.checkpoint_path):
+        (state, hist_prev), meta = checkpoint.load(ctx.checkpoint_path, (state, jnp.zeros((1, 1))), fp)
+        hist_prev = np.asarray(hist_prev)[: int(state.iteration)]
+        wall_before = meta.get("wall_s", 0.0)
     t0 = time.perf_counter()
     bar = Progress(cfg.iterations, desc="eki-dip search")
     bar.update(int(state.iteration))
-    hist_prev = history
 
     def save(st, h):
         if ctx is not None:
@@ -207,71 +203,49 @@ def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
                               stop=stop)
     bar.close()
     history = np.concatenate([hist_prev, hist_new]) if len(hist_prev) else hist_new
-    eki_wall = wall_before + time.perf_counter() - t0
+    return state, history, wall_before + time.perf_counter() - t0
+
+
+def gradient_search(cfg: EkiDipConfig, plant, scfg, start, key):
+    """Adam (clipped) on the mean log (2.24) over ``grad_x0`` training states through ``jaxdip.tune``, the
+    basis re-orthonormalised after every step, the best iterate kept.
+
+    Common random numbers: the same training states every step make the loss a deterministic function of P,
+    so Adam follows its gradient rather than the noise between initial states; a step can land on a
+    trajectory that fails, whose NaN derivatives count as 0."""
+    return tune(GradientLoss(plant, scfg, cfg.grad_x0), start, key, steps=cfg.grad_steps, lr=cfg.grad_lr,
+                clip=cfg.grad_clip, common_random_numbers=cfg.grad_common_states, mode="reverse",
+                project=project_member, zero_nonfinite_grads=True, desc="eki-dip gradient search")
+
+
+def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
+    base = jax.random.PRNGKey(cfg.seed)
+    plant, scfg, eki, state, members0, v1_lqr = build(cfg, base)
+    state, history, eki_wall = ensemble_search(cfg, eki, state, ctx)
     found = eki.mean(state)
     iters = int(state.iteration)
 
-    # --- common evaluation of any member -------------------------------------------------------------------
-    eval_keys = jax.random.split(jax.random.fold_in(base, 3), cfg.eval_states)
-    G_eval = jax.jit(lambda m: jax.vmap(lambda k: continuous_performance(plant, p, scfg)(m, k)[0])(eval_keys))
-
-    def eval_perf(m):
-        y = np.asarray(G_eval(m))
+    def eval_perf(m):  # (2.24) on common evaluation states
+        y = np.asarray(performances(plant, scfg, m, jax.random.fold_in(base, 3), cfg.eval_states))
         return {"mean": float(y.mean()), "median": float(np.median(y)), "failed": int((y >= scfg.penalty).sum())}
 
-    start_mean = jax.tree_util.tree_map(lambda a: a.mean(0), members0)
-    start_mean = project_member(start_mean)
+    start_mean = project_member(jax.tree_util.tree_map(lambda a: a.mean(0), members0))
     perf_start = eval_perf(start_mean)
     perf_eki = eval_perf(found)
 
-    # --- gradient search --------------------------------------------------------------------------------------
     grad = {}
     if cfg.grad_steps > 0:
-        Gs = continuous_performance(plant, p, scfg, n_x0=1, penalize=False)
-
-        def loss(m, key):
-            m = project_member(m)
-            ys = jax.vmap(lambda k: Gs(m, k)[0])(jax.random.split(key, cfg.grad_x0))
-            return jnp.mean(jnp.log(ys + 1e-12))
-
-        # common random numbers: the same training states every step make the loss a deterministic function
-        # of P, so Adam follows its gradient rather than the noise between initial states; the best iterate
-        # on that loss is kept (a step can land on a trajectory that fails)
-        opt = optax.chain(optax.clip_by_global_norm(cfg.grad_clip), optax.adam(cfg.grad_lr))
-        m = start_mean
-        o = opt.init(m)
-        train_key = jax.random.fold_in(base, 4)
-
-        @jax.jit
-        def gstep(m, o, key):
-            val, g = jax.value_and_grad(loss)(m, key)
-            g = jax.tree_util.tree_map(lambda x: jnp.where(jnp.isfinite(x), x, 0.0), g)
-            upd, o = opt.update(g, o, m)
-            return project_member(optax.apply_updates(m, upd)), o, val
-
         tg = time.perf_counter()
-        gbar = Progress(cfg.grad_steps, desc="eki-dip gradient search")
-        glosses = []
-        best, best_val = m, float("inf")
-        for i in range(cfg.grad_steps):
-            key = train_key if cfg.grad_common_states else jax.random.fold_in(train_key, i)
-            m_new, o, val = gstep(m, o, key)
-            glosses.append(float(val))
-            if glosses[-1] < best_val:
-                best, best_val = m, glosses[-1]
-            m = m_new
-            gbar.update(1, postfix=f"log perf {glosses[-1]:.3f}")
-        gbar.close()
-        m = best
-        perf_grad = eval_perf(m)
+        res = gradient_search(cfg, plant, scfg, start_mean, jax.random.fold_in(base, 4))
+        m = res.theta
         grad = {"P_basis": np.asarray(m.V).tolist(), "P_singular_values": np.exp(np.asarray(m.log_s)).tolist(),
                 "steps": cfg.grad_steps, "simulations": cfg.grad_steps * cfg.grad_x0,
-                "performance": perf_grad, "loss_history": glosses}
+                "performance": eval_perf(m), "loss_history": [float(x) for x in res.loss_history]}
         grad_wall = time.perf_counter() - tg
-        grad["judge"] = judge(cfg, plant, p, m, cfg.seed + 7)
+        grad["judge"] = judge(cfg, m, cfg.seed + 7)
         grad["stabilized_fraction"] = grad["judge"]["stabilized_fraction"]
 
-    judged = judge(cfg, plant, p, found, cfg.seed + 7)
+    judged = judge(cfg, found, cfg.seed + 7)
     results = {
         "P_basis": np.asarray(found.V).tolist(),
         "P_singular_values": np.exp(np.asarray(found.log_s)).tolist(),
@@ -286,6 +260,13 @@ def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
         "history_mean_performance": history[:, 0].tolist(),
         "gradient": grad,
     }
+    timing = {"search_wall_s": eki_wall, **({"gradient_search_wall_s": grad_wall} if grad else {})}
+    return Outcome(results, report(cfg, results, timing), {"search_history": figure(cfg, history, grad)},
+                   timing=timing)
+
+
+def figure(cfg, history, grad):
+    import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 3.5))
     h_plot = np.exp(history[:, 0]) if cfg.log_performance else history[:, 0]
@@ -299,8 +280,7 @@ def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
     ax.set_ylabel("performance (2.24)")
     ax.legend(fontsize=8)
     ax.set_title("eki-dip search")
-    timing = {"search_wall_s": eki_wall, **({"gradient_search_wall_s": grad_wall} if grad else {})}
-    return Outcome(results, report(cfg, results, timing), {"search_history": fig}, timing=timing)
+    return fig
 
 
 def report(cfg, r, timing):

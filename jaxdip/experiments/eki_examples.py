@@ -9,8 +9,9 @@ with Q = diag(350, 5), R = 3.5, designed for this discrete system with the DARE)
 Stabilising: linear example, the spectral radius of (I - B (B^T P B)^-1 B^T P) A below 1 (Definition 2.5.1);
 nonlinear example, the relaxed projection control brings every one of ``judge_states`` random initial states
 (N(0, judge_std^2 I)) within ``judge_tol`` of the origin in ``judge_steps`` steps. Reproducibility over the
-search itself: the whole search is repeated for ``search_seeds`` keys (vmapped) and the fraction ending with a
-stabilising P reported.
+search itself: the whole search is repeated for ``search_seeds`` keys (seeds 1.. of ``jd.monte_carlo``, in
+batches) and the fraction ending with a stabilising P reported. Every closed loop (the (2.23) evaluations, the
+judging and figure rollouts) runs through ``jd.simulate``; the EKI iterations are ``jaxdip.search.p_search``'s.
 """
 
 from __future__ import annotations
@@ -22,19 +23,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import jaxdip as jd
 from jaxdip.resources import Load
 from jaxdip import config as C
 from jaxdip import stats
-from jaxdip.control import dlqr
-from jaxdip.control.projection import drift_and_input, projected_closed_loop, relaxed_discrete, state_weight
+from jaxdip.control import StateFeedback, dlqr
+from jaxdip.control.projection import RelaxedProjection, projected_closed_loop
 from jaxdip.control.spd import P_v
 from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import examples2d
-from jaxdip.progress import Progress
 from jaxdip.search import EKI
 from jaxdip.search.eki import align_signs
-from jaxdip.search.p_search import discrete_performance
+from jaxdip.search.p_search import direction_search, discrete_performance
 
 
 @dataclass
@@ -67,7 +68,7 @@ class EkiExampleConfig:
     judge_tol: float = C.field(1e-3, C.positive_finite, doc="final |x| below this counts as stabilised")
 
     def loads(self) -> list[Load]:
-        # searches run in vmapped batches of up to 250 (with their restarts side by side)
+        # searches run in Monte Carlo batches of up to 250 (with their restarts side by side)
         batch = min(self.seeds, 250) * self.restarts
         return [Load("the batch of searches", ("seeds", "ensemble", "iterations"), batch * self.ensemble,
                      self.iterations, saved=4 * self.iterations // self.ensemble + 16),
@@ -78,32 +79,16 @@ class EkiExampleConfig:
 THESIS_V = {"linear": [-0.9975, -0.07], "nonlinear": [0.9950, 0.1003]}
 
 
-def _plant(cfg):
+def _plant(cfg) -> jd.LegacyPlant:
     plant = examples2d.linear() if cfg.example == "linear" else examples2d.nonlinear()
-    return plant, plant.default_params()
+    return jd.LegacyPlant(plant, plant.default_params())
 
 
 def make_eki(cfg):
-    plant, prm = _plant(cfg)
-    G = discrete_performance(plant, prm, cfg.s, cfg.K, fail_norm=cfg.fail_norm, penalty=cfg.penalty,
+    G = discrete_performance(_plant(cfg), cfg.s, cfg.K, fail_norm=cfg.fail_norm, penalty=cfg.penalty,
                              n_x0=cfg.n_x0)
     return EKI(G=G, template=jnp.zeros(2), y_target=jnp.asarray(cfg.y_target), R=jnp.diag(jnp.asarray(cfg.R)),
                sigma_w=cfg.sigma_w, project=lambda v: v / jnp.linalg.norm(v), align=align_signs)
-
-
-def _single_search(cfg, key):
-    eki = make_eki(cfg)
-    k_init, k_run = jax.random.split(key)
-    members = jnp.sqrt(cfg.init_var) * jax.random.normal(k_init, (cfg.ensemble, 2))
-    members = members / jnp.linalg.norm(members, axis=1, keepdims=True)
-    st = eki.init(members, k_run)
-
-    def body(s, _):
-        s, Y = eki.step(s)
-        return s, Y.mean(axis=0)
-
-    st, hist = jax.lax.scan(body, st, None, length=cfg.iterations)
-    return eki.mean(st), hist
 
 
 def search(cfg, key):
@@ -114,73 +99,81 @@ def search(cfg, key):
     a Gaussian, locally linear update: on the nonlinear example it settles in one of two basins depending on
     the initial ensemble, and a few restarts pick the better one.
     """
-    if cfg.restarts == 1:
-        return _single_search(cfg, key)
-    keys = jax.random.split(key, cfg.restarts + 1)
-    vs, hists = jax.vmap(lambda k: _single_search(cfg, k))(keys[1:])
-    G = make_eki(cfg).G
-    sel = jax.random.split(keys[0], cfg.select_states)
-    score = jax.vmap(lambda v: jax.vmap(lambda k: G(v, k))(sel)[:, 0].mean())(vs)
-    best = jnp.argmin(score)
-    return vs[best], hists[best]
+    return direction_search(make_eki(cfg), key, ensemble=cfg.ensemble, init_var=cfg.init_var,
+                            iterations=cfg.iterations, restarts=cfg.restarts, select_states=cfg.select_states)
 
 
-def rp_rollout(cfg, v, x0, steps):
-    plant, prm = _plant(cfg)
-    P = P_v(v, cfg.s)
+def state_and_input(sample):
+    return sample.x, sample.u[0]
 
-    def body(x, _):
-        fx, gx = drift_and_input(plant.step, prm, x, plant.m)
-        u = relaxed_discrete(P, fx, gx, x, state_weight(cfg.rp_gamma, cfg.rp_alpha, x))
-        xn = fx + gx @ u
-        return xn, (x, u[0])
 
-    _, (xs, us) = jax.lax.scan(body, jnp.asarray(x0, dtype=jnp.float64), None, length=steps)
-    return xs, us
+def rp_rollout(cfg, v, steps, x0=None) -> jd.Rollout:
+    """The relaxed projection control (2.10) with the weight (2.18) and P_v(v, s), saving (x_k, u_k)."""
+    plant = _plant(cfg)
+    ctrl = RelaxedProjection(plant, P_v(v, cfg.s), cfg.rp_gamma, cfg.rp_alpha, kind="discrete")
+    loop = jd.Loop(plant=plant, sensor=jd.Identity(), estimator=jd.Passthrough(), controller=ctrl, dt=1.0,
+                   substeps=1)
+    return jd.Rollout(loop, jnp.zeros(2) if x0 is None else jnp.asarray(x0, dtype=jnp.float64), steps,
+                      save=state_and_input)
+
+
+def initial_state(rollout):
+    """Where a sweep over initial states goes (module-level: the compiled sweep is reused across calls)."""
+    return rollout.x0
+
+
+def lqr_rollout(cfg, K, steps) -> jd.Rollout:
+    loop = jd.Loop(plant=_plant(cfg), sensor=jd.Identity(), estimator=jd.Passthrough(),
+                   controller=StateFeedback(K), dt=1.0, substeps=1)
+    return jd.Rollout(loop, jnp.asarray(cfg.x0, dtype=jnp.float64), steps, save=state_and_input)
 
 
 def stabilizes(cfg, v, key, n_states):
     """Linear: spectral radius test; nonlinear: simulation from n_states random initial states."""
-    plant, prm = _plant(cfg)
     if cfg.example == "linear":
+        prm = _plant(cfg).params
         T = projected_closed_loop(jnp.asarray(prm.A), jnp.asarray(prm.B).reshape(2, 1), P_v(v, cfg.s))
         rho = jnp.max(jnp.abs(jnp.linalg.eigvals(T)))
         return rho < 1.0, rho
+    # the initial states are one draw of the key, swept through one deterministic rollout
     x0s = cfg.judge_std * jax.random.normal(key, (n_states, 2))
-    finals = jax.vmap(lambda x0: rp_rollout(cfg, v, x0, cfg.judge_steps)[0][-1])(x0s)
-    norms = jnp.linalg.norm(finals, axis=1)
-    ok = jnp.where(jnp.isfinite(norms), norms < cfg.judge_tol, False)
+    sol = jd.monte_carlo(rp_rollout(cfg, v, cfg.judge_steps), key, 1, sweep=(initial_state, x0s))
+    last = cfg.judge_steps - 1  # judged at x_{steps-1}, the last recorded state
+    norms = jnp.linalg.norm(sol.saved[0][:, 0, last], axis=1)
+    fa = sol.final.failed_at[:, 0]
+    alive = (fa < 0) | (fa > last)  # no non-finite state up to it (the engine freezes the state after one)
+    ok = alive & jnp.where(jnp.isfinite(norms), norms < cfg.judge_tol, False)
     return jnp.all(ok), jnp.mean(ok)
 
 
 def search_success(cfg, base):
-    """Fraction (Wilson 95% CI) of ``cfg.seeds`` independent searches that end with a stabilising P."""
+    """Fraction (Wilson 95% CI) of ``cfg.seeds`` independent searches that end with a stabilising P.
+
+    Search i (i = 1 .. seeds) is seed i of the Monte Carlo driver; its P is judged from initial states drawn
+    from ``fold_in(search key, 1)``."""
     batch = max(1, (100 if cfg.example == "nonlinear" else 250) // cfg.restarts)
     n_judge = min(cfg.judge_states, 200)
-    ok = []
-    bar = Progress(cfg.seeds, desc=f"eki-{cfg.example} searches (restarts={cfg.restarts})")
-    run_batch = jax.jit(jax.vmap(lambda i: stabilizes(cfg, search(cfg, jax.random.fold_in(base, i))[0],
-                                                      jax.random.fold_in(base, 10**6 + i), n_judge)[0]))
-    for start in range(0, cfg.seeds, batch):
-        idx = jnp.arange(start, min(start + batch, cfg.seeds)) + 1
-        ok.append(np.asarray(run_batch(idx)))
-        bar.update(len(idx))
-    ok = np.concatenate(ok)
+
+    def trial(key):
+        return stabilizes(cfg, search(cfg, key)[0], jax.random.fold_in(key, 1), n_judge)[0]
+
+    ok = np.asarray(jd.monte_carlo(trial, base, cfg.seeds, offset=1, chunk=batch, progress=True,
+                                   desc=f"eki-{cfg.example} searches (restarts={cfg.restarts})"))
     return stats.wilson(int(ok.sum()), len(ok))
 
 
 def run(cfg: EkiExampleConfig, ctx: RunContext | None = None) -> Outcome:
     import matplotlib.pyplot as plt
 
-    plant, prm = _plant(cfg)
+    prm = _plant(cfg).params
     base = jax.random.PRNGKey(cfg.seed)
-    v, hist = jax.jit(lambda k: search(cfg, k))(jax.random.fold_in(base, 0))
+    v, hist = search(cfg, jax.random.fold_in(base, 0))  # search 0; searches 1.. are search_success's
     v = np.asarray(v)
     thesis_v = np.asarray(THESIS_V[cfg.example])
     align = float(abs(v @ thesis_v) / np.linalg.norm(thesis_v))  # v and -v give the same P
     ok, measure = stabilizes(cfg, jnp.asarray(v), jax.random.fold_in(base, 10**6), cfg.judge_states)
 
-    # repeat the whole search over many keys (vmapped in batches, progress between batches)
+    # repeat the whole search over many keys (Monte Carlo batches, progress between batches)
     frac, ci = search_success(cfg, base)
     single = None
     if cfg.restarts > 1:  # the thesis's procedure (one ensemble) on the same keys, for comparison
@@ -204,21 +197,16 @@ def run(cfg: EkiExampleConfig, ctx: RunContext | None = None) -> Outcome:
     else:
         results["stabilized_fraction_of_initial_states"] = float(measure)
 
-    xs, us = rp_rollout(cfg, jnp.asarray(v), cfg.x0, cfg.sim_steps)
-    xs, us = np.asarray(xs), np.asarray(us)
+    xs, us = jd.monte_carlo(rp_rollout(cfg, jnp.asarray(v), cfg.sim_steps, cfg.x0), base, 1).saved
+    xs, us = np.asarray(xs[0]), np.asarray(us[0])
     figs = {}
     k = np.arange(cfg.sim_steps)
     if cfg.example == "linear":
         A, B = np.asarray(prm.A), np.asarray(prm.B).reshape(2, 1)
         K, _, _ = dlqr(A, B, np.diag(cfg.lqr_Q), cfg.lqr_R)
         K = np.asarray(K)
-        xl, ul = [np.asarray(cfg.x0, dtype=float)], []
-        for _ in range(cfg.sim_steps):
-            u = -(K @ xl[-1])
-            ul.append(u[0])
-            xl.append(A @ xl[-1] + B @ u)
-        xl = np.array(xl[:-1])
-        ul = np.array(ul)
+        xl, ul = jd.monte_carlo(lqr_rollout(cfg, K, cfg.sim_steps), base, 1).saved
+        xl, ul = np.asarray(xl[0]), np.asarray(ul[0])
         results["lqr_gain"] = K.tolist()
         results["max_abs_u"] = {"rp": float(np.abs(us).max()), "lqr": float(np.abs(ul).max())}
         fig, ax = plt.subplots(3, 1, figsize=(7, 7), sharex=True)

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import checkpoint as ckpt
 from jaxdip import config as C
@@ -257,43 +258,38 @@ class DMSOTarget(Target):
 
 class RPTarget(Target):
     """gamma of the continuous relaxed projection control (2.14) on the printed DIP with a fixed P = P_{V,s}:
-    V = v1, the LQR-derived leading Riccati eigenvector of ``eki_dip.initial_ensemble`` (eki-dip's LQR
-    weights), s = 1e6 (the README's eki-dip P is given only by its singular values). The eki-dip search setup
-    (``eki_dip._search_cfg``: 1 ms, state noise 5e-5 every period, Q = diag(80, 300, 100)) over ``duration``
-    with t* = duration / 3 (eki-dip: 1 s of 3 s). Loss per seed = log of (2.24) with the thesis's failure rule
-    (a state norm above 10 scores log 1000, constant in gamma). Paper value gamma = 40 (thesis §3.2.2, the
-    value eki-dip judges with)."""
+    V = v1, the LQR-derived leading Riccati eigenvector (``jaxdip.scenarios.eki_dip.lqr_direction`` with
+    eki-dip's LQR weights), s = 1e6 (the README's eki-dip P is given only by its singular values). The eki-dip
+    search setup (``jaxdip.scenarios.eki_dip.search_setup``: 1 ms, state noise 5e-5 every period,
+    Q = diag(80, 300, 100)) over ``duration`` with t* = duration / 3 (eki-dip: 1 s of 3 s). Loss per seed = log
+    of (2.24) with the thesis's failure rule (a state norm above 10 scores log 1000, constant in gamma). Paper
+    value gamma = 40 (thesis §3.2.2, the value eki-dip judges with)."""
 
     name, param = "rp", "gamma"
 
     def __init__(self, cfg: TuneConfig):
         from jaxdip.control.spd import P_Vs
-        from jaxdip.experiments import eki_dip as E
-        from jaxdip.plants import dip
-        from jaxdip.sim import linearize
+        from jaxdip.scenarios import eki_dip as S
 
-        self.ecfg = E.EkiDipConfig(T=cfg.duration, t_star=cfg.duration / 3.0)
-        self.plant = dip.make("printed")
-        self.pp = self.plant.default_params()
-        A, B = linearize(self.plant.f, self.pp, jnp.zeros(6), jnp.zeros(1))
-        _, self.v1 = E.initial_ensemble(self.ecfg, A, B, jax.random.PRNGKey(0))  # v1 does not depend on the key
+        self.plant = S.plant()
+        A, B = jd.linearize(self.plant)
+        self.v1 = S.lqr_direction(A, B)
         self.P = P_Vs(self.v1[:, None], jnp.asarray([1e6]))
-        self.scfg = E._search_cfg(self.ecfg, self.plant)
-        self.paper = {"gamma": jnp.asarray(self.ecfg.judge_gamma, dtype=jnp.float64)}
+        self.scfg = S.search_setup(T=cfg.duration, t_star=cfg.duration / 3.0)
+        self.paper = {"gamma": jnp.asarray(S.JUDGE_GAMMA, dtype=jnp.float64)}
         self.spec = {"gamma": Log()}
         self.factor = cfg.search_factor
 
     def objective(self, seeds, smooth: bool):
         from jaxdip.search.p_search import BasisMember, continuous_performance
-        from jaxdip.sim import montecarlo
 
         seeds = jnp.asarray(seeds, dtype=jnp.uint32)
         # a one-vector member whose P_{V,s} is self.P (member_P re-derives it from V and log s)
         member = BasisMember(self.v1[None, :], jnp.log(jnp.asarray([1e6])))
 
         def per_seed(theta, key):
-            G = continuous_performance(self.plant, self.pp, self.scfg._replace(gamma=theta["gamma"]))
-            return jax.vmap(lambda i: jnp.log(G(member, montecarlo.seed_key(key, i))[0]))(seeds)
+            G = continuous_performance(self.plant, self.scfg._replace(gamma=theta["gamma"]))
+            return jax.vmap(lambda i: jnp.log(G(member, jax.random.fold_in(key, i))[0]))(seeds)
 
         def J(theta, key):
             return jnp.mean(per_seed(theta, key))

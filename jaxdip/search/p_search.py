@@ -11,40 +11,38 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from jaxdip.control.projection import projection, relaxed_continuous, drift_and_input
+import jaxdip as jd
+from jaxdip.control.projection import RelaxedProjection
 from jaxdip.control.spd import P_v, P_Vs, orthonormalize
-from jaxdip.sim.integrate import rk4_zoh
 
 
-def discrete_performance(plant, plant_params, s: float, K: int, x0_std: float = 1.0,
-                         fail_norm: float = 10.0, penalty: float = 1000.0, n_x0: int = 1):
-    """G(v, key) of (2.23) for a discrete plant under the projection control with P_v(v, s).
+def _loop(plant, controller, **kw):
+    # full-state feedback: the state is measured exactly and is the estimate
+    return jd.Loop(plant=plant, sensor=jd.Identity(), estimator=jd.Passthrough(), controller=controller, **kw)
+
+
+def discrete_performance(plant, s: float, K: int, x0_std: float = 1.0, fail_norm: float = 10.0,
+                         penalty: float = 1000.0, n_x0: int = 1):
+    """G(v, key) of (2.23) for a discrete engine plant under the projection control with P_v(v, s).
 
     The thesis's failure rule applies here too: a state norm above ``fail_norm`` scores y = (penalty, 1)
     (the worst angle). Without it, members just across the stability boundary score 1e17 and their
     covariances swamp the ensemble update, which then stalls on the unstable side. With ``n_x0 > 1`` the
-    measures are averaged over that many initial states (the thesis used one).
+    measures are averaged over that many initial states (split from the key; the thesis used one).
     """
-    step = plant.step
-    m = plant.m
 
     def one(P, key):
         x0 = x0_std * jax.random.normal(key, (plant.n,))
-
-        def body(c, _):
-            x, failed = c
-            fx, gx = drift_and_input(step, plant_params, x, m)
-            u = projection(P, fx, gx)
-            xn = fx + gx @ u
-            failed = failed | ~jnp.all(jnp.isfinite(xn)) | (jnp.linalg.norm(xn) > fail_norm)
-            return (jnp.where(failed, x, xn), failed), None
-
-        (xK, failed), _ = jax.lax.scan(body, (x0, False), None, length=K)
-        fK = step(plant_params, xK, jnp.zeros(m))
-        d = fK - xK
+        loop = _loop(plant, RelaxedProjection(plant, P, kind="discrete", projection_only=True), dt=1.0,
+                     substeps=1, norm_bound=fail_norm)
+        sol = jd.simulate(loop, x0, key, K)  # deterministic: the key only names the trajectory
+        xK, failed = sol.final.x, sol.result != jd.RESULTS.ok  # xK: the last state before any failure
+        # the measures of (2.23) at x_K: library math on the final state, not a loop
+        d = plant.step(xK, jnp.zeros(plant.m)) - xK
         pn = lambda z: jnp.sqrt(z @ P @ z)
         y1 = xK @ xK
         y2 = (d @ P @ xK) / (pn(d) * pn(xK))
@@ -91,36 +89,113 @@ class ContinuousSearch(NamedTuple):
     substeps: int = 2
 
 
-def continuous_performance(plant, plant_params, cfg: ContinuousSearch, n_x0: int = 1, penalize: bool = True):
-    """G(member, key) of (2.24) for a continuous plant under (2.14) with P = P_{V,s}, averaged over n_x0
-    initial states (the thesis used one). ``penalize=False`` returns the integral up to the failure instead of
-    the penalty (a smooth objective for gradients)."""
-    m = plant.m
+class NoiseStream(jd.KeySchedule):
+    """The random stream of Procedure 1's evaluations: x0 from ``split(key)[0]`` (drawn by the caller), the
+    state noise of period k from ``fold_in(split(key)[1], k)``; the components are deterministic and get the
+    same key (unused)."""
 
-    def one(P, key):
-        k0, kn = jax.random.split(key)
-        x0 = cfg.x0_std * jax.random.normal(k0, (plant.n,))
+    def base(self, key):
+        return jax.random.split(key)[1]
 
-        def body(c, k):
-            x, acc, failed = c
-            fx, gx = drift_and_input(plant.f, plant_params, x, m)
-            u = relaxed_continuous(P, fx, gx, x, cfg.gamma)
-            xn = rk4_zoh(plant.f, plant_params, x, u, cfg.dt, cfg.substeps)
-            xn = xn + cfg.noise_std * jax.random.normal(jax.random.fold_in(kn, k), xn.shape)
-            bad = ~jnp.all(jnp.isfinite(xn)) | (jnp.linalg.norm(xn) > cfg.fail_norm)
-            failed = failed | bad
-            xn = jnp.where(failed, x, xn)
-            w = (k >= cfg.t_star_steps) & ~failed
-            acc = acc + jnp.where(w, xn @ cfg.Qpos @ xn, 0.0)
-            return (xn, acc, failed), None
+    def period(self, base, k):
+        return jnp.broadcast_to(jax.random.fold_in(base, k), (5,) + base.shape)
 
-        (xT, acc, failed), _ = jax.lax.scan(body, (x0, 0.0, False), jnp.arange(cfg.n_steps))
-        y = acc / (cfg.n_steps - cfg.t_star_steps)
-        return jnp.where(failed & penalize, cfg.penalty, y)
+
+class QuadraticFrom(jd.metrics.Reducer):
+    """sum of x_k^T Q x_k over the periods k >= start (x_k: the state at the start of the period)."""
+
+    Q: jax.Array
+    start: int = eqx.field(static=True)
+
+    def init(self, template):
+        return jnp.zeros((), template.x.dtype)
+
+    def update(self, state, sample):
+        return state + jnp.where(sample.k >= self.start, sample.x @ self.Q @ sample.x, 0.0)
+
+    def finalize(self, state):
+        return state
+
+
+def performance_loop(plant, P, cfg: ContinuousSearch) -> jd.Loop:
+    """The closed loop of one evaluation of (2.24): (2.14) with P and cfg.gamma, state noise every period, a
+    state norm above ``fail_norm`` ends it."""
+    return _loop(plant, RelaxedProjection(plant, P, cfg.gamma), dt=cfg.dt, substeps=cfg.substeps,
+                 process_noise_std=cfg.noise_std, norm_bound=cfg.fail_norm, keys=NoiseStream())
+
+
+def rp_performance(plant, P, cfg: ContinuousSearch, key, penalize: bool = True):
+    """(2.24) of one evaluation: 1/(T - t*) sum of x^T Q x over the states x_{t*+1} .. x_n (up to a failure),
+    or ``penalty`` if the state norm left ``fail_norm`` (``penalize=False``: the sum up to the failure)."""
+    n, s = cfg.n_steps, cfg.t_star_steps
+    x0 = cfg.x0_std * jax.random.normal(jax.random.split(key)[0], (plant.n,))
+    sol = jd.simulate(performance_loop(plant, P, cfg), x0, key, n, metrics=QuadraticFrom(cfg.Qpos, s + 1))
+    failed = sol.result != jd.RESULTS.ok
+    # the reducer saw x_k for the periods whose successor was good; the last good state (x_n, or the one
+    # before the failure, where the state is frozen) is the final state
+    last = jnp.where(failed, sol.final.failed_at - 1, n)
+    xf = sol.final.x
+    acc = sol.metrics + jnp.where(last >= s + 1, xf @ cfg.Qpos @ xf, 0.0)
+    y = acc / (n - s)
+    return jnp.where(failed & penalize, cfg.penalty, y)
+
+
+def continuous_performance(plant, cfg: ContinuousSearch, n_x0: int = 1, penalize: bool = True):
+    """G(member, key) of (2.24) for a continuous engine plant under (2.14) with P = P_{V,s}, averaged over
+    n_x0 initial states (keys ``split(key, n_x0)``; the thesis used one). ``penalize=False`` returns the
+    integral up to the failure instead of the penalty (a smooth objective for gradients)."""
 
     def G(member: BasisMember, key):
         P = member_P(member)
-        ys = jax.vmap(lambda k: one(P, k))(jax.random.split(key, n_x0))
+        ys = jax.vmap(lambda k: rp_performance(plant, P, cfg, k, penalize))(jax.random.split(key, n_x0))
         return jnp.atleast_1d(ys.mean())
 
     return G
+
+
+@eqx.filter_jit
+def performances(plant, cfg: ContinuousSearch, member: BasisMember, key, n: int, penalize: bool = True):
+    """``n`` independent evaluations G(member, k) (one initial state each), k in ``split(key, n)``: a vector."""
+    G = continuous_performance(plant, cfg, 1, penalize)
+    return jax.vmap(lambda k: G(member, k)[0])(jax.random.split(key, n))
+
+
+def iterate(eki, state, iterations: int):
+    """``iterations`` EKI steps as one pure scan (vmappable: a batch of searches is a vmap of this); returns
+    (state, ensemble-mean performance per iteration). ``run_eki`` is the host-side, checkpointed form."""
+
+    def body(s, _):
+        s, Y = eki.step(s)
+        return s, Y.mean(axis=0)
+
+    return jax.lax.scan(body, state, None, length=iterations)
+
+
+@eqx.filter_jit
+def direction_search(eki, key, *, ensemble: int, init_var: float, iterations: int, restarts: int = 1,
+                     select_states: int = 64):
+    """Procedure 1 over unit vectors v (P = P_v): one whole search as a pure function of its key; returns
+    (final normalised ensemble mean, mean-performance history). Compiled on its own (a batch of searches
+    vmaps it instead: the EKI amplifies the last-bit differences between a batched and an unbatched program,
+    so one search is run unbatched).
+
+    Members start from N(0, init_var I), normalised. With ``restarts > 1`` independent ensembles run side by
+    side and the final mean with the lowest mean y_1 over ``select_states`` common initial states wins.
+    """
+
+    def single(k):
+        k_init, k_run = jax.random.split(k)
+        d = eki.template.shape[0]
+        members = jnp.sqrt(init_var) * jax.random.normal(k_init, (ensemble, d))
+        members = members / jnp.linalg.norm(members, axis=1, keepdims=True)
+        st, hist = iterate(eki, eki.init(members, k_run), iterations)
+        return eki.mean(st), hist
+
+    if restarts == 1:
+        return single(key)
+    keys = jax.random.split(key, restarts + 1)
+    vs, hists = jax.vmap(single)(keys[1:])
+    sel = jax.random.split(keys[0], select_states)
+    score = jax.vmap(lambda v: jax.vmap(lambda k: eki.G(v, k))(sel)[:, 0].mean())(vs)
+    best = jnp.argmin(score)
+    return vs[best], hists[best]

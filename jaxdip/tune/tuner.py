@@ -82,7 +82,8 @@ def tune(objective: Callable, init_params, key, *, steps: int = 100, lr: float =
          early_stop_patience: Optional[int] = None, min_delta: float = 0.0,
          checkpoint_path: Optional[str] = None, checkpoint_every: int = 1, resume: bool = False,
          fingerprint: str = "", progress: bool = True, desc: str = "tune",
-         callback: Optional[Callable] = None, mode: str = "forward") -> TuneResult:
+         callback: Optional[Callable] = None, mode: str = "forward", project: Optional[Callable] = None,
+         zero_nonfinite_grads: bool = False) -> TuneResult:
     """Minimise ``objective(theta, key) -> scalar`` from ``init_params``.
 
     ``spec``: pytree of transforms (default: all ``Identity``). ``optimizer``: an optax GradientTransformation
@@ -92,6 +93,9 @@ def tune(objective: Callable, init_params, key, *, steps: int = 100, lr: float =
     hyperparameters) or "reverse" (``grad``: for many hyperparameters; pair it with ``checkpointed_rollout``).
     With ``checkpoint_path`` the state is saved every ``checkpoint_every`` steps and at
     the end; ``resume`` continues from it (refused if ``fingerprint`` differs).
+    ``project(theta) -> theta``: applied after every update (projected gradient descent, e.g. re-orthonormalising
+    a basis), in the constrained space. ``zero_nonfinite_grads``: non-finite gradient entries count as 0 (a
+    trajectory that fails inside the loss gives NaN derivatives through the engine's freeze).
     """
     if steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps}")
@@ -106,12 +110,16 @@ def tune(objective: Callable, init_params, key, *, steps: int = 100, lr: float =
 
     @jax.jit
     def apply(st: _State, loss, g):
+        if zero_nonfinite_grads:
+            g = jax.tree_util.tree_map(lambda x: jnp.where(jnp.isfinite(x), x, 0.0), g)
         gnorm = jnp.sqrt(sum(jnp.sum(x**2) for x in jax.tree_util.tree_leaves(g)))
         theta = to_constrained(spec, st.u)
         upd, opt_state = opt.update(g, st.opt_state, st.u)
         import optax
 
         u = optax.apply_updates(st.u, upd)
+        if project is not None:
+            u = to_unconstrained(spec, project(to_constrained(spec, u)))
         i = st.step
         theta_hist = jax.tree_util.tree_map(lambda h, t: h.at[i].set(t), st.theta_hist, theta)
         better = loss < st.best_loss - min_delta
