@@ -125,3 +125,43 @@ def test_scenario_loop_equals_old_loop():
     np.testing.assert_array_equal(np.asarray(sol.saved), np.asarray(rec))
     np.testing.assert_allclose(np.asarray(sol.metrics["x2"]), np.asarray(c.stats.sum_x2), rtol=1e-14)
     assert int(sol.result) == int(c.diverged)
+
+
+def test_case_sweep_compiles_once():
+    """Several low-pass gains and angles sharing one structure: one sweep, one compilation of the batch, and a
+    second sweep with new numbers reuses it; each case equals its own run to the last bit."""
+    import logging
+
+    import equinox as eqx
+
+    compiled = []
+
+    class Count(logging.Handler):
+        def emit(self, record):
+            msg = record.getMessage()
+            if "Finished XLA compilation" in msg and "_batch" in msg:
+                compiled.append(msg)
+
+    hp = homd.homd_params()
+    base = scenario.rollout(bo.LowpassHOMD.of(bo.lowpass_params(hp, 0.05), DT, substeps=2), steps=20, d=-0.08,
+                            save_every=5, substeps=2)
+
+    def where(r):
+        return r.loop.estimator.gamma_d, r.x0.theta0
+
+    handler, log = Count(), logging.getLogger("jax")
+    log.addHandler(handler)
+    old_level = log.level
+    log.setLevel(logging.DEBUG)
+    try:
+        with jax.log_compiles(True):
+            a = jd.monte_carlo(base, 0, 2, sweep=(where, (jnp.array([0.05, 0.5, 2.0]), jnp.array([0.1, 0.05, 0.0]))))
+            n_first = len(compiled)
+            jd.monte_carlo(base, 0, 2, sweep=(where, (jnp.array([0.1, 0.2, 0.3]), jnp.array([0.0, 0.1, 0.2]))))
+    finally:
+        log.removeHandler(handler)
+        log.setLevel(old_level)
+    assert n_first == 1 and len(compiled) == 1, compiled
+    one = eqx.tree_at(where, base, (jnp.asarray(2.0), jnp.asarray(0.0)))
+    alone = jd.monte_carlo(one, 0, 2)
+    np.testing.assert_allclose(np.asarray(alone.saved), np.asarray(a.saved[2]), rtol=1e-12, atol=1e-15)
