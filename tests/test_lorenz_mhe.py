@@ -8,27 +8,33 @@ import subprocess
 import sys
 import time
 
+import equinox as eqx
 import jax
 import numpy as np
 import pytest
 
+import jaxdip as jd
 from jaxdip import config as C
 from jaxdip.experiments import get, run_experiment
 from jaxdip.experiments import lorenz_mhe as L
+from jaxdip.scenarios import lorenz_mhe as S
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
+def _cpx_norm_error(sol):
+    e = sol.metrics["errors"]
+    return e["norm"][:, 0] / e["n"][:, 0]
+
+
 def test_gradient_cpx_error_wrt_gamma():
-    """d(mean CPX norm error)/d(gamma) by reverse mode agrees with central finite differences."""
-    cfg = L.LorenzMheConfig(seeds=1, duration=0.3)
-    S, P = L.build(cfg)
+    """d(mean CPX norm error)/d(gamma) by reverse mode through jd.monte_carlo agrees with central differences."""
+    rollout = S.build(steps=300)
     key = jax.random.PRNGKey(3)
 
     @jax.jit
     def loss(g):
-        P2 = P._replace(cpx=P.cpx._replace(gamma=g))
-        return L.trial_errors(S, P2, key, 0, cfg.n_steps)["cpx"]["norm"]
+        return _cpx_norm_error(jd.monte_carlo(eqx.tree_at(S.gamma_of("cpx"), rollout, g), key, 1))[0]
 
     g0 = 0.5
     ad = float(jax.grad(loss)(g0))
@@ -43,13 +49,12 @@ def test_gradient_cpx_error_wrt_gamma():
 @pytest.mark.slow  # two more compiles of the four-estimator loop (~10 s); the DESIGN property, not an acceptance item
 def test_trial_independent_of_batch():
     """Trial i gives the same numbers alone and inside a batch (keys are fold_in(base, i))."""
-    cfg = L.LorenzMheConfig(seeds=3, duration=0.05, chunk_steps=20)
-    carry = L.simulate(cfg, progress=False, shard=False)
-    S, P = L.build(cfg)
-    alone = jax.jit(lambda: L.trial_errors(S, P, jax.random.PRNGKey(cfg.seed), 2, cfg.n_steps))()
-    for j, m in enumerate(L.METHODS):
-        batch = carry.sums.norm[2, j] / carry.sums.n[2, j]
-        assert abs(float(alone[m]["norm"]) - batch) <= 1e-12 * batch
+    rollout = S.build(steps=50)
+    key = jax.random.PRNGKey(0)
+    batch = jd.monte_carlo(rollout, key, 3, time_chunk=20).metrics["errors"]
+    alone = jd.monte_carlo(rollout, key, 1, offset=2).metrics["errors"]
+    for name in ("norm", "xl", "norm_cur"):
+        np.testing.assert_allclose(np.asarray(alone[name][0]), np.asarray(batch[name][2]), rtol=1e-12)
 
 
 def test_config_file_mirrors_defaults():

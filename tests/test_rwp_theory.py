@@ -7,11 +7,13 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from jaxdip.control import feedback_params, state_feedback
+import equinox as eqx
+
+import jaxdip as jd
 from jaxdip.estimators import bias_observers as bo
 from jaxdip.estimators import homd
 from jaxdip.plants import rwp
-from jaxdip.sim import Loop, LoopParams, rollout, sensors
+from jaxdip.scenarios import rwp as scenario
 from jaxdip.theory import rwp as T
 
 P = rwp.default_params()
@@ -63,17 +65,19 @@ def test_equilibrium_7_and_16_against_numpy():
 def biased_homd_run():
     """Closed loop (2)-(3) + (10) + (12) + law (8) at 500 Hz with the Table 1 quantisation and d = -0.08."""
     dt = rwp.DT
-    plant = rwp.make()
-    loop = Loop(plant=plant, dt=dt, sensor=sensors.linear_sensor(dt), estimator=homd.rwp_homd(dt),
-                controller=state_feedback(), substeps=10)
-    sp = sensors.sensor_params(jnp.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]]), const_bias=jnp.array([-0.08, 0.0]),
-                               quantum=[rwp.PENDULUM_ANGLE_RESOLUTION, rwp.WHEEL_ANGLE_RESOLUTION])
-    params = LoopParams(plant=P, sensor=sp, estimator=homd.homd_params(),
-                        controller=feedback_params(jnp.array([[K[0], K[1], 0.0, K[2]]])))
+    loop = scenario.loop(homd.HOMDObserver.of(homd.homd_params(), dt), dt=dt, K=K, d=-0.08)
     n = int(8.0 / dt)
-    c, rec = jax.jit(lambda pr: rollout(loop, pr, jnp.array([0.05, 0.0, 0.0, 0.0]), jax.random.PRNGKey(0), n))(
-        params)
-    return np.asarray(rec.x), np.asarray(rec.xhat), bool(c.diverged)
+    sol = jax.jit(lambda lp: jd.simulate(lp, jnp.array([0.05, 0.0, 0.0, 0.0]), jax.random.PRNGKey(0), n,
+                                         save=_x_and_xhat))(loop)
+    return np.asarray(sol.saved[0]), np.asarray(sol.saved[1]), bool(sol.result != jd.RESULTS.ok)
+
+
+def _x_and_xhat(s):
+    return s.x, s.xhat
+
+
+def _bias_error(s):
+    return s.y[0] - s.xhat[0] + 0.01
 
 
 def test_simulated_bias_steady_state_matches_15_16(biased_homd_run):
@@ -152,19 +156,14 @@ def test_simulations_around_gamma_bar_sampled_loop():
     """The jaxdip loop at 500 Hz with the low-pass observer on measured velocities, law (18)."""
     gb = T.gamma_bar_routh(P, K).gamma_bar
     dt = rwp.DT
-    plant = rwp.make()
-    loop = Loop(plant=plant, dt=dt, sensor=sensors.linear_sensor(dt), estimator=bo.rwp_lowpass_measured(dt),
-                controller=state_feedback(), substeps=10)
-    C4 = jnp.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0], [0, 1.0, 0, 0], [0, 0, 0, 1.0]])
+    loop = scenario.loop(bo.LowpassMeasured.of(bo.lowpass_measured_params(gb), dt), dt=dt, K=K, d=-0.01,
+                         measured_velocities=True, quantize=False)
+    loop = eqx.tree_at(lambda lp: lp.state_bound, loop, jnp.inf)  # measure the growth, do not stop at pi/2
     n = int(100.0 / dt)
 
     def run(g):
-        params = LoopParams(plant=P, sensor=sensors.sensor_params(C4, const_bias=jnp.array([-0.01, 0, 0, 0])),
-                            estimator=bo.lowpass_measured_params(g),
-                            controller=feedback_params(jnp.array([[K[0], K[1], 0.0, K[2]]])))
-        _, rec = rollout(loop, params, jnp.zeros(4), jax.random.PRNGKey(0), n, record_every=10,
-                         record_fn=lambda r: r.y[0] - r.xhat[0] + 0.01)
-        return rec
+        lp = eqx.tree_at(lambda lp: lp.estimator.gamma_d, loop, g)
+        return jd.simulate(lp, jnp.zeros(4), jax.random.PRNGKey(0), n, save=_bias_error, save_every=10).saved
 
     recs = jax.jit(jax.vmap(run))(jnp.array([0.9 * gb, 1.1 * gb]))
     ts = np.arange(recs.shape[1]) * dt * 10

@@ -42,3 +42,12 @@ class StateFeedback(Controller):
 
     def step(self, state, xhat, key, k):
         return state, self.u_ref - self.K @ (xhat - self.x_ref), None
+
+
+class ConstantInput(Controller):
+    """u = ``u`` whatever the estimate (an open loop; a plant without input gets zeros)."""
+
+    u: jax.Array = param()
+
+    def step(self, state, xhat, key, k):
+        return state, self.u, None

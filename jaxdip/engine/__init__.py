@@ -9,11 +9,12 @@ from jaxdip.engine.roles import (
 from jaxdip.engine.simulate import (
     RESULTS, Aux, KeySchedule, Loop, Sample, Solution, State, init_state, simulate,
 )
-from jaxdip.engine.driver import Ball, Rollout, device_mesh, monte_carlo
+from jaxdip.engine.driver import Ball, Gaussian, Rollout, device_mesh, monte_carlo
 
 __all__ = [
     "metrics", "Actuator", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux", "Identity",
     "Legacy", "LegacyPlant", "Passthrough", "Plant", "Sensor", "linearize", "param", "RESULTS", "Aux",
     "KeySchedule", "Loop",
     "Sample", "Solution", "State", "init_state", "simulate", "Ball", "Rollout", "device_mesh", "monte_carlo",
+    "Gaussian",
 ]

@@ -46,6 +46,16 @@ class Ball(eqx.Module):
         return self.center + r * d
 
 
+class Gaussian(eqx.Module):
+    """Initial states ``mean + std * N(0, I)`` (``std`` scalar or per state)."""
+
+    mean: jax.Array = param()
+    std: jax.Array = param(0.0)
+
+    def __call__(self, key):
+        return self.mean + self.std * jax.random.normal(key, self.mean.shape)
+
+
 class Rollout(eqx.Module):
     """One Monte Carlo trial of a closed loop, as a pure function of the trial's key: ``rollout(key)``.
 

@@ -41,7 +41,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from jaxdip.estimators import homd
-from jaxdip.estimators.continuous import sampled_observer
+from jaxdip.estimators.continuous import SampledObserver, sampled_observer
 from jaxdip.estimators.homd import HOMDParams, spow
 
 
@@ -202,3 +202,59 @@ def joint_error_rhs(g: homd.HOMDGains, L0, a1_cos, s):
         -a1_cos * s[2] - g.k2 * p2,
         L0 * g.k2 * p2,
     ])
+
+
+# ---- as engine estimators (the functions above with the params' fields as fields) ---------------------------
+
+
+class LowpassHOMD(SampledObserver):
+    """``rwp_lowpass_homd``; build with ``LowpassHOMD.of(lowpass_params(...), dt, ...)``."""
+
+    homd: HOMDParams = None
+    gamma_d: jnp.ndarray = None
+    d0: jnp.ndarray = None
+
+    rhs = staticmethod(lowpass_rhs)
+    init_xi = staticmethod(_lp_init)
+    out = staticmethod(_lp_out)
+    n_xi, n_y = 5, 2
+
+    @classmethod
+    def of(cls, params: LowpassParams, dt: float, **kw) -> "LowpassHOMD":
+        return cls(dt, *params, **kw)
+
+
+def _lpm_out(p, xi, y):
+    return _measured_out(y, xi[0])
+
+
+class LowpassMeasured(SampledObserver):
+    """``rwp_lowpass_measured``; build with ``LowpassMeasured.of(lowpass_measured_params(...), dt, ...)``."""
+
+    gamma_d: jnp.ndarray = None
+    d0: jnp.ndarray = None
+
+    rhs = staticmethod(_lpm_rhs)
+    init_xi = staticmethod(_lpm_init)
+    out = staticmethod(_lpm_out)
+    n_xi, n_y = 1, 4
+
+    @classmethod
+    def of(cls, params: LowpassMeasuredParams, dt: float, **kw) -> "LowpassMeasured":
+        return cls(dt, *params, **kw)
+
+
+class JointObserver(SampledObserver):
+    """``rwp_joint``; build with ``JointObserver.of(joint_params(...), dt, ...)``."""
+
+    homd: HOMDParams = None
+    L0: jnp.ndarray = None
+
+    rhs = staticmethod(joint_rhs)
+    init_xi = staticmethod(_joint_init)
+    out = staticmethod(_joint_out)
+    n_xi, n_y = 5, 2
+
+    @classmethod
+    def of(cls, params: JointParams, dt: float, **kw) -> "JointObserver":
+        return cls(dt, *params, **kw)

@@ -21,9 +21,11 @@ from __future__ import annotations
 
 from typing import Callable
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.roles import Estimator
 from jaxdip.sim.component import Component
 
 HOLDS = ("foh", "zoh")
@@ -79,3 +81,30 @@ def sampled_observer(rhs: Callable, init_fn: Callable, out_fn: Callable, n_xi: i
         return (xi_new, y), out_fn(params, xi_new, y)
 
     return Component(init, step)
+
+
+class SampledObserver(Estimator):
+    """A continuous observer as an engine estimator: ``sampled_observer`` with the params as the subclass's fields.
+
+    Subclasses give the old pure functions as ``staticmethod``s ``rhs(params, xi, y, u)``, ``init_xi(params, y)``
+    and ``out(params, xi, y)`` and the sizes ``n_xi``, ``n_y`` as class attributes; their fields carry the old
+    params NamedTuple's field names, so the module itself is passed as params. ``dt``, ``substeps`` and ``hold``
+    are static. ``aux`` is the observer state xi after the step (velocity and bias estimates)."""
+
+    dt: float = eqx.field(static=True)
+    substeps: int = eqx.field(default=10, static=True, kw_only=True)
+    hold: str = eqx.field(default="foh", static=True, kw_only=True)
+
+    n_xi = 0
+    n_y = 0
+
+    def _component(self) -> Component:
+        cls = type(self)
+        return sampled_observer(cls.rhs, cls.init_xi, cls.out, cls.n_xi, cls.n_y, self.dt, self.substeps, self.hold)
+
+    def init(self, key, x0):
+        return self._component().init(self, key, x0)
+
+    def step(self, state, y, u_prev, key, k):
+        state, out = self._component().step(self, state, (y, u_prev), key, k)
+        return state, out, state[0]

@@ -178,3 +178,43 @@ class CPX(Estimator):
     def step(self, state, y, u_prev, key, k):
         state, out = self._component().step(self, state, (y, u_prev), key, k)
         return state, out, state.xc
+
+
+def _plant_vector_field(plant, x, u):
+    # module-level, so every LinearizedCPX of one structure traces the same function
+    return plant.vector_field(x, u)
+
+
+class LinearizedCPX(Estimator):
+    """CPX relinearised at the prior centre estimate every sample (thesis §1.6), or SCPX with ``keep=p``: the
+    ``cpx_linearized`` estimator with its params as fields.
+
+    ``model`` is an engine ``Plant`` (its ``vector_field`` is linearised; its parameters are traced leaves);
+    ``h`` is the sample period. ``aux`` is the current estimate xhat_j (the output is the prediction unless
+    ``output="current"``). Numbers identical to ``cpx_linearized(plant.f, ...)`` with the plant's params."""
+
+    gamma: jax.Array = param()
+    model: Any
+    C: jax.Array = param()
+    xhat0: jax.Array = param()
+    h: float = eqx.field(static=True)
+    keep: Optional[int] = eqx.field(default=None, static=True)
+    output: str = eqx.field(default="prediction", static=True)
+    from_truth: bool = eqx.field(default=False, static=True)
+    svd: str = eqx.field(default="jacobi", static=True)
+    expm_squarings: int = eqx.field(default=24, static=True)
+
+    def __check_init__(self):
+        if self.output not in ("current", "prediction"):
+            raise ValueError(f"output must be 'current' or 'prediction', got {self.output!r}")
+
+    def _component(self) -> Component:
+        return cpx_linearized(_plant_vector_field, self.h, self.model.m, keep=self.keep, output=self.output,
+                              from_truth=self.from_truth, svd=self.svd, expm_squarings=self.expm_squarings)
+
+    def init(self, key, x0):
+        return self._component().init(self, key, x0)
+
+    def step(self, state, y, u_prev, key, k):
+        state, out = self._component().step(self, state, (y, u_prev), key, k)
+        return state, out, state.xc

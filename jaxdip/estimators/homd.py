@@ -34,7 +34,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxdip.estimators.continuous import sampled_observer
+from jaxdip.estimators.continuous import SampledObserver, sampled_observer
 from jaxdip.plants import rwp
 
 
@@ -150,3 +150,21 @@ def rwp_homd(dt: float, substeps: int = 10, hold: str = "foh"):
     """(10) + (12) as a loop estimator: input y = [theta, theta_r] (measured), output
     [y_theta, x̂_p2, x̂_r1, x̂_r2] = the vector law (8) multiplies by K (with K = [k1, k2, 0, k3])."""
     return sampled_observer(rwp_homd_rhs, _init_from_y, _out, 4, 2, dt, substeps, hold)
+
+
+class HOMDObserver(SampledObserver):
+    """(10) + (12) as an engine estimator (``rwp_homd`` with ``HOMDParams``' fields); build with
+    ``HOMDObserver.of(homd_params(...), dt, substeps=..., hold=...)``."""
+
+    pend: HOMDGains = None
+    wheel: HOMDGains = None
+    model: rwp.RWPParams = None
+
+    rhs = staticmethod(rwp_homd_rhs)
+    init_xi = staticmethod(_init_from_y)
+    out = staticmethod(_out)
+    n_xi, n_y = 4, 2
+
+    @classmethod
+    def of(cls, params: HOMDParams, dt: float, **kw) -> "HOMDObserver":
+        return cls(dt, *params, **kw)

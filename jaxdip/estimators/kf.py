@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from jaxdip.engine.roles import Estimator, param
 from jaxdip.estimators.kalman import KFState, kf_predict, kf_update
+from jaxdip.estimators.linearized import local_model
 
 
 class KalmanFilter(Estimator):
@@ -43,4 +46,40 @@ class KalmanFilter(Estimator):
         first = k == 0
         xp, Pp = jnp.where(first, state.x, xp), jnp.where(first, state.P, Pp)
         x, P = kf_update(xp, Pp, y, self.C, self.R)
+        return KFState(x, P), x, P
+
+
+def _plant_vector_field(plant, x, u):
+    return plant.vector_field(x, u)
+
+
+class ExtendedKalmanFilter(Estimator):
+    """EKF for an engine ``Plant`` ``model`` sampled every ``h``: relinearised at x+ every sample (Jacobian and
+    matrix exponential, ``local_model``), the mean propagated by the same local affine model. The
+    ``kalman.ekf`` estimator with its params (``EKFParams``' fields) as fields; ``aux`` is P+_j.
+    ``jitter``: see ``kalman.kf_update`` (static: a literal 0 leaves the update as it was)."""
+
+    model: Any
+    C: jax.Array = param()
+    Q: jax.Array = param()
+    R: jax.Array = param()
+    P0: jax.Array = param()
+    xhat0: jax.Array = param()
+    h: float = eqx.field(static=True)
+    from_truth: bool = eqx.field(default=False, static=True)
+    expm_squarings: int = eqx.field(default=24, static=True)
+    jitter: float = eqx.field(default=0.0, static=True)
+
+    def init(self, key, x0):
+        x = jnp.asarray(x0 if self.from_truth else self.xhat0, dtype=jnp.result_type(float))
+        return KFState(x, jnp.asarray(self.P0, x.dtype))
+
+    def step(self, state, y, u_prev, key, k):
+        u_prev = jnp.reshape(jnp.asarray(u_prev, state.x.dtype), (self.model.m,))
+        lm = local_model(_plant_vector_field, self.model, state.x, u_prev, self.h, with_inverse=False,
+                         max_squarings=self.expm_squarings)
+        xp, Pp = kf_predict(state.x, state.P, lm.Phi, lm.W @ u_prev + lm.b, self.Q)
+        first = k == 0
+        xp, Pp = jnp.where(first, state.x, xp), jnp.where(first, state.P, Pp)
+        x, P = kf_update(xp, Pp, y, self.C, self.R, self.jitter)
         return KFState(x, P), x, P

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxdip.estimators import homd
-from jaxdip.estimators.continuous import sampled_observer
+from jaxdip.estimators.continuous import SampledObserver, sampled_observer
 from jaxdip.plants import rwp
 
 
@@ -147,3 +147,20 @@ def matched_gain(p: rwp.RWPParams, pend: homd.HOMDGains, wheel: homd.HOMDGains, 
     wr = matched_omega(wheel, v_ref_r)
     L = decoupled_gain(p, wp * pend.k1, wp**2 * pend.k2, wr * wheel.k1, wr**2 * wheel.k2)
     return L, wp, wr
+
+
+class LuenbergerObserver(SampledObserver):
+    """(9) as an engine estimator (``rwp_luenberger`` with ``LuenbergerParams``' fields); build with
+    ``LuenbergerObserver.of(luenberger_params(...), dt, substeps=..., hold=...)``."""
+
+    L: jnp.ndarray = None
+    model: rwp.RWPParams = None
+
+    rhs = staticmethod(luenberger_rhs)
+    init_xi = staticmethod(_init_from_y)
+    out = staticmethod(_out)
+    n_xi, n_y = 4, 2
+
+    @classmethod
+    def of(cls, params: LuenbergerParams, dt: float, **kw) -> "LuenbergerObserver":
+        return cls(dt, *params, **kw)

@@ -10,7 +10,7 @@ matrix exponential over h (``jaxdip.estimators.linearized``):
   scpx subspace centred proximal MHE, gamma = 50, p = 2      (``scpx_linearized``)
   ekf  EKF with the true noise levels (0.1, 5)
   ekf2 EKF with sigma_eta = 0.005, sigma_eps = 10 (the thesis's tuned values)
-They run on the same data in one fused scan. The truth and all four estimators start from the same draws:
+They run on the same data in one loop (``jd.FanOut``; the wiring is ``jaxdip.scenarios.lorenz_mhe``). The truth and all four estimators start from the same draws:
 x_0 = x0_mean + x0_std N(0, I), and every estimator from xhat_0 = x_0 + init_error_std N(0, I) (the thesis
 gives neither; the EKFs' P_0 = init_error_std^2 I).
 
@@ -24,25 +24,20 @@ A trial is diverged for a method once its estimate is non-finite or off by more 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
-from jaxdip.estimators.cpx import CPXParams, cpx_linearized
-from jaxdip.estimators.kalman import EKFParams, ekf
-from jaxdip.estimators.scpx import scpx_linearized
 from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import lorenz
-from jaxdip.progress import Progress
-from jaxdip.sim import rk4_zoh
-
-METHODS = ("cpx", "scpx", "ekf", "ekf2")
+from jaxdip.scenarios import lorenz_mhe as scenario
+from jaxdip.scenarios.lorenz_mhe import METHODS
 LABELS = {"cpx": "CPX", "scpx": "SCPX", "ekf": "EKF", "ekf2": "EKF2"}
 
 
@@ -72,7 +67,7 @@ class LorenzMheConfig:
     expm_squarings: int = C.field(3, C.nonneg,
                                   doc="max squarings of the estimators' matrix exponential: exact for "
                                       "||M h||_1 <= 0.25 * 2^this (on the attractor ||[A, f] h||_1 < 0.7: 2 are used)")
-    chunk_steps: int = C.field(1000, C.positive, doc="samples per compiled chunk (progress granularity)")
+    chunk_steps: int = C.field(1000, C.positive, doc="samples per compiled call (progress granularity)")
     figure_trial: int = C.field(0, C.nonneg, doc="trial shown in the xL figure")
     record_every: int = C.field(10, C.positive, doc="keep every n-th sample of the figure trial")
 
@@ -94,236 +89,51 @@ class LorenzMheConfig:
         return int(round(self.duration / self.h))
 
 
-class Params(NamedTuple):
-    """Everything numeric of a trial (shared by all trials; differentiable, e.g. w.r.t. cpx.gamma)."""
-
-    plant: lorenz.LorenzParams
-    cpx: CPXParams
-    scpx: CPXParams
-    ekf: EKFParams
-    ekf2: EKFParams
-    sigma_eps: jnp.ndarray
-    sigma_eta: jnp.ndarray
-    x0_mean: jnp.ndarray
-    x0_std: jnp.ndarray
-    init_error_std: jnp.ndarray
-    extrema_threshold: jnp.ndarray
-    divergence_bound: jnp.ndarray
+def build(cfg: LorenzMheConfig, steps: int | None = None, save_every: int | None = None) -> jd.Rollout:
+    """One trial of the comparison (``jaxdip.scenarios.lorenz_mhe``) with this configuration."""
+    return scenario.build(
+        h=cfg.h, steps=cfg.n_steps if steps is None else steps, substeps=cfg.substeps, sigma_eps=cfg.sigma_eps,
+        sigma_eta=cfg.sigma_eta, x0_mean=tuple(cfg.x0_mean), x0_std=cfg.x0_std, init_error_std=cfg.init_error_std,
+        cpx_gamma=cfg.cpx_gamma, scpx_gamma=cfg.scpx_gamma, scpx_p=cfg.scpx_p, ekf_sigma_eta=cfg.ekf_sigma_eta,
+        ekf_sigma_eps=cfg.ekf_sigma_eps, ekf2_sigma_eta=cfg.ekf2_sigma_eta, ekf2_sigma_eps=cfg.ekf2_sigma_eps,
+        extrema_threshold=cfg.extrema_threshold, divergence_bound=cfg.divergence_bound,
+        expm_squarings=cfg.expm_squarings, save_every=save_every)
 
 
-class Structure(NamedTuple):
-    """Static part: the components and the integrator settings."""
-
-    h: float
-    substeps: int
-    cpx: object
-    scpx: object
-    ekf: object
-
-
-def build(cfg: LorenzMheConfig):
-    p = lorenz.default_params()
-    Cm = lorenz.output_matrix()
-    z3 = jnp.zeros(3)
-    P0 = cfg.init_error_std**2 * jnp.eye(3)
-
-    def ekf_params(s_eta, s_eps):
-        return EKFParams(p, Cm, s_eta**2 * jnp.eye(3), s_eps**2 * jnp.eye(2), P0, z3)
-
-    params = Params(
-        plant=p,
-        cpx=CPXParams(jnp.asarray(cfg.cpx_gamma), p, Cm, z3),
-        scpx=CPXParams(jnp.asarray(cfg.scpx_gamma), p, Cm, z3),
-        ekf=ekf_params(cfg.ekf_sigma_eta, cfg.ekf_sigma_eps),
-        ekf2=ekf_params(cfg.ekf2_sigma_eta, cfg.ekf2_sigma_eps),
-        sigma_eps=jnp.asarray(cfg.sigma_eps),
-        sigma_eta=jnp.asarray(cfg.sigma_eta),
-        x0_mean=jnp.asarray(cfg.x0_mean, dtype=jnp.float64),
-        x0_std=jnp.asarray(cfg.x0_std),
-        init_error_std=jnp.asarray(cfg.init_error_std),
-        extrema_threshold=jnp.asarray(cfg.extrema_threshold),
-        divergence_bound=jnp.asarray(cfg.divergence_bound),
-    )
-    # from_truth=True: the components start from the x0 given to init, which is the common initial estimate
-    structure = Structure(
-        h=cfg.h,
-        substeps=cfg.substeps,
-        cpx=cpx_linearized(lorenz.f, cfg.h, 1, output="prediction", from_truth=True,
-                           expm_squarings=cfg.expm_squarings),
-        scpx=scpx_linearized(lorenz.f, cfg.h, 1, cfg.scpx_p, output="prediction", from_truth=True,
-                             expm_squarings=cfg.expm_squarings),
-        ekf=ekf(lorenz.f, cfg.h, 1, from_truth=True, expm_squarings=cfg.expm_squarings),
-    )
-    return structure, params
-
-
-class Sums(NamedTuple):
-    norm: jnp.ndarray  # (4,) sum of ||x_k - xtilde_k|| per method
-    xl: jnp.ndarray  # (4,) sum of |xL error|
-    xl_ext: jnp.ndarray  # (4,) sum of |xL error| over samples with |xL| > threshold
-    norm_cur: jnp.ndarray  # (2,) cpx, scpx current estimates
-    xl_cur: jnp.ndarray
-    n: jnp.ndarray  # (4,) samples counted (until divergence)
-    n_ext: jnp.ndarray  # (4,)
-
-
-class Carry(NamedTuple):
-    x: jnp.ndarray
-    est: tuple
-    pred: jnp.ndarray  # (2, 3) the cpx/scpx predictions of the current state (made at the previous sample)
-    sums: Sums
-    diverged: jnp.ndarray  # (4,)
-
-
-def trial_keys(base_key, i):
-    k = jax.random.fold_in(base_key, i)
-    return jax.random.fold_in(k, 0), jax.random.fold_in(k, 1), jax.random.fold_in(k, 2)
-
-
-def init_trial(S: Structure, P: Params, base_key, i) -> Carry:
-    k_x0, k_est, _ = trial_keys(base_key, i)
-    x0 = P.x0_mean + P.x0_std * jax.random.normal(k_x0, (3,))
-    xhat0 = x0 + P.init_error_std * jax.random.normal(k_est, (3,))
-    dummy = jax.random.PRNGKey(0)
-    est = (S.cpx.init(P.cpx, dummy, xhat0), S.scpx.init(P.scpx, dummy, xhat0),
-           S.ekf.init(P.ekf, dummy, xhat0), S.ekf.init(P.ekf2, dummy, xhat0))
-    z4, z2 = jnp.zeros(4), jnp.zeros(2)
-    sums = Sums(z4, z4, z4, z2, z2, jnp.zeros(4, jnp.int32), jnp.zeros(4, jnp.int32))
-    return Carry(x0, est, jnp.stack([xhat0, xhat0]), sums, jnp.zeros(4, bool))
-
-
-def trial_step(S: Structure, P: Params, base_key, i, c: Carry, k):
-    """Sample k of trial i: measure, run the four estimators, accumulate errors, advance the true state."""
-    _, _, k_noise = trial_keys(base_key, i)
-    kk = jax.random.fold_in(k_noise, k)
-    k_eps, k_eta = jax.random.split(kk)
-    y = P.cpx.C @ c.x + P.sigma_eps * jax.random.normal(k_eps, (2,))
-    u = jnp.zeros(1)
-    s_cpx, o_cpx = S.cpx.step(P.cpx, c.est[0], (y, u), kk, k)
-    s_scpx, o_scpx = S.scpx.step(P.scpx, c.est[1], (y, u), kk, k)
-    s_ekf, o_ekf = S.ekf.step(P.ekf, c.est[2], (y, u), kk, k)
-    s_ekf2, o_ekf2 = S.ekf.step(P.ekf2, c.est[3], (y, u), kk, k)
-
-    est_now = jnp.stack([c.pred[0], c.pred[1], o_ekf, o_ekf2])  # estimates of x_k
-    err = est_now - c.x
-    norm = jnp.sqrt(jnp.sum(err**2, axis=1))
-    xl = jnp.abs(err[:, 0])
-    cur = jnp.stack([s_cpx.xc, s_scpx.xc]) - c.x
-    norm_cur = jnp.sqrt(jnp.sum(cur**2, axis=1))
-    xl_cur = jnp.abs(cur[:, 0])
-
-    bad = ~jnp.isfinite(norm) | (norm > P.divergence_bound)
-    diverged = c.diverged | bad
-    w = (~diverged).astype(norm.dtype)
-    ext = (jnp.abs(c.x[0]) > P.extrema_threshold) & ~diverged
-    safe = lambda a: jnp.where(jnp.isfinite(a), a, 0.0)  # noqa: E731
-    s = c.sums
-    sums = Sums(
-        norm=s.norm + w * safe(norm),
-        xl=s.xl + w * safe(xl),
-        xl_ext=s.xl_ext + jnp.where(ext, safe(xl), 0.0),
-        norm_cur=s.norm_cur + w[:2] * safe(norm_cur),
-        xl_cur=s.xl_cur + w[:2] * safe(xl_cur),
-        n=s.n + (~diverged).astype(jnp.int32),
-        n_ext=s.n_ext + ext.astype(jnp.int32),
-    )
-    x_next = rk4_zoh(lorenz.f, P.plant, c.x, u, S.h, S.substeps) + P.sigma_eta * jax.random.normal(k_eta, (3,))
-    new = Carry(x_next, (s_cpx, s_scpx, s_ekf, s_ekf2), jnp.stack([o_cpx, o_scpx]), sums, diverged)
-    record = (c.x[0], c.pred[0, 0], c.pred[1, 0], o_ekf[0], o_ekf2[0])
-    return new, record
-
-
-def advance(S: Structure, P: Params, base_key, i, carry: Carry, k0, n: int, record_every: int = 0):
-    """n samples from sample index k0; with record_every > 0 also return every n-th record (xL of each)."""
-
-    def body(c, k):
-        return trial_step(S, P, base_key, i, c, k)
-
-    ks = k0 + jnp.arange(n, dtype=jnp.int32)
-    carry, rec = jax.lax.scan(body, carry, ks)
-    if record_every > 0:
-        return carry, jax.tree_util.tree_map(lambda a: a[::record_every], rec)
-    return carry, None
-
-
-def trial_errors(S: Structure, P: Params, base_key, i, n_steps: int) -> dict:
-    """Per-method time-averaged errors of one trial (differentiable w.r.t. P; used by the gradient test)."""
-    c = init_trial(S, P, base_key, i)
-    c, _ = advance(S, P, base_key, i, c, 0, n_steps)
-    return {m: {"norm": c.sums.norm[j] / c.sums.n[j], "xl": c.sums.xl[j] / c.sums.n[j]} for j, m in enumerate(METHODS)}
-
-
-def simulate(cfg: LorenzMheConfig, progress: bool = True, shard: bool | None = None):
-    """All trials, chunked over time; returns the final carries (batched over trials)."""
-    S, P = build(cfg)
-    base_key = jax.random.PRNGKey(cfg.seed)
-    n_dev = jax.device_count()
-    shard = (n_dev > 1 and cfg.seeds >= 64) if shard is None else shard
-    n_dev = n_dev if shard else 1
-    pad = (-cfg.seeds) % n_dev
-    ids = np.concatenate([np.arange(cfg.seeds), np.repeat(cfg.seeds - 1, pad)]).astype(np.uint32)
-    ids = jnp.asarray(ids)
-    if shard and n_dev > 1:
-        from jax.sharding import NamedSharding, PartitionSpec
-
-        from jaxdip.sim.montecarlo import device_mesh
-
-        ids = jax.device_put(ids, NamedSharding(device_mesh(), PartitionSpec("seeds")))
-    carry = jax.jit(jax.vmap(lambda i: init_trial(S, P, base_key, i)))(ids)
-    n_steps = cfg.n_steps
-    sizes = [cfg.chunk_steps] * (n_steps // cfg.chunk_steps)
-    if n_steps % cfg.chunk_steps:
-        sizes.append(n_steps % cfg.chunk_steps)
-    compiled = {}
-    bar = Progress(n_steps, desc="lorenz-mhe", enabled=progress)
-    k0 = 0
-    for n in sizes:
-        if n not in compiled:
-            compiled[n] = jax.jit(jax.vmap(lambda i, c, k, n=n: advance(S, P, base_key, i, c, k, n)[0],
-                                           in_axes=(0, 0, None)))
-        carry = compiled[n](ids, carry, jnp.asarray(k0, jnp.int32))
-        jax.block_until_ready(carry)
-        k0 += n
-        bar.update(n)
-    bar.close()
-    return jax.tree_util.tree_map(lambda a: np.asarray(a)[: cfg.seeds], carry)
+def simulate(cfg: LorenzMheConfig, progress: bool = True) -> dict:
+    """Every trial's error sums (``TrackingErrors``), stacked over trials, as NumPy arrays."""
+    sol = jd.monte_carlo(build(cfg), jax.random.PRNGKey(cfg.seed), cfg.seeds, time_chunk=cfg.chunk_steps,
+                         progress=progress, desc="lorenz-mhe")
+    return jax.tree_util.tree_map(np.asarray, sol.metrics["errors"])
 
 
 def record_trial(cfg: LorenzMheConfig):
-    """The figure trial again, keeping every record_every-th sample of xL and its estimates."""
-    S, P = build(cfg)
-    base_key = jax.random.PRNGKey(cfg.seed)
-    i = jnp.asarray(cfg.figure_trial, jnp.uint32)
+    """The figure trial with ``record_xl`` every record_every-th sample: (t, [xL, cpx, scpx, ekf, ekf2])."""
     n = cfg.n_steps - cfg.n_steps % cfg.record_every
-
-    @jax.jit
-    def run():
-        c = init_trial(S, P, base_key, i)
-        return advance(S, P, base_key, i, c, jnp.asarray(0, jnp.int32), n, cfg.record_every)
-
-    _, rec = run()
+    sol = jd.monte_carlo(build(cfg, steps=n, save_every=cfg.record_every), jax.random.PRNGKey(cfg.seed), 1,
+                         offset=cfg.figure_trial)
+    rec = np.asarray(sol.saved)[0]
     t = np.arange(0, n, cfg.record_every) * cfg.h
-    return t, [np.asarray(r) for r in rec]
+    return t, [rec[:, j] for j in range(rec.shape[1])]
 
 
-def summarize(cfg: LorenzMheConfig, carry: Carry) -> tuple[dict, dict]:
-    s = carry.sums
-    div = np.asarray(carry.diverged)
-    n = np.maximum(np.asarray(s.n), 1)
+def summarize(cfg: LorenzMheConfig, s: dict) -> tuple[dict, dict]:
+    div = s["diverged"]
+    n = np.maximum(s["n"], 1)
     per_trial = {}
     results = {}
     for j, m in enumerate(METHODS):
         ok = ~div[:, j]
-        e = np.asarray(s.norm)[:, j] / n[:, j]
-        ex = np.asarray(s.xl)[:, j] / n[:, j]
-        ext = np.asarray(s.xl_ext)[:, j] / np.maximum(np.asarray(s.n_ext)[:, j], 1)
+        e = s["norm"][:, j] / n[:, j]
+        ex = s["xl"][:, j] / n[:, j]
+        ext = s["xl_ext"][:, j] / np.maximum(s["n_ext"][:, j], 1)
         per_trial[m] = (e[ok], ex[ok])
         r = {**stats.with_ci("mean_norm_error", e, ok), **stats.with_ci("mean_xL_error", ex, ok),
-             **stats.with_ci("mean_xL_error_at_extrema", ext, ok & (np.asarray(s.n_ext)[:, j] > 0)),
+             **stats.with_ci("mean_xL_error_at_extrema", ext, ok & (s["n_ext"][:, j] > 0)),
              "diverged": int(div[:, j].sum())}
         if j < 2:
-            r.update(stats.with_ci("mean_norm_error_current", np.asarray(s.norm_cur)[:, j] / n[:, j], ok))
-            r.update(stats.with_ci("mean_xL_error_current", np.asarray(s.xl_cur)[:, j] / n[:, j], ok))
+            r.update(stats.with_ci("mean_norm_error_current", s["norm_cur"][:, j] / n[:, j], ok))
+            r.update(stats.with_ci("mean_xL_error_current", s["xl_cur"][:, j] / n[:, j], ok))
         results[m] = r
     return results, per_trial
 
@@ -490,8 +300,8 @@ def figures(cfg: LorenzMheConfig, per_trial: dict, rec):
 
 
 def run(cfg: LorenzMheConfig, ctx: RunContext | None = None) -> Outcome:
-    carry = simulate(cfg)
-    results, per_trial = summarize(cfg, carry)
+    sums = simulate(cfg)
+    results, per_trial = summarize(cfg, sums)
     rec = record_trial(cfg)
     return Outcome(results=results, report=report(cfg, results), figures=figures(cfg, per_trial, rec))
 

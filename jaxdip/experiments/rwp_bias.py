@@ -23,19 +23,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
-from jaxdip.control import feedback_params, state_feedback
 from jaxdip.estimators import bias_observers as bo
 from jaxdip.estimators import homd
 from jaxdip.estimators import luenberger as lu
 from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import rwp
-from jaxdip.progress import Progress
-from jaxdip.sim import Loop, LoopParams, actuators, montecarlo, sensors
-from jaxdip.sim.loop import init_carry, make_step
+from jaxdip.scenarios import rwp as scenario
+from jaxdip.scenarios.rwp import REC
 from jaxdip.theory import rwp as T
 
 INF = float("inf")
@@ -128,49 +127,6 @@ class RwpBiasConfig:
 # ---- building loops ----------------------------------------------------------------------------------------
 
 
-def _K4(cfg):
-    k1, k2, k3 = cfg.K
-    return feedback_params(jnp.array([[k1, k2, 0.0, k3]]))
-
-
-def _sensor(cfg, d, measured_velocities=False, quantize=None):
-    quantize = cfg.quantize if quantize is None else quantize
-    if measured_velocities:
-        Cm = jnp.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0], [0, 1.0, 0, 0], [0, 0, 0, 1.0]])
-        bias = jnp.array([d, 0.0, 0.0, 0.0])
-        q = [rwp.PENDULUM_ANGLE_RESOLUTION, rwp.WHEEL_ANGLE_RESOLUTION, 0.0, 0.0]
-    else:
-        Cm = jnp.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
-        bias = jnp.array([d, 0.0])
-        q = [rwp.PENDULUM_ANGLE_RESOLUTION, rwp.WHEEL_ANGLE_RESOLUTION]
-    return sensors.sensor_params(Cm, const_bias=bias, quantum=q if quantize else 0.0)
-
-
-def make_loop(cfg, estimator, est_params, d, n_steps, measured_velocities=False, quantize=None):
-    """The closed loop of the paper around ``estimator``: returns (Loop, LoopParams)."""
-    plant = rwp.make()
-    loop = Loop(
-        plant=plant,
-        dt=cfg.dt,
-        sensor=sensors.linear_sensor(cfg.dt),
-        estimator=estimator,
-        controller=state_feedback(),
-        actuator=actuators.saturation(),
-        substeps=cfg.substeps,
-        tail_steps=min(n_steps, int(round(1.0 / cfg.dt))),
-    )
-    lim = cfg.current_limit
-    params = LoopParams(
-        plant=plant.default_params(),
-        sensor=_sensor(cfg, d, measured_velocities, quantize),
-        estimator=est_params,
-        controller=_K4(cfg),
-        actuator=actuators.SaturationParams(jnp.array([-lim]), jnp.array([lim])),
-        state_bound=jnp.array([math.pi / 2, INF, INF, INF]),
-    )
-    return loop, params
-
-
 def homd_parameters(cfg):
     return homd.homd_params(pend=tuple(cfg.homd_pendulum), wheel=tuple(cfg.homd_wheel))
 
@@ -181,74 +137,34 @@ def luenberger_parameters(cfg):
     return lu.luenberger_params(L, hp.model), wp, wr
 
 
-def x0_sampler(cfg):
-    """(key, theta0) -> x0: theta(0) = theta0 plus a quantisation phase U(-q/2, q/2) of the pendulum encoder,
-    theta_r(0) ~ U(0, q_r) (the wheel encoder's phase), Gaussian initial velocities."""
-    qp, qr = rwp.PENDULUM_ANGLE_RESOLUTION, rwp.WHEEL_ANGLE_RESOLUTION
-    sv, svr = cfg.init_velocity_std
-
-    def sample(key, theta0):
-        k1, k2, k3, k4 = jax.random.split(key, 4)
-        th = theta0 + qp * (jax.random.uniform(k1) - 0.5)
-        thr = qr * jax.random.uniform(k2)
-        return jnp.stack([th, sv * jax.random.normal(k3), thr, svr * jax.random.normal(k4)])
-
-    return sample
+def _obs(cfg):
+    return {"dt": cfg.dt, "substeps": cfg.observer_substeps, "hold": cfg.hold}
 
 
-def _rec_fn(r):
-    """What the figures and settle times need, per recorded period."""
-    return jnp.stack([r.x[0], r.x[1], r.x[3], r.y[0], r.xhat[0], r.xhat[1], r.xhat[3], r.u[0]])
+def _loop_and_x0(r):
+    return r.loop, r.x0
 
 
-REC = {name: i for i, name in enumerate(["theta", "theta_dot", "thetar_dot", "y", "theta_hat", "xp2", "xr2", "I"])}
+def simulate(cfg, cases, duration, n_seeds, desc, measured_velocities=False, quantize=None):
+    """Every seed of the rwp loop (``jaxdip.scenarios.rwp``) for every case, in one compiled program.
 
-
-def _stack(trees):
-    return jax.tree_util.tree_map(lambda *a: jnp.stack([jnp.asarray(v, dtype=jnp.float64) for v in a]), *trees)
-
-
-def simulate(cfg, estimator, cases, duration, n_seeds, desc, measured_velocities=False, quantize=None):
-    """Simulate several cases of one loop structure in one compiled call.
-
-    ``cases``: list of (estimator params, bias d, theta0); they are stacked and vmapped (outer axis), seeds are
-    vmapped inside (seed i's key is ``fold_in(PRNGKey(cfg.seed), i)`` and its initial state is drawn from
-    ``fold_in(seed_key, 0)``, as in ``jaxdip.sim.montecarlo``). Why not ``montecarlo.run``: it compiles once
-    per call, and this experiment runs the same loop for several gains/angles (one compile here instead of
-    one per case). Returns (final carry, records) with leading axes (case, seed); records hold ``_rec_fn`` of
-    every ``cfg.record_every``-th period.
-    """
+    ``cases``: list of (engine estimator, bias d, theta0) sharing one structure. The cases' loops and initial
+    state laws are stacked and swept (``jd.monte_carlo(..., sweep=...)``): every number of a case is a batched
+    leaf, as in the stacked-params driver this replaced, so the quick results stay identical to the last bit.
+    Returns (diverged, records) with leading axes (case, seed); records hold ``scenario.record`` of every
+    ``cfg.record_every``-th period."""
     n_steps = int(round(duration / cfg.dt))
-    every = cfg.record_every
-    built = [make_loop(cfg, estimator, ep, d, n_steps, measured_velocities, quantize) for ep, d, _ in cases]
-    loop = built[0][0]
-    params = _stack([b[1] for b in built])
-    theta0 = jnp.asarray([c[2] for c in cases], dtype=jnp.float64)
-    sample = x0_sampler(cfg)
-    step = make_step(loop, n_steps)
-
-    def one(pr, th0, sk):
-        carry = init_carry(loop, pr, sample(jax.random.fold_in(sk, 0), th0), sk)
-
-        def block(c, _):
-            c, recs = jax.lax.scan(lambda ci, _: step(pr, sk, ci), c, None, length=every)
-            return c, _rec_fn(jax.tree_util.tree_map(lambda a: a[0], recs))
-
-        return jax.lax.scan(block, carry, None, length=n_steps // every)
-
-    base = jax.random.PRNGKey(cfg.seed)
-    keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.arange(n_seeds, dtype=jnp.uint32))
-    n_dev = jax.device_count()
-    if n_dev > 1 and n_seeds >= 256 and n_seeds % n_dev == 0:
-        from jax.sharding import NamedSharding, PartitionSpec
-
-        keys = jax.device_put(keys, NamedSharding(montecarlo.device_mesh(), PartitionSpec("seeds")))
-    fn = jax.jit(jax.vmap(jax.vmap(one, in_axes=(None, None, 0)), in_axes=(0, 0, None)))
-    bar = Progress(1, desc=f"{desc} ({len(cases)} case(s) x {n_seeds} seeds x {n_steps} periods)")
-    carry, rec = fn(params, theta0, keys)
-    jax.block_until_ready(carry)
-    bar.update(1)
-    return carry, np.asarray(rec)
+    q = cfg.quantize if quantize is None else quantize
+    rollouts = [scenario.rollout(est, steps=n_steps, theta0=th0, velocity_std=cfg.init_velocity_std,
+                                 save_every=cfg.record_every, dt=cfg.dt, substeps=cfg.substeps, K=cfg.K, d=d,
+                                 current_limit=cfg.current_limit, measured_velocities=measured_velocities,
+                                 quantize=q)
+                for est, d, th0 in cases]
+    stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *[_loop_and_x0(r) for r in rollouts])
+    sol = jd.monte_carlo(rollouts[0], jax.random.PRNGKey(cfg.seed), n_seeds, sweep=(_loop_and_x0, stacked),
+                         time_chunk=n_steps, progress=True,
+                         desc=f"{desc} ({len(cases)} case(s) x {n_seeds} seeds x {n_steps} periods)")
+    return np.asarray(sol.result != jd.RESULTS.ok), np.asarray(sol.saved)
 
 
 # ---- metrics ----------------------------------------------------------------------------------------------------
@@ -292,17 +208,17 @@ def part_a(cfg):
     """No bias: Luenberger (9) against the differentiators (10)+(12) from each theta0."""
     lp, wp, wr = luenberger_parameters(cfg)
     observers = {
-        "luenberger": (lu.rwp_luenberger(cfg.dt, cfg.observer_substeps, cfg.hold), lp),
-        "homd": (homd.rwp_homd(cfg.dt, cfg.observer_substeps, cfg.hold), homd_parameters(cfg)),
+        "luenberger": lu.LuenbergerObserver.of(lp, **_obs(cfg)),
+        "homd": homd.HOMDObserver.of(homd_parameters(cfg), **_obs(cfg)),
     }
     out, curves = {}, {}
-    for name, (est, ep) in observers.items():
+    for name, est in observers.items():
         out[name] = {}
-        carry, recs = simulate(cfg, est, [(ep, 0.0, th0) for th0 in cfg.theta0], cfg.no_bias_duration, cfg.seeds,
-                               f"(a) {name}")
+        divs, recs = simulate(cfg, [(est, 0.0, th0) for th0 in cfg.theta0], cfg.no_bias_duration, cfg.seeds,
+                              f"(a) {name}")
         for i, th0 in enumerate(cfg.theta0):
             rec = recs[i]
-            div = np.asarray(carry.diverged)[i]
+            div = divs[i]
             t = _times(cfg, rec)
             stab = _stabilized(cfg, div, _tail(cfg, rec))
             frac, ci = stats.wilson(int(stab.sum()), len(stab))
@@ -325,10 +241,10 @@ def part_a(cfg):
 def part_b(cfg):
     """Bias d with the differentiators alone: steady-state errors against (15) and (16)."""
     hp = homd_parameters(cfg)
-    carry, recs = simulate(cfg, homd.rwp_homd(cfg.dt, cfg.observer_substeps, cfg.hold),
-                           [(hp, cfg.bias, cfg.bias_theta0)], cfg.bias_duration, cfg.bias_seeds, "(b) bias, HOMD")
+    divs, recs = simulate(cfg, [(homd.HOMDObserver.of(hp, **_obs(cfg)), cfg.bias, cfg.bias_theta0)],
+                          cfg.bias_duration, cfg.bias_seeds, "(b) bias, HOMD")
     rec = recs[0]
-    ok = ~np.asarray(carry.diverged)[0]
+    ok = ~divs[0]
     tail = _tail(cfg, rec, cfg.steady_window)[ok]
     ep2 = float((tail[:, :, REC["xp2"]] - tail[:, :, REC["theta_dot"]]).mean())
     er2 = float((tail[:, :, REC["xr2"]] - tail[:, :, REC["thetar_dot"]]).mean())
@@ -389,15 +305,13 @@ def _bias_metrics(cfg, diverged, rec):
 def part_c(cfg):
     hp = homd_parameters(cfg)
     out, curves = {}, {}
-    carry, recs = simulate(cfg, bo.rwp_lowpass_homd(cfg.dt, cfg.observer_substeps, cfg.hold),
-                           [(bo.lowpass_params(hp, g), cfg.bias, cfg.bias_theta0) for g in cfg.gamma_d],
-                           cfg.lowpass_duration, cfg.bias_seeds, "(c) low-pass")
+    divs, recs = simulate(cfg, [(bo.LowpassHOMD.of(bo.lowpass_params(hp, g), **_obs(cfg)), cfg.bias, cfg.bias_theta0)
+                                for g in cfg.gamma_d], cfg.lowpass_duration, cfg.bias_seeds, "(c) low-pass")
     for i, g in enumerate(cfg.gamma_d):
-        out[f"lowpass_{g:g}"], curves[f"lowpass_{g:g}"] = _bias_metrics(cfg, np.asarray(carry.diverged)[i], recs[i])
-    carry, recs = simulate(cfg, bo.rwp_joint(cfg.dt, cfg.observer_substeps, cfg.hold),
-                           [(bo.joint_params(hp, cfg.L0), cfg.bias, cfg.bias_theta0)], cfg.reduced_duration,
-                           cfg.bias_seeds, "(c) reduced-order")
-    out["reduced_order"], curves["reduced_order"] = _bias_metrics(cfg, np.asarray(carry.diverged)[0], recs[0])
+        out[f"lowpass_{g:g}"], curves[f"lowpass_{g:g}"] = _bias_metrics(cfg, divs[i], recs[i])
+    divs, recs = simulate(cfg, [(bo.JointObserver.of(bo.joint_params(hp, cfg.L0), **_obs(cfg)), cfg.bias,
+                                 cfg.bias_theta0)], cfg.reduced_duration, cfg.bias_seeds, "(c) reduced-order")
+    out["reduced_order"], curves["reduced_order"] = _bias_metrics(cfg, divs[0], recs[0])
     return out, curves
 
 
@@ -416,16 +330,16 @@ def part_d(cfg):
     gb = T.gamma_bar_routh(p, cfg.K)
     ge = T.gamma_bar_eig(p, cfg.K)
     gammas = [f * gb.gamma_bar for f in cfg.gamma_check]
-    carry, recs = simulate(cfg, bo.rwp_lowpass_measured(cfg.dt, cfg.observer_substeps, cfg.hold),
-                           [(bo.lowpass_measured_params(g), cfg.gamma_check_bias, 0.0) for g in gammas],
-                           cfg.gamma_check_duration, 2, "(d) law (18) around gamma_d_bar",
-                           measured_velocities=True, quantize=False)
+    divs, recs = simulate(cfg, [(bo.LowpassMeasured.of(bo.lowpass_measured_params(g), **_obs(cfg)),
+                                 cfg.gamma_check_bias, 0.0) for g in gammas],
+                          cfg.gamma_check_duration, 2, "(d) law (18) around gamma_d_bar",
+                          measured_velocities=True, quantize=False)
     sims = {}
     for i, (f, g) in enumerate(zip(cfg.gamma_check, gammas)):
         rec = recs[i]
         t = _times(cfg, rec)
         err = rec[:, :, REC["y"]] - rec[:, :, REC["theta_hat"]] - cfg.gamma_check_bias  # d_hat - d
-        div = bool(np.asarray(carry.diverged)[i].any())
+        div = bool(divs[i].any())
         rate = float(np.mean(growth_rate(t, err, 5.0))) if not div else float("inf")
         re = float(np.max(np.linalg.eigvals(np.asarray(T.lowpass_F(p, cfg.K, g))).real))
         sims[f"{f:g}"] = {"gamma_d": g, "growth_rate_sim": rate, "max_real_eig_F": re, "diverged": div,

@@ -148,44 +148,61 @@ class CPXTarget(Target):
 
 class RWPTarget(Target):
     """k_p1, k_p2, alpha_p of the HOMD (10) and L0 of the reduced-order bias observer, joint form (24), on the
-    ``rwp-bias`` loop (Table 2 feedback, sensor bias d = -0.08 rad, quantised encoders) from theta0 = 0.1 rad.
-    Loss per seed: int theta^2 dt + wheel_weight * int theta_r'^2 dt (+ the divergence penalty)."""
+    reaction-wheel pendulum loop of ``jaxdip.scenarios.rwp`` (Table 2 feedback, sensor bias d = -0.08 rad,
+    quantised encoders) from theta0 = 0.1 rad. Loss per seed: int theta^2 dt + wheel_weight * int theta_r'^2 dt
+    (+ the divergence penalty)."""
 
     name, param = "rwp", "L0"
+    HOMD = (5.0, 12.0, 0.9)  # Table 2: [k1, k2, alpha] of (10) and (12)
+    L0, BIAS, THETA0, OBSERVER_SUBSTEPS = 0.01, -0.08, 0.1, 10
 
     def __init__(self, cfg: TuneConfig, quantize=None):
         from jaxdip.estimators import bias_observers as bo
-        from jaxdip.experiments import rwp_bias as R
+        from jaxdip.estimators import homd
+        from jaxdip.plants import rwp
+        from jaxdip.scenarios import rwp as scenario
 
-        self.rcfg = R.RwpBiasConfig(substeps=cfg.substeps)
-        self.n_steps = int(round(cfg.duration / self.rcfg.dt))
-        hp = R.homd_parameters(self.rcfg)
-        self.jp = bo.joint_params(hp, self.rcfg.L0)
-        self.loop, self.base = R.make_loop(self.rcfg, bo.rwp_joint(self.rcfg.dt, self.rcfg.observer_substeps,
-                                                                   self.rcfg.hold),
-                                           self.jp, self.rcfg.bias, self.n_steps, quantize=quantize)
-        sample = R.x0_sampler(self.rcfg)
-        th0 = self.rcfg.bias_theta0
-        self.x0_fn = lambda key: sample(key, th0)
-        kp1, kp2, ap = self.rcfg.homd_pendulum
+        self.dt = rwp.DT
+        self.n_steps = int(round(cfg.duration / self.dt))
+        hp = homd.homd_params(pend=self.HOMD, wheel=self.HOMD)
+        est = bo.JointObserver.of(bo.joint_params(hp, self.L0), self.dt, substeps=self.OBSERVER_SUBSTEPS)
+        q = True if quantize is None else bool(quantize)
+        kw = dict(steps=self.n_steps, theta0=self.THETA0, dt=self.dt, substeps=cfg.substeps, d=self.BIAS,
+                  quantize=q)
+        self.rollouts = {smooth: scenario.rollout(est, straight_through=smooth, **kw) for smooth in (False, True)}
+        kp1, kp2, ap = self.HOMD
         self.paper = {k: jnp.asarray(v, dtype=jnp.float64)
-                      for k, v in (("k_p1", kp1), ("k_p2", kp2), ("alpha_p", ap), ("L0", self.rcfg.L0))}
+                      for k, v in (("k_p1", kp1), ("k_p2", kp2), ("alpha_p", ap), ("L0", self.L0))}
         self.spec = {"k_p1": Log(), "k_p2": Log(), "alpha_p": Bounded(0.5, 1.0), "L0": Log()}
         self.penalty, self.w = cfg.divergence_penalty, cfg.wheel_weight
         self.factor = cfg.search_factor
 
-    def make_params(self, theta):
-        pend = self.jp.homd.pend._replace(k1=theta["k_p1"], k2=theta["k_p2"], alpha=theta["alpha_p"])
-        est = self.jp._replace(homd=self.jp.homd._replace(pend=pend), L0=theta["L0"])
-        return self.base._replace(estimator=est)
-
-    def loss(self, carry, params):
-        st, dt = carry.stats, self.rcfg.dt
-        return dt * (st.sum_x2[0] + self.w * st.sum_x2[3]) + self.penalty * carry.diverged
+    @staticmethod
+    def _where(r):
+        e = r.loop.estimator
+        return e.homd.pend.k1, e.homd.pend.k2, e.homd.pend.alpha, e.L0
 
     def objective(self, seeds, smooth: bool):
-        loop = self.loop._replace(sensor=straight_through_sensor(self.rcfg.dt)) if smooth else self.loop
-        return mc_objective(loop, self.make_params, self.x0_fn, self.n_steps, self.loss, seeds)
+        import equinox as eqx
+
+        import jaxdip as jd
+
+        seeds = np.asarray(seeds)
+        if seeds.size == 0 or np.any(np.diff(seeds) != 1):
+            raise ValueError("the rwp target takes consecutive seeds")
+        rollout, offset, n = self.rollouts[bool(smooth)], int(seeds[0]), int(seeds.size)
+
+        def per_seed(theta, key):
+            r = eqx.tree_at(self._where, rollout, (theta["k_p1"], theta["k_p2"], theta["alpha_p"], theta["L0"]))
+            sol = jd.monte_carlo(r, key, n, offset=offset)
+            x2 = sol.metrics["x2"]
+            return self.dt * (x2[:, 0] + self.w * x2[:, 3]) + self.penalty * (sol.result != jd.RESULTS.ok)
+
+        def J(theta, key):
+            return jnp.mean(per_seed(theta, key))
+
+        J.per_seed = per_seed
+        return J
 
     def sample(self, key):
         ks = jax.random.split(key, 4)

@@ -3,5 +3,7 @@
 from jaxdip.plants import dip, examples2d, lorenz, rwp, twip
 from jaxdip.plants.base import Plant
 from jaxdip.plants.dip import DIP
+from jaxdip.plants.lorenz import Lorenz
+from jaxdip.plants.rwp import RWP
 
-__all__ = ["Plant", "DIP", "dip", "examples2d", "lorenz", "rwp", "twip"]
+__all__ = ["Plant", "DIP", "Lorenz", "RWP", "dip", "examples2d", "lorenz", "rwp", "twip"]

@@ -15,8 +15,11 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.roles import Plant as EnginePlant
+from jaxdip.engine.roles import param
 from jaxdip.plants.base import Plant
 
 STATE_NAMES = ("xL", "yL", "zL")
@@ -59,3 +62,22 @@ def make() -> Plant:
         default_params=default_params,
         f=f,
     )
+
+
+_D = LorenzParams()._asdict()
+
+
+class Lorenz(EnginePlant):
+    """The Lorenz system as an engine plant: ``LorenzParams``' fields as array fields, same equations as ``f``.
+    One unused input ``u_unused`` (see the module docstring)."""
+
+    sigma: jax.Array = param(_D["sigma"])
+    beta: jax.Array = param(_D["beta"])
+    rho: jax.Array = param(_D["rho"])
+
+    state_names = STATE_NAMES
+    input_names = ("u_unused",)
+
+    def vector_field(self, x, u):
+        # the module has LorenzParams' field names, so it stands in for a LorenzParams
+        return f(self, x, u)

@@ -23,8 +23,11 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.roles import Plant as EnginePlant
+from jaxdip.engine.roles import param
 from jaxdip.plants.base import Plant
 
 STATE_NAMES = ("theta", "theta_dot", "theta_r", "theta_r_dot")
@@ -114,3 +117,30 @@ def make() -> Plant:
         f=f,
         energy=energy,
     )
+
+
+_D = RWPParams()._asdict()
+
+
+class RWP(EnginePlant):
+    """The reaction-wheel pendulum as an engine plant: Table 1 (``RWPParams``' fields) as array fields, same
+    equations as ``f``; input the motor current I."""
+
+    mp: jax.Array = param(_D["mp"])
+    lp: jax.Array = param(_D["lp"])
+    Jp: jax.Array = param(_D["Jp"])
+    mr: jax.Array = param(_D["mr"])
+    lr: jax.Array = param(_D["lr"])
+    Jr: jax.Array = param(_D["Jr"])
+    k: jax.Array = param(_D["k"])
+    g: jax.Array = param(_D["g"])
+
+    state_names = STATE_NAMES
+    input_names = ("I",)
+
+    def vector_field(self, x, u):
+        # the module has RWPParams' field names, so it stands in for an RWPParams
+        return f(self, x, u)
+
+    def energy(self, x):
+        return energy(self, x)

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.roles import Actuator, param
 from jaxdip.sim.component import Component, stateless
 
 
@@ -39,6 +41,16 @@ class SaturationParams(NamedTuple):
 
 def saturation() -> Component:
     return stateless(lambda p, u, key, k: saturate(u, p.u_min, p.u_max))
+
+
+class Saturation(Actuator):
+    """(157) as an engine actuator: u clipped to [u_min, u_max] (per input; +-inf: no limit)."""
+
+    u_min: jax.Array = param()
+    u_max: jax.Array = param()
+
+    def step(self, state, u, key, k):
+        return state, saturate(u, self.u_min, self.u_max), None
 
 
 class DeadzoneParams(NamedTuple):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -89,3 +90,38 @@ class WhiteNoise(Sensor):
     def step(self, state, x, key, k):
         k_white, _ = jax.random.split(key)
         return state, x + self.std * jax.random.normal(k_white, jnp.shape(x)), None
+
+
+class LinearSensor(Sensor):
+    """``linear_sensor`` as an engine sensor: ``SensorParams``' fields as array fields (build them with
+    ``LinearSensor.of(sensor_params(...), dt)``), y = Q(C x + const_bias + walking bias + white noise).
+    ``aux`` is the walking bias after the step. Numbers identical to ``linear_sensor(dt, stationary_start)``.
+    ``straight_through=True`` differentiates the quantiser as the identity (values unchanged; the sensor of
+    ``jaxdip.tune.straight_through_sensor``)."""
+
+    C: jax.Array = param()
+    white_std: jax.Array = param()
+    const_bias: jax.Array = param()
+    gm_sigma: jax.Array = param()
+    gm_tau: jax.Array = param()
+    quantum: jax.Array = param()
+    dt: float = eqx.field(static=True)
+    stationary_start: bool = eqx.field(default=True, static=True)
+    straight_through: bool = eqx.field(default=False, static=True)
+
+    @classmethod
+    def of(cls, params: SensorParams, dt: float, stationary_start: bool = True,
+           straight_through: bool = False) -> "LinearSensor":
+        return cls(*params, dt=dt, stationary_start=stationary_start, straight_through=straight_through)
+
+    def init(self, key, x0):
+        return linear_sensor(self.dt, self.stationary_start).init(self, key, x0)
+
+    def step(self, state, x, key, k):
+        if not self.straight_through:
+            state, y = linear_sensor(self.dt, self.stationary_start).step(self, state, x, key, k)
+            return state, y, state
+        raw = eqx.tree_at(lambda s: s.quantum, self, jnp.zeros_like(self.quantum))
+        state, y_raw = linear_sensor(self.dt, self.stationary_start).step(raw, state, x, key, k)
+        y_q = quantize(jax.lax.stop_gradient(y_raw), self.quantum)
+        return state, y_raw + jax.lax.stop_gradient(y_q - y_raw), state

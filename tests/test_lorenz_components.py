@@ -1,0 +1,142 @@
+"""Native Lorenz plant, linearised CPX/SCPX, EKF, linear sensor and the estimator wrappers against the
+init/step functions they replace (same numbers), and the one-loop comparison's wiring."""
+
+import jaxdip  # noqa: F401  (float64)
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxdip as jd
+from jaxdip.estimators import Delayed, ExtendedKalmanFilter, InitialError, LinearizedCPX
+from jaxdip.estimators.cpx import CPXParams, cpx_linearized
+from jaxdip.estimators.kalman import EKFParams, ekf
+from jaxdip.plants import lorenz
+from jaxdip.plants.lorenz import Lorenz
+from jaxdip.scenarios import lorenz_mhe as S
+from jaxdip.sim.integrate import rk4_zoh
+from jaxdip.sim.sensors import LinearSensor, linear_sensor, sensor_params
+
+H = 0.001
+
+
+@jax.jit
+def _data(seed=0):
+    """A noisy Lorenz trajectory of 60 samples every H (the old pure functions)."""
+    p = lorenz.default_params()
+    key = jax.random.PRNGKey(seed)
+
+    def step(x, k):
+        y = lorenz.output_matrix() @ x + 5.0 * jax.random.normal(jax.random.fold_in(key, k), (2,))
+        x_next = rk4_zoh(lorenz.f, p, x, jnp.zeros(1), H, 1) + 0.1 * jax.random.normal(
+            jax.random.fold_in(key, 10**6 + k), (3,))
+        return x_next, (x, y)
+
+    _, (xs, ys) = jax.lax.scan(step, jnp.array([-8.0, 7.0, 27.0]), jnp.arange(60))
+    return xs, ys
+
+
+def _run_old(comp, params, x0, ys):
+    def run(params, x0, ys):
+        st = comp.init(params, jax.random.PRNGKey(0), x0)
+
+        def step(st, ky):
+            k, y = ky
+            return comp.step(params, st, (y, jnp.zeros(1)), jax.random.PRNGKey(1), k)
+
+        return jax.lax.scan(step, st, (jnp.arange(ys.shape[0]), ys))[1]
+
+    return jax.jit(run)(params, x0, ys)
+
+
+@jax.jit
+def _run_new(est, x0, ys):
+    st = est.init(jax.random.PRNGKey(0), x0)
+
+    def step(st, ky):
+        k, y = ky
+        st, o, a = est.step(st, y, jnp.zeros(1), jax.random.PRNGKey(1), k)
+        return st, (o, a)
+
+    return jax.lax.scan(step, st, (jnp.arange(ys.shape[0]), ys))[1]
+
+
+def test_lorenz_plant_equals_pure_function():
+    x = jnp.array([1.0, -2.0, 20.0])
+    np.testing.assert_array_equal(Lorenz().vector_field(x, jnp.zeros(1)), lorenz.f(lorenz.default_params(), x))
+    A, _ = jd.linearize(Lorenz(), x)
+    np.testing.assert_allclose(A, jax.jacfwd(lambda z: lorenz.f(lorenz.default_params(), z))(x), rtol=1e-15)
+
+
+def test_linearized_cpx_and_scpx_equal_old_components():
+    xs, ys = _data()
+    Cm, z3, p = lorenz.output_matrix(), jnp.zeros(3), lorenz.default_params()
+    for gamma, keep in ((0.5, None), (50.0, 2)):
+        old = _run_old(cpx_linearized(lorenz.f, H, 1, keep=keep, from_truth=True, expm_squarings=3),
+                       CPXParams(jnp.asarray(gamma), p, Cm, z3), xs[0], ys)
+        new, aux = _run_new(LinearizedCPX(gamma, Lorenz(), Cm, z3, h=H, keep=keep, from_truth=True,
+                                          expm_squarings=3), xs[0], ys)
+        np.testing.assert_allclose(new, old, rtol=1e-12, atol=1e-12)
+        # the output is the prediction: one model step of the current estimate (aux) ahead
+        assert float(jnp.max(jnp.abs(new[-1] - aux[-1]))) < 0.1
+
+
+def test_ekf_equals_old_component():
+    xs, ys = _data()
+    Cm, z3, p = lorenz.output_matrix(), jnp.zeros(3), lorenz.default_params()
+    Q, R, P0 = 0.01 * jnp.eye(3), 25.0 * jnp.eye(2), jnp.eye(3)
+    old = _run_old(ekf(lorenz.f, H, 1, from_truth=True, expm_squarings=3), EKFParams(p, Cm, Q, R, P0, z3), xs[0], ys)
+    new, P = _run_new(ExtendedKalmanFilter(Lorenz(), Cm, Q, R, P0, z3, h=H, from_truth=True, expm_squarings=3),
+                      xs[0], ys)
+    np.testing.assert_allclose(new, old, rtol=1e-12, atol=1e-12)
+    assert np.all(np.linalg.eigvalsh(np.asarray(P[-1])) > 0)
+
+
+def test_linear_sensor_equals_old_component():
+    sp = sensor_params(jnp.eye(4)[:2], white_std=[0.1, 0.2], const_bias=[0.05, 0.0], gm_sigma=[0.01, 0.0],
+                       gm_tau=[2.0, 1.0], quantum=[1e-3, 0.0])
+    old, new = linear_sensor(0.01), LinearSensor.of(sp, 0.01)
+    key = jax.random.PRNGKey(4)
+    so, sn = old.init(sp, key, None), new.init(key, None)
+    for k in range(20):
+        x = jnp.sin(jnp.arange(4.0) + 0.1 * k)
+        kk = jax.random.fold_in(key, k)
+        so, yo = old.step(sp, so, x, kk, k)
+        sn, yn, aux = new.step(sn, x, kk, k)
+        np.testing.assert_array_equal(yn, yo)
+        np.testing.assert_array_equal(aux, so)
+
+
+def test_wrappers_initial_error_and_delay():
+    xs, ys = _data()
+    inner = LinearizedCPX(0.5, Lorenz(), lorenz.output_matrix(), jnp.zeros(3), h=H, from_truth=True)
+    key = jax.random.PRNGKey(7)
+    est = InitialError(Delayed(inner), 0.3)
+    st = est.init(key, xs[0])
+    xhat0 = xs[0] + 0.3 * jax.random.normal(key, (3,))
+    np.testing.assert_array_equal(st[1], xhat0)
+    plain, _ = _run_new(inner, xhat0, ys)
+    outs = []
+    for k, y in enumerate(ys[:5]):
+        st, o, _ = est.step(st, y, jnp.zeros(1), key, k)
+        outs.append(o)
+    np.testing.assert_array_equal(outs[0], xhat0)
+    np.testing.assert_allclose(jnp.stack(outs[1:]), plain[:4], rtol=1e-12)
+
+
+def test_fanout_members_see_the_same_noise_as_alone():
+    """The EKF inside the four-estimator FanOut gives exactly the loop with the EKF alone, and the error
+    reducer equals sums computed from saved trajectories."""
+    r = S.build(steps=20, save_every=1)
+    key = jax.random.PRNGKey(2)
+    sol = jd.monte_carlo(r, key, 2)
+    ekf_alone = r.loop.estimator.estimators["ekf"]
+    r1 = jd.Rollout(jd.Loop(r.loop.plant, r.loop.sensor, ekf_alone, r.loop.controller, dt=r.loop.dt,
+                            substeps=r.loop.substeps, process_noise_std=r.loop.process_noise_std, keys=r.loop.keys),
+                    r.x0, r.steps, save=lambda s: (s.x, s.xhat))
+    alone = jd.monte_carlo(r1, key, 2)
+    np.testing.assert_array_equal(alone.saved[1][:, :, 0], sol.saved[:, :, 3])
+    np.testing.assert_array_equal(alone.saved[0][:, :, 0], sol.saved[:, :, 0])
+    x, xh = np.asarray(alone.saved[0]), np.asarray(alone.saved[1])
+    norm = np.sqrt(((xh - x) ** 2).sum(-1)).sum(-1)
+    np.testing.assert_allclose(np.asarray(sol.metrics["errors"]["norm"][:, 2]), norm, rtol=1e-12)
