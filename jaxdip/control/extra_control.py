@@ -87,7 +87,6 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine.roles import Controller, param
-from jaxdip.sim.component import Component
 
 N_IN1 = 10  # P1 = [1, x1, x2, x3, x4, e1, e2, x1d, x2d, u]
 N_IN2 = 12  # P2 = [1, x1, x2, x3, x4, e1, e2, ebar3, ebar4, x1d, x2d, u_nom]
@@ -265,19 +264,6 @@ def _law(p, s: ExtraControlState, xhat, k):
                             xbar4_prev=xbar4, started=jnp.ones((), bool), u_prev=u, u_nom=u_nom, u_e=u_e,
                             F1hat=F1hat, F2hat=F2hat, xbar3=xbar3)
     return new, jnp.reshape(u, (1,)), xd
-
-
-def extra_control(n_hidden: int = 10) -> Component:
-    """The controller as an old-style component: ``state, u = step(params, state, xhat, key, k)``."""
-
-    def init(p: ExtraControlParams, key, x0):
-        return _init_state(p, key, n_hidden)
-
-    def step(p: ExtraControlParams, s: ExtraControlState, xhat, key, k):
-        new, u, _ = _law(p, s, xhat, k)
-        return new, u
-
-    return Component(init, step)
 
 
 class ExtraControlAux(NamedTuple):

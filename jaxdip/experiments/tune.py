@@ -307,41 +307,53 @@ class RPTarget(Target):
 
 class ExtraTarget(Target):
     """k1 (93), k2 (101) and the learning rates gamma11, gamma12, gamma21, gamma22 (111)-(114) of the TWIP
-    extra control (``twip-extra-control``, system ``extra``) on its ``unmodeled`` case (Table 8.2 truth plus
-    the unmodeled accelerations (185)), all through log. Everything else is ``TwipExtraControlConfig``'s
-    default (that experiment owns the law and its variants), except the horizon and the RK4 sub-steps.
+    extra control (``jaxdip.scenarios.twip_extra``, system ``extra``) on its ``unmodeled`` case (Table 8.2
+    truth plus the unmodeled accelerations (185)), all through log. Everything else is the scenario's default
+    (the values of ``twip-extra-control``), except the horizon and the RK4 sub-steps.
     Loss per seed = Table 8.3's score sum_k ||x_k - x_d,k|| over ``duration`` + the divergence penalty (a
     diverged seed's state is frozen where it left the bounds, so its score keeps growing with the remaining
-    samples and the gradient still sees *when* it fell). Seed i is that experiment's seed i (network input
+    samples and the gradient still sees *when* it fell). Seed i is that study's seed i (network input
     weights V1, V2 and the x0 spread; seed 0 starts at (184)), under the tune experiment's key."""
 
     name, param = "extra", "k1"
     KEYS = ("k1", "k2", "gamma11", "gamma12", "gamma21", "gamma22")
+    SPREAD = 0.1  # twip-extra-control's init_spread
 
     def __init__(self, cfg: TuneConfig):
-        from jaxdip.experiments import twip_extra_control as E
+        from jaxdip.scenarios import twip_extra as S
+        from jaxdip.scenarios.twip_initial import thesis_x0
 
-        self.ecfg = E.TwipExtraControlConfig(duration=cfg.duration, substeps=cfg.substeps)
-        self.scores = E.seed_scores(self.ecfg)
-        self.lp0 = E.loop_params(self.ecfg, "unmodeled", "extra")
-        self.x0 = E.x0_thesis(self.ecfg)
-        cp = self.lp0.controller
-        self.paper = {k: jnp.asarray(getattr(cp, k), dtype=jnp.float64) for k in self.KEYS}
+        self.S = S
+        self.dt = 0.01
+        self.loop = S.loop("unmodeled", "extra", S.controller(dt=self.dt), dt=self.dt, substeps=cfg.substeps)
+        self.n_steps = int(round(cfg.duration / self.dt))
+        self.x0 = thesis_x0()
+        self.paper = {k: jnp.asarray(getattr(self.loop.controller, k), dtype=jnp.float64) for k in self.KEYS}
         self.spec = {k: Log() for k in self.KEYS}
         self.penalty, self.factor = cfg.divergence_penalty, cfg.search_factor
 
-    def make_params(self, theta):
-        return self.lp0._replace(controller=self.lp0.controller._replace(**theta))
+    def make_loop(self, theta):
+        import equinox as eqx
+
+        return eqx.tree_at(lambda lp: tuple(getattr(lp.controller, k) for k in self.KEYS), self.loop,
+                           tuple(theta[k] for k in self.KEYS))
 
     def describe(self):
-        # the law is that experiment's and its defaults may change: record the ones this run used
-        return {"twip_extra_control_config": C.to_dict(self.ecfg)}
+        # the law's defaults live in the scenario and may change: record the ones this run used
+        c = self.loop.controller
+        return {"twip_extra_scenario": {"case": "unmodeled", "system": "extra", "dt": self.dt,
+                                        "substeps": self.loop.substeps, "init_spread": self.SPREAD,
+                                        "x0": np.asarray(self.x0).tolist(), "n_hidden": c.n_hidden,
+                                        **{k: np.asarray(getattr(c, k)).tolist()
+                                           for k in ("K", "k1", "k2", "b1", "gamma11", "gamma12", "gamma21",
+                                                     "gamma22", "sigma11", "sigma12", "sigma21", "sigma22",
+                                                     "u_max", "v_scale", "a_virtual", "beta", "tau_d", "ff")}}}
 
     def objective(self, seeds, smooth: bool):
-        seeds = jnp.asarray(seeds, dtype=jnp.uint32)
+        seeds = np.asarray(seeds)
 
         def score_div(theta, key):
-            return self.scores(self.make_params(theta), self.x0, self.ecfg.init_spread, seeds, key)
+            return self.S.scores_at(self.make_loop(theta), self.x0, self.SPREAD, self.n_steps, key, seeds)
 
         def per_seed(theta, key):
             s, d = score_div(theta, key)
