@@ -117,25 +117,14 @@ def sweep_of(loops):
     return (lambda s: s.rollout.loop), stack(loops)
 
 
-def _runs(seeds):
-    """Contiguous runs (offset, length) of an increasing list of seed indices."""
-    out = []
-    for s in (int(v) for v in seeds):
-        if out and s == out[-1][0] + out[-1][1]:
-            out[-1][1] += 1
-        else:
-            out.append([s, 1])
-    return out
-
-
 def scores_at(lp: jd.Loop, x0, spread, steps: int, key, seeds):
     """(scores, diverged) of the given seed indices (increasing; seed 0 starts at x0 exactly), as arrays over
     the seeds: differentiable in ``lp``'s leaves (the tuning target's objective)."""
-    from jaxdip.scenarios.twip_initial import run_seeds
+    from jaxdip.scenarios.twip_initial import run_seeds, seed_runs
 
     first, rest = scored(lp, x0, 0.0, steps), scored(lp, x0, spread, steps)
     parts = []
-    for off, n in _runs(seeds):
+    for off, n in seed_runs(seeds):
         if off == 0:
             head, tail = run_seeds(first, rest, key, n)
             parts += [head] + ([tail] if tail is not None else [])

@@ -39,3 +39,14 @@ def run_seeds(first, rest, key, n: int, *, sweep=None, **mc):
     head = monte_carlo(first, key, 1, sweep=sweep)
     tail = monte_carlo(rest, key, n - 1, offset=1, sweep=sweep, **mc) if n > 1 else None
     return head, tail
+
+
+def seed_runs(seeds) -> list[list[int]]:
+    """The contiguous runs [offset, length] of an increasing list of seed indices (one ``monte_carlo`` each)."""
+    out: list[list[int]] = []
+    for s in (int(v) for v in seeds):
+        if out and s == out[-1][0] + out[-1][1]:
+            out[-1][1] += 1
+        else:
+            out.append([s, 1])
+    return out
