@@ -1,6 +1,7 @@
 """twip-dmso: the discrete modified state observer against the Kalman filter on the TWIP (Stumfoll §8.1).
 
-Closed loop per sample (``jaxdip.sim.loop``): sensors -> estimator (DMSO or KF) -> discrete LQR (149)-(152) on
+Closed loop per sample (``jaxdip.scenarios.twip_dmso``, run by ``jd.monte_carlo``): sensors -> estimator (DMSO or
+KF) -> discrete LQR (149)-(152) on
 the estimate, clipped at +-11.1 V (§7.5.1) -> the nonlinear TWIP (72)-(73) over dt by RK4 sub-steps. The clip
 sits in the controller (not in the actuator) so that the input the estimators are given, u_{k-1}, is the
 voltage actually applied, as on the robot, whose controller knows the PWM it commands. The
@@ -26,15 +27,14 @@ first"):
   kf_posterior  x+_k, the KF updated with y_k (one measurement more than the DMSO).
   kf_printed    (170) literally: x+_{k+1} = x-_{k+1} + K (y_k - H x-_{k+1}), i.e. the KF updated with the
                 previous sample's measurement.
-All three are ``jaxdip.estimators.kalman.kalman`` with the Q, R, P0 of (176)-(178); the first and third are
-thin wrappers (output the prior; delay the measurement by one sample), not a second filter.
+All three are ``jaxdip.estimators.KalmanFilter`` with the Q, R, P0 of (176)-(178) and ``output`` "prior",
+"posterior", "delayed": one filter, read three ways.
 
 Uncertainty (153). The thesis defines f(x_k) = x_true,k - x_dt,k with x_dt from the discrete linear model
 (148). Propagating x_dt on its own from x_0 would follow the unstable open-loop linear model away from the truth;
 the reading consistent with (1) is the one-step mismatch f_k = x_{k+1} - (F x_k + G u_k), true states and the
-applied input; fhat_k = W_k^T phi(y_k) is the DMSO's estimate of B^T f_k (rows x_dot and phi_dot). The DMSO's
-weights are not recorded by the loop, so they are recovered by replaying the DMSO on the recorded (y, u)
-(``dmso_sequence``; exact, tested).
+applied input; fhat_k = W_k^T phi(y_k) is the DMSO's estimate of B^T f_k (rows x_dot and phi_dot), recorded
+from the DMSO's ``aux`` in the loop.
 
 Metrics per seed, then mean and 95% interval over seeds: RMS error per state over the run (from sample 1: at
 sample 0 dmso, kf and kf_printed all still hold the common initial guess), over the first second and over the
@@ -42,8 +42,9 @@ last ``tail_s`` seconds; convergence time per state = first time after which |er
 band for the rest of the run (the run's length if it never does, counted in ``converged_fraction``); for the
 DMSO the RMS of fhat - B^T f over the run, and relative to RMS(B^T f) over the run and after ``settle_s``.
 
-``noise_objective`` is the noisy case's mean RMS error as a differentiable function of the DMSO's parameters
-(gradients with respect to Gamma and K_MSO are checked against finite differences in tests/test_dmso.py).
+Cases that share dt, horizon, seed count, spread and band (nominal, param, param_gamma_variant) run as one
+``monte_carlo`` sweep over their loops per estimator. The noisy case's mean RMS error as a differentiable
+function of the DMSO is ``jaxdip.scenarios.twip_dmso.rms_error`` (gradients checked in tests/test_dmso.py).
 """
 
 from __future__ import annotations
@@ -51,7 +52,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -283,22 +283,6 @@ def run_group(cfg: TwipDmsoConfig, specs: list[CaseSpec], est: str, progress: bo
         out[spec.name] = ({k: pick(v) for k, v in m.items()}, pick(div),
                           Trace(tr["x"], tr["xhat"], tr["u"], tr["y"], tr["f"], tr["fhat"]))
     return out
-
-
-def noise_objective(cfg: TwipDmsoConfig, n_seeds: int, duration: float | None = None):
-    """(J, DMSO): J(dmso) = mean over seeds 0..n_seeds-1 of the noisy case and over the four states of the RMS
-    error (samples 1..T-1) of the DMSO-in-the-loop, differentiable in every field of the ``DMSO``."""
-    spec = CaseSpec("noise", "table_8_2", noisy=True, dt=cfg.dt, duration=duration or cfg.duration,
-                    gamma=cfg.dmso_gamma, n_seeds=n_seeds, spread=cfg.noise_init_spread, band=tuple(cfg.band_noise),
-                    estimators=("dmso",), section="§8.1.3")
-    lp = build_loop(cfg, spec, "dmso")
-    run = S.rms_error(lp, thesis_x0(cfg.x0), n_steps(spec))
-
-    def J(est):
-        r = eqx.tree_at(lambda t: t.rollout.loop.estimator, run, est)
-        return jnp.mean(jd.monte_carlo(r, jax.random.PRNGKey(cfg.seed), n_seeds)[0])
-
-    return J, lp.estimator
 
 
 # ---- summaries --------------------------------------------------------------------------------------------

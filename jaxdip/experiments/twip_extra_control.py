@@ -1,6 +1,6 @@
 """twip-extra-control: LQR + two-layer-network extra control against LQR alone on the TWIP (Stumfoll §8.2).
 
-Closed loop per sample (``jaxdip.sim.loop``): the true state -> tilt output (backlash (161) on phi in the
+Closed loop per sample (``jaxdip.scenarios.twip_extra``, run by ``jd.monte_carlo``): the true state -> tilt output (backlash (161) on phi in the
 ``deadzone_backlash`` case, identity otherwise) -> passthrough estimator -> controller
 (``jaxdip.control.extra_control``: u = sat(u_nom + u_e), or LQR alone with u_e switched off) -> deadzone (160)
 on the voltage in the deadzone cases -> the nonlinear TWIP (72)-(73) plus the unmodeled accelerations d1, d2
@@ -39,8 +39,9 @@ i > 0, the initial state x0 * (1 + U(-s, s)) per component (seed 0 starts at (18
 case share each seed's x0 and V. A seed whose |phi| passes ``tilt_bound_deg`` or whose state leaves the bounds
 is diverged; scores are averaged over the others. improvement = 1 - mean(extra) / mean(lqr).
 
-``score_fn`` is the mean param score as a differentiable function of the controller's parameters (k1, k2,
-learning rates; gradient checked against finite differences in tests/test_extra_control.py).
+Every case, system and variant is the same loop structure with other numbers: one ``monte_carlo`` sweep.
+``jaxdip.scenarios.twip_extra.scores_at`` gives the scores as a differentiable function of the controller's
+parameters (k1, k2, learning rates; gradient checked against finite differences in tests/test_extra_control.py).
 """
 
 from __future__ import annotations
