@@ -11,7 +11,6 @@ from scipy.linalg import expm
 import equinox as eqx
 
 import jaxdip as jd
-from jaxdip import config as C
 from jaxdip.control import extra_control as ec
 from jaxdip.control.twip_lqr import twip_dlqr
 from jaxdip.plants import twip
@@ -264,18 +263,6 @@ def test_score_counts_the_frozen_state_after_a_fall():
     xd = ec.desired_state(lp.controller, jnp.arange(400) * 0.01)
     ref = float(jnp.sum(jnp.linalg.norm(xs[0] - xd, axis=-1)))
     assert math.isclose(float(score[0]), ref, rel_tol=1e-12)
-
-
-def test_variants_are_checked():
-    from jaxdip.experiments import twip_extra_control as T
-
-    cfg = C.load(T.TwipExtraControlConfig, sets=['variants=["k1=4; virtual=printed"]'])
-    v = T.variant_config(cfg, cfg.variants[0])
-    assert v.k1 == 4.0 and v.virtual == "printed" and v.k2 == cfg.k2 and v.variants == []
-    for bad, why in (("n_hidden=3", "may set only"), ("k1=abc", "expected a number"), ("virtual=other", "one of"),
-                     (" ; ", "at least one")):
-        with pytest.raises(C.ConfigError, match=why):
-            C.load(T.TwipExtraControlConfig, sets=[f'variants=["{bad}"]'])
 
 
 def test_flat_law_keeps_unmodeled_unstable_up_where_lqr_falls():
