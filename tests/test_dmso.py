@@ -173,28 +173,92 @@ def test_twip_dlqr_matches_python_control():
 # ---- the DMSO in the closed loop --------------------------------------------------------------------------
 
 
-def test_loop_replay_reproduces_the_in_loop_estimates():
-    """The experiment recovers fhat by replaying the DMSO on the recorded (y, u): it must give the loop's xhat."""
-    from jaxdip.experiments import twip_dmso as T
+def _noise_loop(est_name="dmso", duration=1.0, **sensor_kw):
+    import jaxdip as jd  # noqa: F401
+    from jaxdip.scenarios import twip_dmso as S
 
-    cfg = T.TwipDmsoConfig(duration=1.0)
-    spec = [s for s in T.case_specs(cfg) if s.name == "noise"][0]
-    loop, lp, d = T.build_loop(cfg, spec, "dmso")
+    d = S.design(0.01)
+    return S.loop(S.estimator(est_name, d), S.sensors(0.01, True, **sensor_kw), d), d, int(round(duration / 0.01))
 
-    @jax.jit
-    def go(lp):
-        tr, div, rep = T.simulate_seed(loop, lp, d, T.n_steps(spec), T.x0_thesis(cfg), 0.0, 0,
-                                       jax.random.PRNGKey(0), True)
-        return tr, rep
 
-    tr, rep = go(lp)
-    assert float(rep) == 0.0
+def test_in_loop_fhat_equals_the_replay_on_recorded_data():
+    """The DMSO's aux (fhat_{k-1}, W_k) recorded in the loop equals ``dmso_sequence`` replayed on the recorded
+    (y, u): the network's estimate comes out of the loop, no replay needed."""
+    import jaxdip as jd
+    from jaxdip.scenarios.twip_initial import thesis_x0
+
+    lp, d, n = _noise_loop()
+    save = lambda s: (s.y, s.u, s.xhat, s.aux.estimator.fhat, s.aux.estimator.W)  # noqa: E731
+    sol = jd.monte_carlo(jd.Rollout(lp, thesis_x0(), n, save=save), jax.random.PRNGKey(0), 1)
+    ys, us, xh, fh, W = sol.saved
+    est = lp.estimator
+    p = dmso_params(est.F, est.G, est.B, est.K, est.Gamma, est.basis_scale, est.basis_offset, est.W0, est.xhat0)
+    tr = dmso_sequence(p, ys[0], us[0])
+    np.testing.assert_array_equal(np.asarray(tr.xhat), np.asarray(xh[0]))
+    np.testing.assert_allclose(np.asarray(fh[0, 1:]), np.asarray(tr.fhat[:-1]), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(np.asarray(W[0]), np.asarray(tr.W), rtol=0, atol=1e-15)
     assert np.abs(np.asarray(tr.fhat)).max() > 1e-3  # the network did learn something
 
 
+def test_native_dmso_and_kf_readings_equal_the_components():
+    """``DMSO`` = ``dmso()``; ``KalmanFilter(output=...)``: posterior = ``kalman()``, prior = F x+ + G u (x0 at
+    k = 0) before the update, delayed = ``kalman()`` fed y_{k-1} (C xhat0 at k = 0); bit for bit."""
+    from jaxdip.estimators.dmso import DMSO
+    from jaxdip.estimators.kalman import KFParams, kalman
+    from jaxdip.estimators.kf import KalmanFilter
+
+    d = twip_dlqr(twip.default_params(), Q_THESIS, R_THESIS, 0.01)
+    p = dmso_params(d.F, d.G, selection_matrix(4, (1, 3)), K=0.5 * jnp.eye(4), Gamma=0.2)
+    kp = KFParams(d.F, d.G, jnp.eye(4), 1e-3 * jnp.eye(4), 1e-4 * jnp.eye(4), 0.01 * jnp.eye(4), jnp.zeros(4))
+    key = jax.random.PRNGKey(2)
+    ys = jnp.cumsum(0.01 * jax.random.normal(key, (60, 4)), axis=0)
+    us = jax.random.normal(jax.random.fold_in(key, 1), (60, 1))
+    old_d, new_d = dmso(), DMSO.of(p)
+    old_k = kalman()
+    kfs = {o: KalmanFilter(*kp[:6], kp.xhat0, output=o) for o in ("posterior", "prior", "delayed")}
+    so_d, sn_d = old_d.init(p, key, ys[0]), new_d.init(key, ys[0])
+    so_k = old_k.init(kp, key, ys[0])
+    so_kd = old_k.init(kp, key, ys[0])
+    sn = {o: f.init(key, ys[0]) for o, f in kfs.items()}
+    y_prev = kp.C @ kp.xhat0
+    for k in range(ys.shape[0]):
+        u_prev = us[k - 1] if k else jnp.zeros(1)
+        so_d, xo = old_d.step(p, so_d, (ys[k], u_prev), key, k)
+        sn_d, xn, _ = new_d.step(sn_d, ys[k], u_prev, key, k)
+        np.testing.assert_array_equal(np.asarray(xn), np.asarray(xo))
+        prior = so_k.x if k == 0 else kp.Phi @ so_k.x + kp.W @ u_prev
+        so_k, post = old_k.step(kp, so_k, (ys[k], u_prev), key, k)
+        so_kd, delayed = old_k.step(kp, so_kd, (y_prev, u_prev), key, k)
+        y_prev = ys[k]
+        for o, ref in (("posterior", post), ("prior", prior), ("delayed", delayed)):
+            sn[o], x, _ = kfs[o].step(sn[o], ys[k], u_prev, key, k)
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(ref), err_msg=f"{o} at {k}")
+
+
+def _objective(n_seeds, duration, **sensor_kw):
+    """(J, DMSO): J(dmso) = mean over seeds 0..n_seeds-1 of the noisy case and over the four states of the RMS
+    estimation error (samples 1..T-1) of the DMSO-in-the-loop (``twip_dmso.rms_error``)."""
+    import equinox as eqx
+
+    import jaxdip as jd
+    from jaxdip.scenarios import twip_dmso as S
+    from jaxdip.scenarios.twip_initial import thesis_x0
+
+    lp, _, n = _noise_loop(duration=duration, **sensor_kw)
+    run = S.rms_error(lp, thesis_x0(), n)
+
+    def J(est):
+        r = eqx.tree_at(lambda t: t.rollout.loop.estimator, run, est)
+        return jnp.mean(jd.monte_carlo(r, jax.random.PRNGKey(0), n_seeds)[0])
+
+    return J, lp.estimator
+
+
 def _fd(J, p, field, direction, h):
-    plus = p._replace(**{field: getattr(p, field) + h * direction})
-    minus = p._replace(**{field: getattr(p, field) - h * direction})
+    import equinox as eqx
+
+    plus = eqx.tree_at(lambda m: getattr(m, field), p, getattr(p, field) + h * direction)
+    minus = eqx.tree_at(lambda m: getattr(m, field), p, getattr(p, field) - h * direction)
     return float((J(plus) - J(minus)) / (2 * h))
 
 
@@ -204,11 +268,9 @@ def test_gradients_of_noisy_mean_rms_error_match_finite_differences():
     The encoder quantiser makes the objective piecewise smooth with jumps; autodiff gives the derivative of the
     smooth piece. Central differences agree with it for steps small enough that no quantisation threshold is
     crossed; the step is chosen where halving it changes the difference quotient by < 1e-4 (relative)."""
-    from jaxdip.experiments import twip_dmso as T
-
-    J, p0 = T.noise_objective(T.TwipDmsoConfig(), n_seeds=4, duration=2.0)
-    Jj = jax.jit(J)
-    g = jax.jit(jax.grad(J))(p0)
+    J, p0 = _objective(n_seeds=4, duration=2.0)
+    Jj = eqx_jit(J)
+    g = eqx_grad(J)(p0)
     D = jnp.asarray(np.random.default_rng(0).normal(size=(4, 4)))
     checks = {"Gamma": (jnp.ones(()), float(g.Gamma)), "K": (D, float(jnp.sum(g.K * D)))}
     for field, (direction, ad) in checks.items():
@@ -228,17 +290,27 @@ def test_gradients_of_noisy_mean_rms_error_match_finite_differences():
 def test_pathwise_gradient_vs_monte_carlo_mean_derivative():
     """Over 256 seeds the derivative of the *mean* RMS error includes the quantiser's jumps, which the exact
     pathwise gradient misses; the straight-through encoder gradient recovers it (measured, not assumed)."""
-    from jaxdip.experiments import twip_dmso as T
-
     D = jnp.asarray(np.random.default_rng(0).normal(size=(4, 4)))
     res = {}
     for mode in ("exact", "straight_through"):
-        J, p0 = T.noise_objective(T.TwipDmsoConfig(encoder_gradient=mode), n_seeds=256, duration=2.0)
-        Jj = jax.jit(J)
-        g = jax.jit(jax.grad(J))(p0)
+        J, p0 = _objective(n_seeds=256, duration=2.0, encoder_gradient=mode)
+        Jj = eqx_jit(J)
+        g = eqx_grad(J)(p0)
         fd_g = _fd(Jj, p0, "Gamma", jnp.ones(()), 1e-2)
         fd_k = _fd(Jj, p0, "K", D, 1e-2)
         res[mode] = (float(g.Gamma) / fd_g, float(jnp.sum(g.K * D)) / fd_k)
         print(f"{mode}: autodiff / finite difference (h = 0.01): Gamma {res[mode][0]:.3f}, K {res[mode][1]:.3f}")
     assert all(abs(r - 1) < 0.1 for r in res["straight_through"])
     assert all(r > 1.5 for r in res["exact"])
+
+
+def eqx_jit(J):
+    import equinox as eqx
+
+    return eqx.filter_jit(J)
+
+
+def eqx_grad(J):
+    import equinox as eqx
+
+    return eqx.filter_jit(eqx.filter_grad(J))

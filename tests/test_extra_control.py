@@ -8,11 +8,14 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from jaxdip import config as C
+import equinox as eqx
+
+import jaxdip as jd
 from jaxdip.control import extra_control as ec
 from jaxdip.control.twip_lqr import twip_dlqr
-from jaxdip.experiments import twip_extra_control as T
 from jaxdip.plants import twip
+from jaxdip.scenarios import twip_extra as S
+from jaxdip.scenarios.twip_initial import thesis_x0
 
 
 def _params(**kw):
@@ -59,9 +62,9 @@ def _numpy_step(p, s, x, k):
 def test_one_step_matches_numpy(virtual):
     p = _params(virtual=virtual, gamma=0.3, sigma=0.05, v_scale=0.5)
     p = p._replace(gamma12=jnp.asarray(0.7), sigma21=jnp.asarray(0.02))
-    comp = ec.extra_control(10)
+    comp = ec.ExtraControl.of(p, 10)
     key = jax.random.PRNGKey(3)
-    s = comp.init(p, key, jnp.zeros(4))
+    s = comp.init(key, jnp.zeros(4))
     ks = jax.random.split(jax.random.PRNGKey(4), 4)
     # a mid-run state: non-zero adapted weights and history
     s = s._replace(W11=0.3 * jax.random.normal(ks[0], (10, 10)), W12=0.5 * jax.random.normal(ks[1], (10,)),
@@ -70,7 +73,9 @@ def test_one_step_matches_numpy(virtual):
                    u_prev=jnp.asarray(0.4))
     x = np.array([0.31, 0.12, 0.03, -0.05])
     k = 37
-    s2, u = jax.jit(comp.step)(p, s, jnp.asarray(x), key, k)
+    s2, u, aux = eqx.filter_jit(lambda c, *a: c.step(*a))(comp, s, jnp.asarray(x), key, k)
+    assert np.all(np.asarray(aux.state.W11) == np.asarray(s2.W11))
+    np.testing.assert_allclose(np.asarray(aux.xd), np.asarray(ec.desired_state(p, k * p.dt)), rtol=0, atol=1e-15)
     ref = _numpy_step(p, s, x, k)
     got = (u[0], s2.u_nom, s2.u_e, s2.W11, s2.W12, s2.W21, s2.W22, s2.xbar3, s2.xbar4_prev)
     assert abs(float(ref[2])) < float(p.u_max)  # the extra control is not saturated here
@@ -159,20 +164,23 @@ def test_error_system_with_true_F_decays_as_linear_part():
     assert np.abs(E[399] - expm(M106 * ts[399]) @ e0).max() > 1e-3
 
 
-def _cfg(**kw):
-    return C.load(T.TwipExtraControlConfig, quick={"seeds": 1, "duration": 1.0, **kw})
+def _J(virtual, duration=1.0, n_seeds=1, case="param", system="extra"):
+    """(theta -> mean score over seeds 0..n_seeds-1, theta0) over k1, k2 and the learning rates."""
+    lp = S.loop(case, system, S.controller(virtual=virtual))
+    names = ("k1", "k2", "gamma11", "gamma12", "gamma21", "gamma22")
+    n = int(round(duration / 0.01))
+
+    def J(theta):
+        q = eqx.tree_at(lambda m: tuple(getattr(m.controller, k) for k in names), lp,
+                        tuple(theta[i] for i in range(len(names))))
+        return jnp.mean(S.scores_at(q, thesis_x0(), 0.1, n, jax.random.PRNGKey(0), range(n_seeds))[0])
+
+    return J, jnp.stack([getattr(lp.controller, k) for k in names]), names
 
 
 @pytest.mark.parametrize("virtual", ["printed", "flat"])
 def test_score_gradient_matches_finite_differences(virtual):
-    cfg = _cfg(cases=["param"], virtual=virtual)
-    J, p0 = T.score_fn(cfg, "param", "extra", n_seeds=1)
-    names = ("k1", "k2", "gamma11", "gamma12", "gamma21", "gamma22")
-    theta0 = jnp.stack([getattr(p0, n) for n in names])
-
-    def Jt(theta):
-        return J(p0._replace(**{n: theta[i] for i, n in enumerate(names)}))
-
+    Jt, theta0, names = _J(virtual)
     Jj = jax.jit(Jt)
     g = np.asarray(jax.jit(jax.grad(Jt))(theta0))
     assert np.all(np.isfinite(g)) and np.abs(g).max() > 0
@@ -184,35 +192,86 @@ def test_score_gradient_matches_finite_differences(virtual):
 
 
 def test_unmodeled_dynamics_and_backlash_wiring():
-    cfg = _cfg()
-    lp = T.loop_params(cfg, "unmodeled_unstable", "lqr")
-    assert float(lp.plant.g1) == 0.75 and float(lp.plant.g2) == 0.4
+    c = S.controller()
+    lp = S.loop("unmodeled_unstable", "lqr", c)
+    assert float(lp.plant.g1) == 0.75 and float(lp.plant.g2) == 0.4 and float(lp.controller.extra) == 0.0
     x = jnp.array([0.3, 0.2, 0.1, 0.0])
-    d1, d2 = T.unmodeled(lp.plant, x)
+    d1, d2 = lp.plant.unmodeled(x)
     assert math.isclose(float(d1), 0.75 * 0.2 * math.sin(180 / math.pi * 0.3)) and math.isclose(float(d2), 0.4 * 0.04)
-    assert float(T.loop_params(cfg, "unmodeled_unstable", "nominal").plant.g1) == 0.0
-    lb = T.loop_params(cfg, "deadzone_backlash", "extra")
+    u = jnp.array([0.7])
+    ref = twip.f(twip.perturbed_params(), x, u) + jnp.array([0.0, float(d1), 0.0, float(d2)])
+    np.testing.assert_allclose(np.asarray(lp.plant.vector_field(x, u)), np.asarray(ref), rtol=1e-15, atol=1e-15)
+    assert float(S.loop("unmodeled_unstable", "nominal", c).plant.g1) == 0.0
+    assert float(S.loop("unmodeled_unstable", "nominal", c).plant.km) == twip.default_params().km
+    lb = S.loop("deadzone_backlash", "extra", c)
     assert math.isclose(float(lb.sensor.d_plus), 0.1 * math.pi / 180) and float(lb.actuator.d_plus) == 0.5
-    assert float(T.loop_params(cfg, "param", "extra").sensor.d_plus) == 0.0
+    assert float(lb.controller.extra) == 1.0
+    assert float(S.loop("param", "extra", c).sensor.d_plus) == 0.0
 
 
-def test_variants_are_checked():
-    cfg = C.load(T.TwipExtraControlConfig, sets=['variants=["k1=4; virtual=printed"]'])
-    v = T.variant_config(cfg, cfg.variants[0])
-    assert v.k1 == 4.0 and v.virtual == "printed" and v.k2 == cfg.k2 and v.variants == []
-    for bad, why in (("n_hidden=3", "may set only"), ("k1=abc", "expected a number"), ("virtual=other", "one of"),
-                     (" ; ", "at least one")):
-        with pytest.raises(C.ConfigError, match=why):
-            C.load(T.TwipExtraControlConfig, sets=[f'variants=["{bad}"]'])
+def test_native_components_equal_the_old_functions():
+    """TWIP plant = twip.f; Deadzone = actuators.deadzone; OutputBacklash = actuators.backlash on phi."""
+    from jaxdip.sim import actuators as A
+
+    key = jax.random.PRNGKey(5)
+    xs = jax.random.normal(key, (50, 4)) * jnp.array([1.0, 1.0, 0.5, 2.0])
+    us = 11.0 * jax.random.normal(jax.random.fold_in(key, 1), (50, 1))
+    for table, p in (("8.1", twip.default_params()), ("8.2", twip.perturbed_params())):
+        pl = twip.TWIP.table(table)
+        a = jax.vmap(pl.vector_field)(xs, us)
+        b = jax.vmap(lambda x, u: twip.f(p, x, u))(xs, us)
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    dz = A.Deadzone(-0.5, 0.5)
+    np.testing.assert_array_equal(np.asarray(dz.step((), us[:, 0], key, 0)[1]),
+                                  np.asarray(A.deadzone(us[:, 0], -0.5, 0.5)))
+    bl = A.OutputBacklash(1.0, -0.01, 0.01)
+    st, psi, u_prev = bl.init(key, xs[0]), jnp.zeros(1), jnp.zeros(1)
+    for x in xs * 0.02:
+        st, y, a = bl.step(st, x, key, 0)
+        psi = A.backlash(psi, u_prev, x[2:3], 1.0, -0.01, 0.01)
+        u_prev = x[2:3]
+        assert float(y[2]) == float(psi[0]) == float(a) and np.all(np.asarray(y)[[0, 1, 3]] == np.asarray(x)[[0, 1, 3]])
+
+
+def test_sweep_over_rows_compiles_once_and_equals_a_row_alone():
+    """Rows of one structure (cases x systems) run as one monte_carlo sweep: traced once; each row's seeds
+    equal that row run alone to rounding (the deadzone-free rows here)."""
+    c = S.controller()
+    rows = [("param", "lqr"), ("param", "extra"), ("unmodeled", "extra"), ("unmodeled_unstable", "nominal")]
+    loops = [S.loop(a, b, c) for a, b in rows]
+    traces = [0]
+
+    def counted(sample):
+        traces[0] += 1
+        return sample.x[2]
+
+    run = S.scored(loops[0], thesis_x0(), 0.1, 50, save=counted)
+    out = jd.monte_carlo(run, jax.random.PRNGKey(0), 3, offset=1, sweep=S.sweep_of(loops))
+    assert traces[0] == 1 and out[0].shape == (4, 3)
+    alone = jd.monte_carlo(eqx.tree_at(lambda r: r.rollout.loop, run, loops[2]), jax.random.PRNGKey(0), 3, offset=1)
+    np.testing.assert_allclose(np.asarray(out[0][2]), np.asarray(alone[0]), rtol=1e-12)
+    assert len(set(np.round(np.asarray(out[0][:, 0]), 6))) == 4  # the rows differ
+
+
+def test_score_counts_the_frozen_state_after_a_fall():
+    """A seed that falls keeps its last good state for the remaining samples: the score sums
+    ||x_frozen - x_d,k|| over them (Table 8.3's sum over every sample), checked against the recorded states."""
+    lp = S.loop("unmodeled_unstable", "extra", S.controller(virtual="printed"))
+    run = S.scored(lp, thesis_x0(), 0.0, 400, save=lambda s: s.x)
+    score, failed, xs = jd.monte_carlo(run, jax.random.PRNGKey(0), 1)
+    assert bool(failed[0])
+    xd = ec.desired_state(lp.controller, jnp.arange(400) * 0.01)
+    ref = float(jnp.sum(jnp.linalg.norm(xs[0] - xd, axis=-1)))
+    assert math.isclose(float(score[0]), ref, rel_tol=1e-12)
 
 
 def test_flat_law_keeps_unmodeled_unstable_up_where_lqr_falls():
     """Fig. 8.18's claim on 16 seeds over the full 20 s: LQR alone falls in some seeds, the derived ("flat") law
     with k1 = 10 keeps every one up; as printed (93) every seed falls (see the module docs for why)."""
-    cfg = C.load(T.TwipExtraControlConfig, sets=["seeds=16", "chunk_seeds=16", "cases=['unmodeled_unstable']"])
-    fn = T.batch_fn(cfg)
-    _, d_lqr = T.run_system(cfg, fn, T.loop_params(cfg, "unmodeled_unstable", "lqr"))
-    _, d_k10 = T.run_system(cfg, fn, T.loop_params(T.variant_config(cfg, "k1=10"), "unmodeled_unstable", "extra"))
-    _, d_pr = T.run_system(cfg, fn, T.loop_params(T.variant_config(cfg, "virtual=printed"), "unmodeled_unstable",
-                                                  "extra"))
+    loops = [S.loop("unmodeled_unstable", "lqr", S.controller()),
+             S.loop("unmodeled_unstable", "extra", S.controller(k1=10.0)),
+             S.loop("unmodeled_unstable", "extra", S.controller(virtual="printed"))]
+    x0 = thesis_x0()
+    d_lqr, d_k10, d_pr = (np.asarray(S.scores_at(lp, x0, 0.1, 2000, jax.random.PRNGKey(0), range(16))[1])
+                          for lp in loops)
     assert 0 < d_lqr.sum() < 16 and d_k10.sum() == 0 and d_pr.all()

@@ -241,3 +241,18 @@ def test_example2d_plants_are_discrete_and_jittable():
         step = jax.jit(plant.step)
         x1 = step(plant.default_params(), jnp.array([2.0, 1.0]), jnp.zeros(1))
         assert x1.shape == (2,) and x1.dtype == jnp.float64
+
+
+@pytest.mark.parametrize("table", ["8.1", "8.2"])
+def test_twip_native_plant_equals_f(table):
+    """``twip.TWIP`` (an engine plant) has TWIPParams' fields and the same vector field, bit for bit; the
+    unmodeled variant with zero gains too."""
+    p = twip.default_params() if table == "8.1" else twip.perturbed_params()
+    key = jax.random.PRNGKey(1)
+    xs = jax.random.normal(key, (64, 4))
+    us = 5.0 * jax.random.normal(jax.random.fold_in(key, 1), (64, 1))
+    ref = np.asarray(jax.vmap(lambda x, u: twip.f(p, x, u))(xs, us))
+    for plant in (twip.TWIP.table(table), twip.TWIPUnmodeled.table(table)):
+        got = np.asarray(jax.vmap(plant.vector_field)(xs, us))
+        np.testing.assert_array_equal(got, ref)
+    assert twip.TWIP.table(table).state_names == twip.STATE_NAMES

@@ -297,3 +297,39 @@ def test_backlash_vector_channels_and_irregular_input():
     # the plain function agrees with one component step
     out = backlash(jnp.array(0.0), jnp.array(0.0), jnp.array(0.5), 2.0, -0.1, 0.2)
     assert float(out) == pytest.approx(2.0 * (0.5 - 0.2))
+
+
+# ---- the TWIP's sensors as one engine sensor ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("variant", [dict(), dict(stationary_start=True, cf_init_from_angle=False)])
+def test_twip_sensors_native_equals_the_chained_components(variant):
+    """``TwipSensors`` = chain(twip_sensor, tilt_prefilter) with the same keys (to 1e-12); ideal = 1: y = x."""
+    from jaxdip.estimators.complementary import complementary_params, tilt_prefilter
+    from jaxdip.sim.component import chain
+    from jaxdip.sim.twip_sensors import TwipSensors, table_7_1_params, twip_sensor
+
+    dt = 0.01
+    old = chain(twip_sensor(dt, stationary_start=variant.get("stationary_start", False)),
+                tilt_prefilter(2, 3, init_from_angle=variant.get("cf_init_from_angle", True)))
+    op = (table_7_1_params(), complementary_params(0.99, dt))
+    new = TwipSensors.table_7_1(dt, **variant)
+    key = jax.random.PRNGKey(7)
+    xs = jnp.cumsum(0.01 * jax.random.normal(key, (200, 4)), axis=0)
+    so, sn = old.init(op, key, xs[0]), new.init(key, xs[0])
+    step_old, step_new = jax.jit(old.step), jax.jit(lambda s, x, kk, k: new.step(s, x, kk, k))
+    ideal = eqx_tree_at_ideal(new)
+    for k in range(xs.shape[0]):
+        kk = jax.random.fold_in(key, k)
+        so, yo = step_old(op, so, xs[k], kk, k)
+        sn, yn, _ = step_new(sn, xs[k], kk, k)
+        # to rounding: XLA may fuse (37) into a multiply-add, and the filter state carries the last bits on
+        np.testing.assert_allclose(np.asarray(yn), np.asarray(yo), rtol=1e-12, atol=1e-15)
+        assert np.all(np.asarray(ideal.step(sn, xs[k], kk, k)[1]) == np.asarray(xs[k]))
+    assert np.abs(np.asarray(yo) - np.asarray(xs[-1])).max() > 1e-6  # the sensors did add errors
+
+
+def eqx_tree_at_ideal(s):
+    import equinox as eqx
+
+    return eqx.tree_at(lambda m: m.ideal, s, jnp.asarray(1.0))

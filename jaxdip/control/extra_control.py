@@ -82,10 +82,11 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from jaxdip.sim.component import Component
+from jaxdip.engine.roles import Controller, param
 
 N_IN1 = 10  # P1 = [1, x1, x2, x3, x4, e1, e2, x1d, x2d, u]
 N_IN2 = 12  # P2 = [1, x1, x2, x3, x4, e1, e2, ebar3, ebar4, x1d, x2d, u_nom]
@@ -225,43 +226,100 @@ def _sat(u, u_max):
     return jnp.clip(u, -u_max, u_max)
 
 
-def extra_control(n_hidden: int = 10) -> Component:
-    """The controller component: ``state, u = step(params, state, xhat, key, k)``."""
+def _init_state(p, key, n_hidden: int) -> ExtraControlState:
+    k1, k2 = jax.random.split(key)
+    V1 = jax.random.uniform(k1, (N_IN1, n_hidden), jnp.float64, -1.0, 1.0) * p.v_scale
+    V2 = jax.random.uniform(k2, (N_IN2, n_hidden), jnp.float64, -1.0, 1.0) * p.v_scale
+    z = jnp.zeros(())
+    return ExtraControlState(V1=V1, V2=V2, W11=jnp.zeros((n_hidden, n_hidden)), W12=jnp.zeros(n_hidden),
+                             W21=jnp.zeros((n_hidden, n_hidden)), W22=jnp.zeros(n_hidden), xbar3_prev=z,
+                             xbar4_prev=z, started=jnp.zeros((), bool), u_prev=z, u_nom=z, u_e=z, F1hat=z,
+                             F2hat=z, xbar3=z)
 
-    def init(p: ExtraControlParams, key, x0):
-        k1, k2 = jax.random.split(key)
-        V1 = jax.random.uniform(k1, (N_IN1, n_hidden), jnp.float64, -1.0, 1.0) * p.v_scale
-        V2 = jax.random.uniform(k2, (N_IN2, n_hidden), jnp.float64, -1.0, 1.0) * p.v_scale
-        z = jnp.zeros(())
-        return ExtraControlState(V1=V1, V2=V2, W11=jnp.zeros((n_hidden, n_hidden)), W12=jnp.zeros(n_hidden),
-                                 W21=jnp.zeros((n_hidden, n_hidden)), W22=jnp.zeros(n_hidden), xbar3_prev=z, xbar4_prev=z,
-                                 started=jnp.zeros((), bool), u_prev=z, u_nom=z, u_e=z, F1hat=z, F2hat=z, xbar3=z)
 
-    def step(p: ExtraControlParams, s: ExtraControlState, xhat, key, k):
-        x = jnp.asarray(xhat, jnp.float64)
-        xd = desired_state(p, k * p.dt)
-        x3d, u_d = desired_constants(p)
-        u_nom = _sat(p.ff * u_d - (p.K @ (x - xd))[0], p.u_max)
-        # flat output y = x1 - beta x3 (beta = 0: the printed cart errors); xd[3] = 0
-        e1 = x[0] - xd[0] - p.beta * (x[2] - xd[2])
-        e2 = x[1] - xd[1] - p.beta * (x[3] - xd[3])
-        P1 = jnp.stack([jnp.ones(()), x[0], x[1], x[2], x[3], e1, e2, xd[0], xd[1], s.u_prev])
-        F1hat, phi11, phi12 = network(s.V1, s.W11, s.W12, P1)
-        xbar3 = virtual_tilt(p, e1, e2, x3d, F1hat)
-        a = p.dt / (p.tau_d + p.dt)
-        xbar4 = jnp.where(s.started, s.xbar4_prev + a * ((xbar3 - s.xbar3_prev) / p.dt - s.xbar4_prev), 0.0)
-        ebar2, ebar3, ebar4 = e2, x[2] - xbar3, x[3] - xbar4
-        P2 = jnp.stack([jnp.ones(()), x[0], x[1], x[2], x[3], e1, e2, ebar3, ebar4, xd[0], xd[1], u_nom])
-        F2hat, phi21, phi22 = network(s.V2, s.W21, s.W22, P2)
-        u_e = _sat(p.extra * extra_law(p, ebar3, ebar4, F2hat), p.u_max)
-        u = _sat(u_nom + u_e, p.u_max)
-        W11 = s.W11 + p.dt * inner_rate(p.gamma11, p.sigma11, p.b1, s.W11, phi11, ebar2)
-        W12 = s.W12 + p.dt * outer_rate(p.gamma12, p.sigma12, s.W12, phi12, ebar2)
-        W21 = s.W21 + p.dt * inner_rate(p.gamma21, p.sigma21, p.b2, s.W21, phi21, ebar4)
-        W22 = s.W22 + p.dt * outer_rate(p.gamma22, p.sigma22, s.W22, phi22, ebar4)
-        new = ExtraControlState(V1=s.V1, V2=s.V2, W11=W11, W12=W12, W21=W21, W22=W22, xbar3_prev=xbar3, xbar4_prev=xbar4,
-                                started=jnp.ones((), bool), u_prev=u, u_nom=u_nom, u_e=u_e, F1hat=F1hat,
-                                F2hat=F2hat, xbar3=xbar3)
-        return new, jnp.reshape(u, (1,))
+def _law(p, s: ExtraControlState, xhat, k):
+    """One control sample (module doc): (new state, u_k, x_d at t_k). ``p`` has ``ExtraControlParams``' fields."""
+    x = jnp.asarray(xhat, jnp.float64)
+    xd = desired_state(p, k * p.dt)
+    x3d, u_d = desired_constants(p)
+    u_nom = _sat(p.ff * u_d - (p.K @ (x - xd))[0], p.u_max)
+    # flat output y = x1 - beta x3 (beta = 0: the printed cart errors); xd[3] = 0
+    e1 = x[0] - xd[0] - p.beta * (x[2] - xd[2])
+    e2 = x[1] - xd[1] - p.beta * (x[3] - xd[3])
+    P1 = jnp.stack([jnp.ones(()), x[0], x[1], x[2], x[3], e1, e2, xd[0], xd[1], s.u_prev])
+    F1hat, phi11, phi12 = network(s.V1, s.W11, s.W12, P1)
+    xbar3 = virtual_tilt(p, e1, e2, x3d, F1hat)
+    a = p.dt / (p.tau_d + p.dt)
+    xbar4 = jnp.where(s.started, s.xbar4_prev + a * ((xbar3 - s.xbar3_prev) / p.dt - s.xbar4_prev), 0.0)
+    ebar2, ebar3, ebar4 = e2, x[2] - xbar3, x[3] - xbar4
+    P2 = jnp.stack([jnp.ones(()), x[0], x[1], x[2], x[3], e1, e2, ebar3, ebar4, xd[0], xd[1], u_nom])
+    F2hat, phi21, phi22 = network(s.V2, s.W21, s.W22, P2)
+    u_e = _sat(p.extra * extra_law(p, ebar3, ebar4, F2hat), p.u_max)
+    u = _sat(u_nom + u_e, p.u_max)
+    W11 = s.W11 + p.dt * inner_rate(p.gamma11, p.sigma11, p.b1, s.W11, phi11, ebar2)
+    W12 = s.W12 + p.dt * outer_rate(p.gamma12, p.sigma12, s.W12, phi12, ebar2)
+    W21 = s.W21 + p.dt * inner_rate(p.gamma21, p.sigma21, p.b2, s.W21, phi21, ebar4)
+    W22 = s.W22 + p.dt * outer_rate(p.gamma22, p.sigma22, s.W22, phi22, ebar4)
+    new = ExtraControlState(V1=s.V1, V2=s.V2, W11=W11, W12=W12, W21=W21, W22=W22, xbar3_prev=xbar3,
+                            xbar4_prev=xbar4, started=jnp.ones((), bool), u_prev=u, u_nom=u_nom, u_e=u_e,
+                            F1hat=F1hat, F2hat=F2hat, xbar3=xbar3)
+    return new, jnp.reshape(u, (1,)), xd
 
-    return Component(init, step)
+
+class ExtraControlAux(NamedTuple):
+    state: ExtraControlState  # after the sample: the adapted weights W11..W22, u_nom, u_e, F1hat, F2hat, xbar3
+    xd: jnp.ndarray  # the desired state x_d(t_k) (182) the sample tracked
+
+
+class ExtraControl(Controller):
+    """LQR + extra control as an engine controller: ``ExtraControlParams``' fields are its array fields,
+    ``n_hidden`` (neurons per layer) is static. ``aux`` is an ``ExtraControlAux``: the controller's new state
+    (network outputs F1hat, F2hat, the split u_nom / u_e, the adapted weights) and x_d(t_k), so a run records
+    them with ``save`` instead of replaying the loop. ``ExtraControl.design(K, A, B, ...)`` takes the keyword
+    arguments of ``extra_control_params``."""
+
+    K: jax.Array = param()
+    dt: jax.Array = param()
+    A1: jax.Array = param()
+    A2: jax.Array = param()
+    A3: jax.Array = param()
+    A4: jax.Array = param()
+    B1: jax.Array = param()
+    B2: jax.Array = param()
+    v_d: jax.Array = param()
+    x1d0: jax.Array = param()
+    k1: jax.Array = param()
+    k2: jax.Array = param()
+    b1: jax.Array = param()
+    b2: jax.Array = param()
+    gamma11: jax.Array = param()
+    gamma12: jax.Array = param()
+    gamma21: jax.Array = param()
+    gamma22: jax.Array = param()
+    sigma11: jax.Array = param()
+    sigma12: jax.Array = param()
+    sigma21: jax.Array = param()
+    sigma22: jax.Array = param()
+    u_max: jax.Array = param()
+    extra: jax.Array = param()
+    v_scale: jax.Array = param()
+    a_virtual: jax.Array = param()
+    beta: jax.Array = param()
+    tau_d: jax.Array = param()
+    ff: jax.Array = param()
+    n_hidden: int = eqx.field(default=10, static=True)
+
+    @classmethod
+    def of(cls, p: ExtraControlParams, n_hidden: int = 10) -> "ExtraControl":
+        return cls(**p._asdict(), n_hidden=n_hidden)
+
+    @classmethod
+    def design(cls, K, A, B, **kw) -> "ExtraControl":
+        return cls.of(extra_control_params(K, A, B, **kw), kw.get("n_hidden", 10))
+
+    def init(self, key, x0):
+        return _init_state(self, key, self.n_hidden)
+
+    def step(self, state, xhat, key, k):
+        new, u, xd = _law(self, state, xhat, k)
+        return new, u, ExtraControlAux(new, xd)

@@ -51,3 +51,18 @@ class ConstantInput(Controller):
 
     def step(self, state, xhat, key, k):
         return state, self.u, None
+
+
+class SaturatedFeedback(StateFeedback):
+    """u = clip(u_ref - K (xhat - x_ref), u_min, u_max): the clip inside the controller, so the u_{k-1} an
+    estimator is given is the input actually applied (as ``chain(state_feedback(), saturation())``)."""
+
+    u_min: jax.Array = param()
+    u_max: jax.Array = param()
+
+    def __init__(self, K, u_min, u_max, x_ref=None, u_ref=None):
+        super().__init__(K, x_ref, u_ref)
+        self.u_min, self.u_max = u_min, u_max
+
+    def step(self, state, xhat, key, k):
+        return state, jnp.clip(self.u_ref - self.K @ (xhat - self.x_ref), self.u_min, self.u_max), None

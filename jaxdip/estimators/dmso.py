@@ -34,9 +34,11 @@ from __future__ import annotations
 
 from typing import Callable, NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.roles import Estimator, param
 from jaxdip.sim.component import Component
 
 
@@ -168,3 +170,42 @@ def dmso_sequence(params: DMSOParams, ys, us, basis: Callable = tanh_basis) -> D
     y_next = jnp.concatenate([ys[1:], ys[-1:]], axis=0)
     _, (xh, fh, W) = jax.lax.scan(body, st0, (y_next, us))
     return DMSOTrace(xh, fh, W)
+
+
+class DMSOAux(NamedTuple):
+    fhat: jnp.ndarray  # fhat_{k-1} = W_{k-1}^T phi(y_{k-1}), used to predict xhat_k (zeros at k = 0)
+    W: jnp.ndarray  # W_k, the weights after this sample's update
+
+
+class DMSO(Estimator):
+    """The DMSO as an engine estimator: ``DMSOParams``' fields are its array fields, the basis is static
+    (``tanh_basis``). Sample k brings (y_k, u_{k-1}); the output is xhat_k (module doc). ``aux`` is a
+    ``DMSOAux``: the network's estimate fhat_{k-1} of the uncertainty and the weights W_k, so a run records
+    them with ``save`` (no replay). ``DMSO.of(dmso_params(...))`` builds it."""
+
+    F: jax.Array = param()
+    G: jax.Array = param()
+    B: jax.Array = param()
+    K: jax.Array = param()
+    Gamma: jax.Array = param()
+    basis_scale: jax.Array = param()
+    basis_offset: jax.Array = param()
+    W0: jax.Array = param()
+    xhat0: jax.Array = param()
+    basis: Callable = eqx.field(default=tanh_basis, static=True)
+
+    @classmethod
+    def of(cls, p: DMSOParams, basis: Callable = tanh_basis) -> "DMSO":
+        return cls(**p._asdict(), basis=basis)
+
+    def init(self, key, x0):
+        xhat0 = jnp.asarray(self.xhat0, dtype=jnp.float64)
+        return DMSOState(xhat0, jnp.asarray(self.W0, dtype=jnp.float64), xhat0)
+
+    def step(self, state, y, u_prev, key, k):
+        y = jnp.asarray(y, dtype=state.xhat.dtype)
+        u_prev = jnp.reshape(jnp.asarray(u_prev, state.xhat.dtype), (self.G.shape[1],))
+        nxt, fhat = advance(self, self.basis, state, y, u_prev)
+        first = k == 0
+        new = DMSOState(xhat=jnp.where(first, state.xhat, nxt.xhat), W=jnp.where(first, state.W, nxt.W), y=y)
+        return new, new.xhat, DMSOAux(jnp.where(first, jnp.zeros_like(fhat), fhat), new.W)

@@ -13,12 +13,22 @@ from jaxdip.estimators.kalman import KFState, kf_predict, kf_update
 from jaxdip.estimators.linearized import local_model
 
 
+OUTPUTS = ("posterior", "prior", "delayed")
+
+
 class KalmanFilter(Estimator):
     """KF for x_{k+1} = Phi x_k + W u_k + w, y_k = C x_k + v, w ~ (0, Q), v ~ (0, R).
 
     Sample j brings y_j and u_{j-1}: predict with u_{j-1} (from j = 1 on; at j = 0 the prior is (xhat0, P0),
     or (x0, P0) with ``from_truth``), update with y_j, output x+_j. ``aux`` is the posterior covariance P+_j.
     Numbers identical to ``kalman.kalman()``.
+
+    ``output`` (static) picks what is handed out at sample j (the filter itself is the same):
+      "posterior"  x+_j (updated with y_j);
+      "prior"      the prediction x-_j = Phi x+_{j-1} + W u_{j-1} (xhat0 at j = 0), from y_0 .. y_{j-1}: a
+                   one-step predictor, the information of a predictor-form observer such as the DMSO;
+      "delayed"    Stumfoll's (170) as printed: the filter at sample j is updated with y_{j-1} (with C xhat0,
+                   a zero innovation, at j = 0), its posterior handed out.
     """
 
     Phi: jax.Array = param()
@@ -29,8 +39,12 @@ class KalmanFilter(Estimator):
     P0: jax.Array = param()
     xhat0: jax.Array = param()
     from_truth: bool = eqx.field(default=False, static=True)
+    output: str = eqx.field(default="posterior", static=True)
 
-    def __init__(self, Phi, W, C, Q, R, P0, xhat0=None, from_truth: bool = False):
+    def __init__(self, Phi, W, C, Q, R, P0, xhat0=None, from_truth: bool = False, output: str = "posterior"):
+        if output not in OUTPUTS:
+            raise ValueError(f"output must be one of {OUTPUTS}, got {output!r}")
+        self.output = output
         self.Phi, self.C, self.Q, self.R, self.P0 = Phi, C, Q, R, P0
         self.W = jnp.reshape(jnp.asarray(W), (jnp.shape(Phi)[0], -1))
         self.xhat0 = jnp.zeros(jnp.shape(Phi)[0]) if xhat0 is None else xhat0
@@ -38,9 +52,24 @@ class KalmanFilter(Estimator):
 
     def init(self, key, x0):
         x = jnp.asarray(x0 if self.from_truth else self.xhat0, dtype=jnp.result_type(float))
-        return KFState(x, jnp.asarray(self.P0, x.dtype))
+        st = KFState(x, jnp.asarray(self.P0, x.dtype))
+        if self.output == "delayed":
+            return st, self.C @ jnp.asarray(self.xhat0, jnp.float64)
+        return st
 
     def step(self, state, y, u_prev, key, k):
+        if self.output == "delayed":
+            st, y_prev = state
+            st, x, P = self._filter(st, y_prev, u_prev, k)
+            return (st, jnp.asarray(y, jnp.float64)), x, P
+        if self.output == "prior":
+            u = jnp.reshape(jnp.asarray(u_prev, state.x.dtype), (self.W.shape[1],))
+            prior = jnp.where(k == 0, state.x, self.Phi @ state.x + self.W @ u)
+            st, _, P = self._filter(state, y, u_prev, k)
+            return st, prior, P
+        return self._filter(state, y, u_prev, k)
+
+    def _filter(self, state, y, u_prev, k):
         u_prev = jnp.reshape(u_prev, (self.W.shape[1],))
         xp, Pp = kf_predict(state.x, state.P, self.Phi, self.W @ u_prev, self.Q)
         first = k == 0

@@ -213,55 +213,48 @@ class RWPTarget(Target):
 
 
 class DMSOTarget(Target):
-    """Gamma and K_MSO = diag(k_1..k_4) (both through log) of the DMSO on the noisy TWIP case of ``twip-dmso``
-    (its ``build_loop``: Table 8.2 truth, §7.4 sensors with the complementary filter, LQR clipped at 11.1 V).
-    Loss per seed = mean over the four states of the RMS estimation error over samples 1..T-1 (the formula of
-    ``twip_dmso.noise_objective``) + the divergence penalty. ``quantum`` overrides the encoder quantum (0: off)."""
+    """Gamma and K_MSO = diag(k_1..k_4) (both through log) of the DMSO on the noisy TWIP case of
+    ``jaxdip.scenarios.twip_dmso`` (Table 8.2 truth, §7.4 sensors with the complementary filter, LQR clipped at
+    11.1 V; the values of ``twip-dmso``). Loss per seed = mean over the four states of the RMS estimation error
+    over samples 1..T-1 (``twip_dmso.rms_error``; periods after a fall are not counted) + the divergence
+    penalty. ``quantum`` overrides the encoder quantum (0: off)."""
 
     name, param = "dmso", "Gamma"
 
     def __init__(self, cfg: TuneConfig, quantum=None):
-        from jaxdip.experiments import twip_dmso as D
+        from jaxdip.scenarios import twip_dmso as S
+        from jaxdip.scenarios.twip_initial import thesis_x0
 
-        self.D = D
+        dt = 0.01
+        d = S.design(dt)
         kw = {} if quantum is None else {"encoder_quantum": float(quantum)}
-        self.dcfg = D.TwipDmsoConfig(duration=cfg.duration, **kw)
-        self.spec_case = D.CaseSpec("noise", "table_8_2", noisy=True, dt=self.dcfg.dt, duration=cfg.duration,
-                                    gamma=self.dcfg.dmso_gamma, n_seeds=cfg.seeds,
-                                    spread=self.dcfg.noise_init_spread, band=tuple(self.dcfg.band_noise),
-                                    estimators=("dmso",), section="§8.1.3")
-        self.loops = {}
-        for mode in ("exact", "straight_through"):
-            c = D.TwipDmsoConfig(duration=cfg.duration, encoder_gradient=mode, **kw)
-            self.loops[mode], self.base, _ = D.build_loop(c, self.spec_case, "dmso")
-        self.n_steps = D.n_steps(self.spec_case)
-        self.x0 = D.x0_thesis(self.dcfg)
-        self.paper = {"Gamma": jnp.asarray(self.dcfg.dmso_gamma, dtype=jnp.float64),
-                      "K": jnp.asarray(np.diag(D.weight_like(self.dcfg.dmso_K)), dtype=jnp.float64)}
+        est = S.estimator("dmso", d)
+        self.n_steps = int(round(cfg.duration / dt))
+        self.runs = {mode: S.rms_error(S.loop(est, S.sensors(dt, True, encoder_gradient=mode, **kw), d),
+                                       thesis_x0(), self.n_steps)
+                     for mode in ("exact", "straight_through")}
+        self.paper = {"Gamma": jnp.asarray(est.Gamma, dtype=jnp.float64),
+                      "K": jnp.asarray(jnp.diag(est.K), dtype=jnp.float64)}
         self.spec = {"Gamma": Log(), "K": Log()}
         self.penalty, self.factor = cfg.divergence_penalty, cfg.search_factor
 
-    def make_params(self, theta):
-        est = self.base.estimator._replace(Gamma=theta["Gamma"], K=jnp.diag(theta["K"]))
-        return self.base._replace(estimator=est)
+    def make_run(self, theta, smooth: bool):
+        import equinox as eqx
+
+        run = self.runs["straight_through" if smooth else "exact"]
+        return eqx.tree_at(lambda r: (r.rollout.loop.estimator.Gamma, r.rollout.loop.estimator.K), run,
+                           (theta["Gamma"], jnp.diag(theta["K"])))
 
     def objective(self, seeds, smooth: bool):
-        from jaxdip.sim import rollout
-        from jaxdip.sim.montecarlo import seed_key
+        import jaxdip as jd
+        from jaxdip.scenarios.twip_initial import seed_runs
 
-        D, loop = self.D, self.loops["straight_through" if smooth else "exact"]
-        seeds = jnp.asarray(seeds, dtype=jnp.uint32)
-        spread, n = self.spec_case.spread, self.n_steps
-
-        def one(params, key, i):
-            sk = seed_key(key, i)
-            x_init = D.initial_state(self.x0, spread, i, jax.random.fold_in(sk, 0))
-            carry, rec = rollout(loop, params, x_init, sk, n, record_every=1)
-            e = rec.xhat[1:] - rec.x[1:]
-            return jnp.mean(jnp.sqrt(jnp.mean(e**2, axis=0))) + self.penalty * carry.diverged
+        runs = seed_runs(np.asarray(seeds))
 
         def per_seed(theta, key):
-            return jax.vmap(one, in_axes=(None, None, 0))(self.make_params(theta), key, seeds)
+            run = self.make_run(theta, smooth)
+            parts = [jd.monte_carlo(run, key, n, offset=off) for off, n in runs]
+            return jnp.concatenate([e + self.penalty * d for e, d in parts])
 
         def J(theta, key):
             return jnp.mean(per_seed(theta, key))
@@ -320,41 +313,53 @@ class RPTarget(Target):
 
 class ExtraTarget(Target):
     """k1 (93), k2 (101) and the learning rates gamma11, gamma12, gamma21, gamma22 (111)-(114) of the TWIP
-    extra control (``twip-extra-control``, system ``extra``) on its ``unmodeled`` case (Table 8.2 truth plus
-    the unmodeled accelerations (185)), all through log. Everything else is ``TwipExtraControlConfig``'s
-    default (that experiment owns the law and its variants), except the horizon and the RK4 sub-steps.
+    extra control (``jaxdip.scenarios.twip_extra``, system ``extra``) on its ``unmodeled`` case (Table 8.2
+    truth plus the unmodeled accelerations (185)), all through log. Everything else is the scenario's default
+    (the values of ``twip-extra-control``), except the horizon and the RK4 sub-steps.
     Loss per seed = Table 8.3's score sum_k ||x_k - x_d,k|| over ``duration`` + the divergence penalty (a
     diverged seed's state is frozen where it left the bounds, so its score keeps growing with the remaining
-    samples and the gradient still sees *when* it fell). Seed i is that experiment's seed i (network input
+    samples and the gradient still sees *when* it fell). Seed i is that study's seed i (network input
     weights V1, V2 and the x0 spread; seed 0 starts at (184)), under the tune experiment's key."""
 
     name, param = "extra", "k1"
     KEYS = ("k1", "k2", "gamma11", "gamma12", "gamma21", "gamma22")
+    SPREAD = 0.1  # twip-extra-control's init_spread
 
     def __init__(self, cfg: TuneConfig):
-        from jaxdip.experiments import twip_extra_control as E
+        from jaxdip.scenarios import twip_extra as S
+        from jaxdip.scenarios.twip_initial import thesis_x0
 
-        self.ecfg = E.TwipExtraControlConfig(duration=cfg.duration, substeps=cfg.substeps)
-        self.scores = E.seed_scores(self.ecfg)
-        self.lp0 = E.loop_params(self.ecfg, "unmodeled", "extra")
-        self.x0 = E.x0_thesis(self.ecfg)
-        cp = self.lp0.controller
-        self.paper = {k: jnp.asarray(getattr(cp, k), dtype=jnp.float64) for k in self.KEYS}
+        self.S = S
+        self.dt = 0.01
+        self.loop = S.loop("unmodeled", "extra", S.controller(dt=self.dt), dt=self.dt, substeps=cfg.substeps)
+        self.n_steps = int(round(cfg.duration / self.dt))
+        self.x0 = thesis_x0()
+        self.paper = {k: jnp.asarray(getattr(self.loop.controller, k), dtype=jnp.float64) for k in self.KEYS}
         self.spec = {k: Log() for k in self.KEYS}
         self.penalty, self.factor = cfg.divergence_penalty, cfg.search_factor
 
-    def make_params(self, theta):
-        return self.lp0._replace(controller=self.lp0.controller._replace(**theta))
+    def make_loop(self, theta):
+        import equinox as eqx
+
+        return eqx.tree_at(lambda lp: tuple(getattr(lp.controller, k) for k in self.KEYS), self.loop,
+                           tuple(theta[k] for k in self.KEYS))
 
     def describe(self):
-        # the law is that experiment's and its defaults may change: record the ones this run used
-        return {"twip_extra_control_config": C.to_dict(self.ecfg)}
+        # the law's defaults live in the scenario and may change: record the ones this run used
+        c = self.loop.controller
+        return {"twip_extra_scenario": {"case": "unmodeled", "system": "extra", "dt": self.dt,
+                                        "substeps": self.loop.substeps, "init_spread": self.SPREAD,
+                                        "x0": np.asarray(self.x0).tolist(), "n_hidden": c.n_hidden,
+                                        **{k: np.asarray(getattr(c, k)).tolist()
+                                           for k in ("K", "k1", "k2", "b1", "gamma11", "gamma12", "gamma21",
+                                                     "gamma22", "sigma11", "sigma12", "sigma21", "sigma22",
+                                                     "u_max", "v_scale", "a_virtual", "beta", "tau_d", "ff")}}}
 
     def objective(self, seeds, smooth: bool):
-        seeds = jnp.asarray(seeds, dtype=jnp.uint32)
+        seeds = np.asarray(seeds)
 
         def score_div(theta, key):
-            return self.scores(self.make_params(theta), self.x0, self.ecfg.init_spread, seeds, key)
+            return self.S.scores_at(self.make_loop(theta), self.x0, self.SPREAD, self.n_steps, key, seeds)
 
         def per_seed(theta, key):
             s, d = score_div(theta, key)

@@ -1,6 +1,7 @@
 """twip-dmso: the discrete modified state observer against the Kalman filter on the TWIP (Stumfoll §8.1).
 
-Closed loop per sample (``jaxdip.sim.loop``): sensors -> estimator (DMSO or KF) -> discrete LQR (149)-(152) on
+Closed loop per sample (``jaxdip.scenarios.twip_dmso``, run by ``jd.monte_carlo``): sensors -> estimator (DMSO or
+KF) -> discrete LQR (149)-(152) on
 the estimate, clipped at +-11.1 V (§7.5.1) -> the nonlinear TWIP (72)-(73) over dt by RK4 sub-steps. The clip
 sits in the controller (not in the actuator) so that the input the estimators are given, u_{k-1}, is the
 voltage actually applied, as on the robot, whose controller knows the PWM it commands. The
@@ -26,15 +27,14 @@ first"):
   kf_posterior  x+_k, the KF updated with y_k (one measurement more than the DMSO).
   kf_printed    (170) literally: x+_{k+1} = x-_{k+1} + K (y_k - H x-_{k+1}), i.e. the KF updated with the
                 previous sample's measurement.
-All three are ``jaxdip.estimators.kalman.kalman`` with the Q, R, P0 of (176)-(178); the first and third are
-thin wrappers (output the prior; delay the measurement by one sample), not a second filter.
+All three are ``jaxdip.estimators.KalmanFilter`` with the Q, R, P0 of (176)-(178) and ``output`` "prior",
+"posterior", "delayed": one filter, read three ways.
 
 Uncertainty (153). The thesis defines f(x_k) = x_true,k - x_dt,k with x_dt from the discrete linear model
 (148). Propagating x_dt on its own from x_0 would follow the unstable open-loop linear model away from the truth;
 the reading consistent with (1) is the one-step mismatch f_k = x_{k+1} - (F x_k + G u_k), true states and the
-applied input; fhat_k = W_k^T phi(y_k) is the DMSO's estimate of B^T f_k (rows x_dot and phi_dot). The DMSO's
-weights are not recorded by the loop, so they are recovered by replaying the DMSO on the recorded (y, u)
-(``dmso_sequence``; exact, tested).
+applied input; fhat_k = W_k^T phi(y_k) is the DMSO's estimate of B^T f_k (rows x_dot and phi_dot), recorded
+from the DMSO's ``aux`` in the loop.
 
 Metrics per seed, then mean and 95% interval over seeds: RMS error per state over the run (from sample 1: at
 sample 0 dmso, kf and kf_printed all still hold the common initial guess), over the first second and over the
@@ -42,13 +42,13 @@ last ``tail_s`` seconds; convergence time per state = first time after which |er
 band for the rest of the run (the run's length if it never does, counted in ``converged_fraction``); for the
 DMSO the RMS of fhat - B^T f over the run, and relative to RMS(B^T f) over the run and after ``settle_s``.
 
-``noise_objective`` is the noisy case's mean RMS error as a differentiable function of the DMSO's parameters
-(gradients with respect to Gamma and K_MSO are checked against finite differences in tests/test_dmso.py).
+Cases that share dt, horizon, seed count, spread and band (nominal, param, param_gamma_variant) run as one
+``monte_carlo`` sweep over their loops per estimator. The noisy case's mean RMS error as a differentiable
+function of the DMSO is ``jaxdip.scenarios.twip_dmso.rms_error`` (gradients checked in tests/test_dmso.py).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -56,31 +56,23 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdip.resources import Load, steps_of
+import jaxdip as jd
 from jaxdip import config as C
 from jaxdip import stats
-from jaxdip.control import feedback_params, state_feedback
-from jaxdip.control.twip_lqr import TwipDesign, twip_dlqr
-from jaxdip.estimators.complementary import complementary_params, tilt_prefilter
-from jaxdip.estimators.dmso import DMSOParams, dmso, dmso_params, dmso_sequence, selection_matrix
-from jaxdip.estimators.kalman import KFParams, kalman
+from jaxdip.control.twip_lqr import TwipDesign
 from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.common import weight_matrix
 from jaxdip.plants import twip
-from jaxdip.progress import Progress
-from jaxdip.sim import Loop, LoopParams, chain, rollout
-from jaxdip.sim.actuators import SaturationParams, saturation
-from jaxdip.sim.component import Component
-from jaxdip.sim.montecarlo import seed_key
-from jaxdip.sim.twip_sensors import DEG, twip_sensor, twip_sensor_params
+from jaxdip.resources import Load, steps_of
+from jaxdip.scenarios import twip_dmso as S
+from jaxdip.scenarios.twip_initial import run_seeds, thesis_x0
 
 INF = float("inf")
 STATES = twip.STATE_NAMES  # ("x", "x_dot", "phi", "phi_dot")
 UNITS = ("m", "m/s", "rad", "rad/s")
-UNCERTAIN_ROWS = (1, 3)  # B_MSO (173): the x_dot and phi_dot rows
+UNCERTAIN_ROWS = S.UNCERTAIN_ROWS
 UNCERTAIN_NAMES = ("x_dot", "phi_dot")
-ESTIMATORS = ("dmso", "kf", "kf_posterior", "kf_printed")
+ESTIMATORS = S.ESTIMATORS
 CASES = ("nominal", "param", "noise")
 # the thesis's numbers the report compares against (§8.1.3: time to converge within the measurement noise)
 THESIS_NOISE_TILT_RATE_CONVERGENCE = {"dmso": 0.15, "kf": 1.3}
@@ -176,50 +168,7 @@ class TwipDmsoConfig:
                 raise C.ConfigError("rk4_step", f"must not exceed {name} ({h})")
 
 
-# ---- the KF readings (wrappers around the one KF of jaxdip.estimators.kalman) ---------------------------
-
-
-def kf_prior(kf: Component) -> Component:
-    """Hand out the KF's prediction x-_k = F x+_{k-1} + G u_{k-1} (xhat0 at k = 0); update with y_k after."""
-
-    def step(params: KFParams, st, inp, key, k):
-        y, u_prev = inp
-        u_prev = jnp.reshape(jnp.asarray(u_prev, st.x.dtype), (params.W.shape[1],))
-        prior = jnp.where(k == 0, st.x, params.Phi @ st.x + params.W @ u_prev)
-        st, _ = kf.step(params, st, inp, key, k)
-        return st, prior
-
-    return Component(kf.init, step)
-
-
-def kf_delayed(kf: Component) -> Component:
-    """(170) as printed: the KF at sample k is updated with y_{k-1} (with C xhat0, a zero innovation, at k = 0)."""
-
-    def init(params: KFParams, key, x0):
-        return kf.init(params, key, x0), params.C @ jnp.asarray(params.xhat0, jnp.float64)
-
-    def step(params: KFParams, st, inp, key, k):
-        s, y_prev = st
-        y, u_prev = inp
-        s, x = kf.step(params, s, (y_prev, u_prev), key, k)
-        return (s, jnp.asarray(y, jnp.float64)), x
-
-    return Component(init, step)
-
-
-def estimator_component(name: str) -> Component:
-    if name == "dmso":
-        return dmso()
-    if name == "kf":
-        return kf_prior(kalman())
-    if name == "kf_posterior":
-        return kalman()
-    if name == "kf_printed":
-        return kf_delayed(kalman())
-    raise ValueError(f"unknown estimator {name!r}")
-
-
-# ---- building the loops ---------------------------------------------------------------------------------
+# ---- building the loops (jaxdip.scenarios.twip_dmso) ----------------------------------------------------
 
 
 class CaseSpec(NamedTuple):
@@ -258,224 +207,82 @@ def case_specs(cfg: TwipDmsoConfig) -> list[CaseSpec]:
     return out
 
 
-def truth_params(name: str) -> twip.TWIPParams:
-    p = twip.default_params() if name == "table_8_1" else twip.perturbed_params()
-    return twip.TWIPParams(*(jnp.asarray(v, dtype=jnp.float64) for v in p))
-
-
 def design(cfg: TwipDmsoConfig, dt: float) -> TwipDesign:
-    return twip_dlqr(twip.default_params(), cfg.lqr_Q, cfg.lqr_R, dt)
+    return S.design(dt, cfg.lqr_Q, cfg.lqr_R)
 
 
-def make_dmso_params(cfg: TwipDmsoConfig, d: TwipDesign, gamma) -> DMSOParams:
-    return dmso_params(d.F, d.G, selection_matrix(4, UNCERTAIN_ROWS), K=weight_like(cfg.dmso_K), Gamma=gamma,
-                       basis_scale=cfg.basis_scale)
+def estimator(cfg: TwipDmsoConfig, est: str, d: TwipDesign, gamma: float):
+    return S.estimator(est, d, dmso_K=cfg.dmso_K, dmso_gamma=gamma, basis_scale=cfg.basis_scale, kf_Q=cfg.kf_Q,
+                       kf_R=cfg.kf_R, kf_P0=cfg.kf_P0)
 
 
-def weight_like(K):
-    K = np.asarray(K, dtype=np.float64)
-    return np.diag(K) if K.ndim == 1 else K
+def sensors(cfg: TwipDmsoConfig, dt: float, noisy: bool):
+    return S.sensors(dt, noisy, tilt_var=cfg.tilt_var, tilt_bias_var=cfg.tilt_bias_var, tilt_tau=cfg.tilt_tau,
+                     gyro_var=cfg.gyro_var, gyro_bias_var=cfg.gyro_bias_var, gyro_tau=cfg.gyro_tau,
+                     encoder_quantum=cfg.encoder_quantum, encoder_gradient=cfg.encoder_gradient,
+                     bias_start=cfg.bias_start, cf_alpha=cfg.cf_alpha, cf_init=cfg.cf_init)
 
 
-def make_kf_params(cfg: TwipDmsoConfig, d: TwipDesign) -> KFParams:
-    return KFParams(Phi=d.F, W=d.G, C=jnp.eye(4), Q=jnp.asarray(weight_matrix("kf_Q", cfg.kf_Q, 4)),
-                    R=jnp.asarray(weight_matrix("kf_R", cfg.kf_R, 4)), P0=cfg.kf_P0 * jnp.eye(4),
-                    xhat0=jnp.zeros(4))
-
-
-def switchable(sensor: Component) -> Component:
-    """``sensor`` whose output is replaced by the true state where ``params[1]`` is true (y = x).
-
-    The noiseless and the noisy cases then share one loop structure, hence one compilation per estimator."""
-
-    def init(params, key, x0):
-        return sensor.init(params[0], key, x0)
-
-    def step(params, st, x, key, k):
-        st, y = sensor.step(params[0], st, x, key, k)
-        return st, jnp.where(params[1], x, y)
-
-    return Component(init, step)
-
-
-def sensor_for(cfg: TwipDmsoConfig, noisy: bool, dt: float):
-    """(component, params): the §7.4 sensors followed by the complementary filter on the tilt, or y = x."""
-    comp = chain(twip_sensor(dt, stationary_start=cfg.bias_start == "stationary",
-                             straight_through=cfg.encoder_gradient == "straight_through"),
-                 tilt_prefilter(2, 3, init_from_angle=cfg.cf_init == "accel"))
-    sp = twip_sensor_params(
-        tilt_white_std=math.sqrt(cfg.tilt_var), tilt_gm_sigma=math.sqrt(cfg.tilt_bias_var), tilt_gm_tau=cfg.tilt_tau,
-        gyro_white_std=math.sqrt(cfg.gyro_var) * DEG, gyro_gm_sigma=math.sqrt(cfg.gyro_bias_var) * DEG,
-        gyro_gm_tau=cfg.gyro_tau, encoder_quantum=cfg.encoder_quantum)
-    return switchable(comp), ((sp, complementary_params(cfg.cf_alpha, dt)), jnp.asarray(not noisy))
-
-
-def build_loop(cfg: TwipDmsoConfig, spec: CaseSpec, est: str, gamma=None):
-    """(Loop, LoopParams, design) of one case with one estimator; ``gamma`` overrides the case's Gamma."""
+def build_loop(cfg: TwipDmsoConfig, spec: CaseSpec, est: str) -> jd.Loop:
     d = design(cfg, spec.dt)
-    sens, sens_p = sensor_for(cfg, spec.noisy, spec.dt)
-    est_p = make_dmso_params(cfg, d, spec.gamma if gamma is None else gamma) if est == "dmso" \
-        else make_kf_params(cfg, d)
-    ctrl = chain(state_feedback(), saturation())
-    ctrl_p = (feedback_params(d.K), SaturationParams(jnp.asarray(-cfg.u_max), jnp.asarray(cfg.u_max)))
-    substeps = max(1, int(math.ceil(spec.dt / cfg.rk4_step - 1e-9)))
-    loop = Loop(plant=twip.make(), dt=spec.dt, sensor=sens, estimator=estimator_component(est), controller=ctrl,
-                substeps=substeps)
-    bound = jnp.asarray([INF, INF, cfg.tilt_bound_deg * DEG, INF])
-    lp = LoopParams(plant=truth_params(spec.truth), sensor=sens_p, estimator=est_p, controller=ctrl_p,
-                    state_bound=bound)
-    return loop, lp, d
+    return S.loop(estimator(cfg, est, d, spec.gamma), sensors(cfg, spec.dt, spec.noisy), d,
+                  truth="8.1" if spec.truth == "table_8_1" else "8.2", rk4_step=cfg.rk4_step, u_max=cfg.u_max,
+                  tilt_bound_deg=cfg.tilt_bound_deg)
 
 
 def n_steps(spec: CaseSpec) -> int:
     return int(round(spec.duration / spec.dt))
 
 
-def x0_thesis(cfg: TwipDmsoConfig) -> jnp.ndarray:
-    return jnp.asarray(cfg.x0, dtype=jnp.float64) * jnp.asarray([1.0, 1.0, DEG, DEG])
+def build(cfg: TwipDmsoConfig, specs: list[CaseSpec], est: str):
+    """(seed-0 trial with its trace, trial of the other seeds, sweep over the cases' loops) for cases of one
+    structure, size, initial-state spread and band."""
+    d = design(cfg, specs[0].dt)
+    x0 = thesis_x0(cfg.x0)
+    n = n_steps(specs[0])
+
+    def one(spec, spread, traces):
+        return S.trial(build_loop(cfg, spec, est), d, x0, spread, n, jnp.asarray(spec.band), tail_s=cfg.tail_s,
+                       settle_s=cfg.settle_s, traces=traces)
+
+    first, rest = one(specs[0], 0.0, True), one(specs[0], specs[0].spread, False)
+    if len(specs) == 1:
+        return first, rest, None
+    # the group shares dt, horizon, seeds, spread and band (``simulate``): only the loops differ
+    return first, rest, (lambda t: t.rollout.loop, _stack([build_loop(cfg, s, est) for s in specs]))
 
 
-def initial_state(x0, spread, i, key):
-    """Seed 0: x0; seed i > 0: x0 * (1 + U(-spread, spread)) per component."""
-    pert = x0 * (1.0 + spread * jax.random.uniform(key, x0.shape, minval=-1.0, maxval=1.0))
-    return jnp.where(i == 0, x0, pert)
-
-
-# ---- one seed: trajectory and metrics -------------------------------------------------------------------
+def _stack(items):
+    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *items)
 
 
 class Trace(NamedTuple):
-    x: jnp.ndarray  # (T, 4) true states
-    xhat: jnp.ndarray  # (T, 4) estimates handed to the controller
-    u: jnp.ndarray  # (T,) applied input
-    y: jnp.ndarray  # (T, 4) measurements
-    f: jnp.ndarray  # (T - 1, 2) B^T f_k, the one-step model mismatch (153) in the uncertain rows
-    fhat: jnp.ndarray  # (T - 1, 2) the DMSO's estimate (zeros for the KF)
+    x: np.ndarray  # (T, 4) true states
+    xhat: np.ndarray  # (T, 4) estimates handed to the controller
+    u: np.ndarray  # (T,) applied input
+    y: np.ndarray  # (T, 4) measurements
+    f: np.ndarray  # (T - 1, 2) B^T f_k, the one-step model mismatch (153) in the uncertain rows
+    fhat: np.ndarray  # (T - 1, 2) the DMSO's estimate (zeros for the KF)
 
 
-def simulate_seed(loop, lp, d: TwipDesign, n: int, x0, spread, i, base_key, is_dmso: bool):
-    sk = seed_key(base_key, i)
-    x_init = initial_state(x0, spread, i, jax.random.fold_in(sk, 0))
-    carry, rec = rollout(loop, lp, x_init, sk, n, record_every=1)
-    u = rec.u[:, 0]
-    f_full = rec.x[1:] - rec.x[:-1] @ d.F.T - rec.u[:-1] @ d.G.T
-    f = f_full[:, list(UNCERTAIN_ROWS)]
-    if is_dmso:
-        trace = dmso_sequence(lp.estimator, rec.y, rec.u)
-        fhat = trace.fhat[:-1]
-        replay_err = jnp.max(jnp.abs(trace.xhat - rec.xhat))
-    else:
-        fhat = jnp.zeros_like(f)
-        replay_err = jnp.zeros(())
-    return Trace(rec.x, rec.xhat, u, rec.y, f, fhat), carry.diverged, replay_err
-
-
-def seed_metrics(tr: Trace, band, dt: float, tail_s: float, settle_s: float):
-    """Per-seed metrics. Error RMS values skip sample 0, where dmso, kf and kf_printed all hand out the common
-    initial guess (zero) before any measurement has reached them."""
-    T = tr.x.shape[0]
-    err = tr.xhat - tr.x
-    n1 = min(T, int(round(1.0 / dt)) + 1)
-    nt = min(T - 1, int(round(tail_s / dt)))
-    ns = min(T - 2, int(round(settle_s / dt)))
-    rms = lambda a: jnp.sqrt(jnp.mean(a**2, axis=0))  # noqa: E731
-    outside = jnp.abs(err) > band
-    idx = jnp.arange(T)[:, None]
-    last_out = jnp.max(jnp.where(outside, idx, -1), axis=0)
-    d = tr.fhat - tr.f
-    return {
-        "rms": rms(err[1:]), "rms_1s": rms(err[1:n1]), "rms_tail": rms(err[T - nt:]),
-        "conv": (last_out + 1) * dt, "converged": last_out < T - 1,
-        "unc_rms_err": rms(d), "unc_rms": rms(tr.f),
-        "unc_rms_err_settled": rms(d[ns:]), "unc_rms_settled": rms(tr.f[ns:]),
-    }
-
-
-_COMPILED: dict = {}
-
-
-def batch_fn(cfg: TwipDmsoConfig, spec: CaseSpec, est: str, gamma=None):
-    """(jit-compiled fn, its numeric arguments): fn(args, seed indices) -> (per-seed metrics, diverged flags,
-    replay error, Trace of the first seed). Compiled once per loop structure and reused across cases that
-    differ only in numbers (truth parameters, Gamma, initial-state spread, band)."""
-    loop, lp, d = build_loop(cfg, spec, est, gamma)
-    n = n_steps(spec)
-    is_dmso = est == "dmso"
-    key = (est, spec.dt, n, loop.substeps, cfg.tail_s, cfg.settle_s, cfg.bias_start, cfg.cf_init,
-           cfg.encoder_gradient)
-    if key not in _COMPILED:
-        def one(args, i):
-            lp, d, x0, spread, band, base = args
-            tr, div, rep = simulate_seed(loop, lp, d, n, x0, spread, i, base, is_dmso)
-            return seed_metrics(tr, band, spec.dt, cfg.tail_s, cfg.settle_s), div, rep, tr
-
-        @jax.jit
-        def run(args, idx):
-            m, div, rep, tr = jax.vmap(one, in_axes=(None, 0))(args, idx)
-            return m, div, rep, jax.tree_util.tree_map(lambda a: a[0], tr)
-
-        _COMPILED[key] = run
-    args = (lp, d, x0_thesis(cfg), jnp.asarray(spec.spread, jnp.float64), jnp.asarray(spec.band, jnp.float64),
-            jax.random.PRNGKey(cfg.seed))
-    return _COMPILED[key], args
-
-
-def batch_size(cfg: TwipDmsoConfig, spec: CaseSpec) -> int:
-    """Seeds per compiled call. Cases with the same sample period share the size (hence the compilation):
-    the smaller ones are padded with repeats of their last seed, whose results are dropped."""
-    same = [s.n_seeds for s in case_specs(cfg) if s.dt == spec.dt and s.duration == spec.duration]
-    return max(1, min(cfg.chunk_seeds, max(same + [spec.n_seeds])))
-
-
-def run_case_estimator(cfg: TwipDmsoConfig, spec: CaseSpec, est: str, bar: Progress | None = None):
-    run, args = batch_fn(cfg, spec, est)
-    bs = batch_size(cfg, spec)
-    chunks = []
-    first = None
-    for s in range(0, spec.n_seeds, bs):
-        real = np.arange(s, min(s + bs, spec.n_seeds))
-        idx = np.concatenate([real, np.repeat(real[-1:], bs - len(real))])
-        m, div, rep, tr = run(args, jnp.asarray(idx, dtype=jnp.uint32))
-        keep = len(real)
-        m = {k: np.asarray(v)[:keep] for k, v in m.items()}
-        chunks.append((m, np.asarray(div)[:keep], np.asarray(rep)[:keep]))
-        if first is None:
-            first = jax.tree_util.tree_map(np.asarray, tr)
-        if bar is not None:
-            bar.update(keep * n_steps(spec))
-    m = {k: np.concatenate([c[0][k] for c in chunks]) for k in chunks[0][0]}
-    div = np.concatenate([c[1] for c in chunks])
-    rep = float(np.max(np.concatenate([c[2] for c in chunks])))
-    return m, div, rep, first
-
-
-def noise_objective(cfg: TwipDmsoConfig, n_seeds: int, duration: float | None = None):
-    """(J, dmso params): J(params) = mean over seeds 0..n_seeds-1 of the noisy case and over the four states of
-    the RMS estimation error (samples 1..T-1) of the DMSO-in-the-loop, a differentiable function of every
-    DMSOParams leaf (Gamma, K, basis, ...). Sensor noise, quantisation and saturation stay in the loop;
-    ``jnp.round`` and ``clip`` contribute their almost-everywhere derivatives."""
-    spec = CaseSpec("noise", "table_8_2", noisy=True, dt=cfg.dt, duration=duration or cfg.duration,
-                    gamma=cfg.dmso_gamma, n_seeds=n_seeds, spread=cfg.noise_init_spread, band=tuple(cfg.band_noise),
-                    estimators=("dmso",), section="§8.1.3")
-    loop, lp, d = build_loop(cfg, spec, "dmso")
-    n = n_steps(spec)
-    x0 = x0_thesis(cfg)
-    base = jax.random.PRNGKey(cfg.seed)
-    idx = jnp.arange(n_seeds, dtype=jnp.uint32)
-
-    def J(p: DMSOParams):
-        q = lp._replace(estimator=p)
-
-        def one(i):
-            sk = seed_key(base, i)
-            x_init = initial_state(x0, spec.spread, i, jax.random.fold_in(sk, 0))
-            _, rec = rollout(loop, q, x_init, sk, n, record_every=1)
-            e = rec.xhat[1:] - rec.x[1:]
-            return jnp.mean(jnp.sqrt(jnp.mean(e**2, axis=0)))
-
-        return jnp.mean(jax.vmap(one)(idx))
-
-    return J, lp.estimator
+def run_group(cfg: TwipDmsoConfig, specs: list[CaseSpec], est: str, progress: bool = False):
+    """{case: (per-seed metrics, diverged, seed-0 Trace)} for cases that share dt, horizon and seed count:
+    one sweep (one compiled program for seed 0, one for the others)."""
+    first, rest, sweep = build(cfg, specs, est)
+    head, tail = run_seeds(first, rest, jax.random.PRNGKey(cfg.seed), specs[0].n_seeds, sweep=sweep,
+                           chunk=cfg.chunk_seeds, progress=progress, desc=f"twip-dmso {est}")
+    ax = 0 if sweep is None else 1
+    m, div = head[0], head[1]
+    if tail is not None:
+        m = jax.tree_util.tree_map(lambda a, b: np.concatenate([a, b], axis=ax), m, tail[0])
+        div = np.concatenate([div, tail[1]], axis=ax)
+    out = {}
+    for j, spec in enumerate(specs):
+        pick = (lambda a: np.asarray(a)) if sweep is None else (lambda a, j=j: np.asarray(a)[j])
+        tr = {k: pick(v)[0] for k, v in head[2].items()}
+        out[spec.name] = ({k: pick(v) for k, v in m.items()}, pick(div),
+                          Trace(tr["x"], tr["xhat"], tr["u"], tr["y"], tr["f"], tr["fhat"]))
+    return out
 
 
 # ---- summaries --------------------------------------------------------------------------------------------
@@ -488,7 +295,7 @@ def _per_state(values, ok, names=STATES):
     return out, ci
 
 
-def summarize(m: dict, div: np.ndarray, rep: float, est: str, spec: CaseSpec) -> dict:
+def summarize(m: dict, div: np.ndarray, est: str, spec: CaseSpec) -> dict:
     ok = ~div
     r = {"diverged": int(div.sum()), "seeds": int(len(div))}
     for key, name in (("rms", "rms_error"), ("rms_1s", "rms_error_first_1s"), ("rms_tail", "rms_error_tail")):
@@ -510,7 +317,6 @@ def summarize(m: dict, div: np.ndarray, rep: float, est: str, spec: CaseSpec) ->
         rel = m["unc_rms_err_settled"] / np.maximum(m["unc_rms_settled"], 1e-300)
         r["uncertainty_rel_error_settled"], r["uncertainty_rel_error_settled_ci95"] = _per_state(rel, ok,
                                                                                                  UNCERTAIN_NAMES)
-        r["replay_max_abs_diff"] = rep
     return r
 
 
@@ -584,10 +390,23 @@ def fig_uncertainty(name, tr: Trace, dt):
 # ---- the experiment ---------------------------------------------------------------------------------------
 
 
+def simulate(cfg: TwipDmsoConfig, progress: bool = False) -> dict:
+    """{(case, estimator): (per-seed metrics, diverged, seed-0 Trace)}: the cases of one dt, horizon and seed
+    count run as one sweep per estimator."""
+    groups: dict = {}
+    for spec in case_specs(cfg):
+        for est in spec.estimators:
+            groups.setdefault((est, spec.dt, spec.duration, spec.n_seeds, spec.spread, spec.band), []).append(spec)
+    out = {}
+    for (est, *_), specs in groups.items():
+        for name, r in run_group(cfg, specs, est, progress).items():
+            out[(name, est)] = r
+    return out
+
+
 def run(cfg: TwipDmsoConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:
     specs = case_specs(cfg)
-    total = sum(s.n_seeds * n_steps(s) * len(s.estimators) for s in specs)
-    bar = Progress(total, desc="twip-dmso", enabled=progress)
+    sim = simulate(cfg, progress)
     results, figures = {}, {}
     for spec in specs:
         d = design(cfg, spec.dt)
@@ -598,9 +417,9 @@ def run(cfg: TwipDmsoConfig, ctx: RunContext | None = None, progress: bool = Tru
                "lqr_K": np.asarray(d.K)[0].tolist(), "lqr_closed_loop_abs_eig_nominal": np.abs(d.E).tolist()}
         traces = {}
         for est in spec.estimators:
-            m, div, rep, first = run_case_estimator(cfg, spec, est, bar)
-            res[est] = summarize(m, div, rep, est, spec)
-            traces[est] = Trace(*first)
+            m, div, first = sim[(spec.name, est)]
+            res[est] = summarize(m, div, est, spec)
+            traces[est] = first
         if spec.name == "param_gamma_variant" and "param" in results:
             res["kf"] = results["param"]["kf"]  # the KF does not depend on Gamma
         res["max_abs_u_seed0"] = float(np.max(np.abs(traces["dmso"].u)))
@@ -615,7 +434,6 @@ def run(cfg: TwipDmsoConfig, ctx: RunContext | None = None, progress: bool = Tru
         if spec.name in ("nominal", "param", "noise"):
             figures[f"{tag}_log_errors"] = fig_errors(tag, shown, spec.dt, log=True)
         figures[f"{tag}_uncertainty"] = fig_uncertainty(tag, traces["dmso"], spec.dt)
-    bar.close()
     results["findings"] = findings(results)
     return Outcome(results=results, report=report(cfg, results), figures=figures)
 

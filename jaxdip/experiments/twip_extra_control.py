@@ -1,6 +1,6 @@
 """twip-extra-control: LQR + two-layer-network extra control against LQR alone on the TWIP (Stumfoll §8.2).
 
-Closed loop per sample (``jaxdip.sim.loop``): the true state -> tilt output (backlash (161) on phi in the
+Closed loop per sample (``jaxdip.scenarios.twip_extra``, run by ``jd.monte_carlo``): the true state -> tilt output (backlash (161) on phi in the
 ``deadzone_backlash`` case, identity otherwise) -> passthrough estimator -> controller
 (``jaxdip.control.extra_control``: u = sat(u_nom + u_e), or LQR alone with u_e switched off) -> deadzone (160)
 on the voltage in the deadzone cases -> the nonlinear TWIP (72)-(73) plus the unmodeled accelerations d1, d2
@@ -39,40 +39,32 @@ i > 0, the initial state x0 * (1 + U(-s, s)) per component (seed 0 starts at (18
 case share each seed's x0 and V. A seed whose |phi| passes ``tilt_bound_deg`` or whose state leaves the bounds
 is diverged; scores are averaged over the others. improvement = 1 - mean(extra) / mean(lqr).
 
-``score_fn`` is the mean param score as a differentiable function of the controller's parameters (k1, k2,
-learning rates; gradient checked against finite differences in tests/test_extra_control.py).
+Every case, system and variant is the same loop structure with other numbers: one ``monte_carlo`` sweep.
+``jaxdip.scenarios.twip_extra.scores_at`` gives the scores as a differentiable function of the controller's
+parameters (k1, k2, learning rates; gradient checked against finite differences in tests/test_extra_control.py).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import partial
-from typing import NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from jaxdip.resources import Load, steps_of
+import jaxdip as jd
 from jaxdip import config as C
 from jaxdip import stats
-from jaxdip.control.extra_control import ExtraControlParams, desired_state, extra_control, extra_control_params
-from jaxdip.control.twip_lqr import twip_dlqr
-from jaxdip.estimators.passthrough import passthrough
-from jaxdip.experiments import register, twip_dmso
+from jaxdip.control.extra_control import ExtraControl, desired_state
+from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import twip
-from jaxdip.plants.base import Plant
-from jaxdip.progress import Progress
-from jaxdip.sim import Loop, LoopParams
-from jaxdip.sim.actuators import BacklashParams, DeadzoneParams, backlash_component, deadzone_component
-from jaxdip.sim.component import Component
-from jaxdip.sim.loop import init_carry, make_step, rollout
-from jaxdip.sim.montecarlo import seed_key
+from jaxdip.resources import Load, steps_of
+from jaxdip.scenarios import twip_extra as S
+from jaxdip.scenarios.twip_initial import run_seeds, thesis_x0
 
-CASES = ("param", "unmodeled", "unmodeled_unstable", "deadzone", "deadzone_backlash")
-SYSTEMS = ("lqr", "extra", "nominal")
+CASES = S.CASES
+SYSTEMS = S.SYSTEMS
 STATES = twip.STATE_NAMES
 DEG = math.pi / 180.0
 # Table 8.3 (the thesis has no unmodeled_unstable row)
@@ -172,184 +164,57 @@ def variant_config(cfg, spec: str):
     return C.from_dict(type(cfg), data)
 
 
-# ---- the plant with unmodeled dynamics (185) -------------------------------------------------------------
+# ---- building the scenario (jaxdip.scenarios.twip_extra) ---------------------------------------------------
 
 
-class TwipUnmodeledParams(NamedTuple):
-    twip: twip.TWIPParams
-    g1: jnp.ndarray  # d1 = g1 x' sin(freq x)
-    g2: jnp.ndarray  # d2 = g2 x'^2
-    freq: jnp.ndarray
+def controller(cfg: TwipExtraControlConfig) -> ExtraControl:
+    return S.controller(dt=cfg.dt, lqr_Q=cfg.lqr_Q, lqr_R=cfg.lqr_R, v_d=cfg.v_d, k1=cfg.k1, k2=cfg.k2,
+                        n_hidden=cfg.n_hidden, b=cfg.b, gamma=cfg.gamma, sigma=cfg.sigma, u_max=cfg.u_max,
+                        v_scale=cfg.v_scale, feedforward=cfg.feedforward, tau_d=cfg.tau_d, virtual=cfg.virtual)
 
 
-def unmodeled(p: TwipUnmodeledParams, x):
-    """(d1, d2) of (185)."""
-    return p.g1 * x[1] * jnp.sin(p.freq * x[0]), p.g2 * x[1] ** 2
-
-
-def f_unmodeled(p: TwipUnmodeledParams, x, u):
-    d1, d2 = unmodeled(p, x)
-    return twip.f(p.twip, x, u) + jnp.stack([jnp.zeros(()), d1, jnp.zeros(()), d2])
-
-
-def plant() -> Plant:
-    return Plant(name="twip-unmodeled", state_names=STATES, input_names=("V",),
-                 default_params=lambda: TwipUnmodeledParams(twip.default_params(), 0.0, 0.0, 180 / math.pi),
-                 f=f_unmodeled)
-
-
-def tilt_backlash() -> Component:
-    """Output backlash (161) on the tilt: y = x with phi replaced by the backlash output."""
-    bl = backlash_component(1)
-
-    def step(p, s, x, key, k):
-        s, psi = bl.step(p, s, x[2:3], key, k)
-        return s, x.at[2].set(psi[0])
-
-    return Component(bl.init, step)
-
-
-# ---- building the loops ----------------------------------------------------------------------------------
-
-
-def build_loop(cfg: TwipExtraControlConfig) -> Loop:
-    """One loop structure for every case and system (the differences are numbers in ``LoopParams``)."""
-    return Loop(plant=plant(), dt=cfg.dt, sensor=tilt_backlash(), estimator=passthrough,
-                controller=extra_control(cfg.n_hidden), actuator=deadzone_component(), substeps=cfg.substeps)
-
-
-def controller_params(cfg: TwipExtraControlConfig, extra: float) -> ExtraControlParams:
-    d = twip_dlqr(twip.default_params(), Q=tuple(cfg.lqr_Q), R=cfg.lqr_R, dt=cfg.dt)
-    p = extra_control_params(d.K, d.A, d.B, dt=cfg.dt, v_d=cfg.v_d, k1=cfg.k1, k2=cfg.k2, n_hidden=cfg.n_hidden,
-                             b=cfg.b, gamma=0.0, sigma=0.0, u_max=cfg.u_max, extra=extra, v_scale=cfg.v_scale,
-                             ff=1.0 if cfg.feedforward else 0.0, tau_d=cfg.tau_d, virtual=cfg.virtual)
-    g, s = [jnp.asarray(v, jnp.float64) for v in cfg.gamma], [jnp.asarray(v, jnp.float64) for v in cfg.sigma]
-    return p._replace(gamma11=g[0], gamma12=g[1], gamma21=g[2], gamma22=g[3],
-                      sigma11=s[0], sigma12=s[1], sigma21=s[2], sigma22=s[3])
-
-
-def loop_params(cfg: TwipExtraControlConfig, case: str, system: str) -> LoopParams:
-    nominal = system == "nominal"
-    if nominal:
-        truth = twip.default_params()
-    elif case.startswith("deadzone"):
-        truth = twip.default_params() if cfg.nonlinear_truth == "table_8_1" else twip.perturbed_params()
-    else:
-        truth = twip.perturbed_params()
-    g = (0.0, 0.0)
-    if not nominal and case == "unmodeled":
-        g = cfg.d_gains
-    if not nominal and case == "unmodeled_unstable":
-        g = cfg.d_gains_unstable
-    f64 = partial(jnp.asarray, dtype=jnp.float64)
-    pp = TwipUnmodeledParams(twip.TWIPParams(*[f64(v) for v in truth]), f64(g[0]), f64(g[1]), f64(cfg.d1_freq))
-    dz = cfg.deadzone if case.startswith("deadzone") else 0.0
-    bl = cfg.backlash_deg * DEG if case == "deadzone_backlash" else 0.0
-    bound = jnp.asarray([cfg.state_bound[0], cfg.state_bound[1], cfg.tilt_bound_deg * DEG, cfg.state_bound[3]])
-    return LoopParams(plant=pp, sensor=BacklashParams(f64(1.0), f64(-bl), f64(bl)),
-                      estimator=(), controller=controller_params(cfg, 1.0 if system == "extra" else 0.0),
-                      actuator=DeadzoneParams(f64(-dz), f64(dz)), state_bound=bound)
-
-
-def x0_thesis(cfg: TwipExtraControlConfig):
-    return twip_dmso.x0_thesis(cfg)  # same (184) = (179) convention: [m, m/s, deg, deg/s] in the config
-
-
-def initial_state(x0, spread, i, key):
-    # the DMSO experiment's spread of initial states, on this experiment's own fold of the seed key
-    return twip_dmso.initial_state(x0, spread, i, jax.random.fold_in(key, 0))
+def build_loop(cfg: TwipExtraControlConfig, case: str, system: str) -> jd.Loop:
+    return S.loop(case, system, controller(cfg), dt=cfg.dt, substeps=cfg.substeps, d_gains=cfg.d_gains,
+                  d_gains_unstable=cfg.d_gains_unstable, d1_freq=cfg.d1_freq, deadzone=cfg.deadzone,
+                  backlash_deg=cfg.backlash_deg, nonlinear_truth=cfg.nonlinear_truth,
+                  tilt_bound_deg=cfg.tilt_bound_deg, state_bound=cfg.state_bound)
 
 
 def n_steps(cfg: TwipExtraControlConfig) -> int:
     return int(round(cfg.duration / cfg.dt))
 
 
-def score_of(lp: LoopParams, xs, dt):
-    """Table 8.3's score: sum_k ||x_k - x_d,k|| over the recorded true states (k = 0 .. N-1)."""
-    t = jnp.arange(xs.shape[0]) * dt
-    return jnp.sum(jnp.linalg.norm(xs - desired_state(lp.controller, t), axis=-1))
+def rows(cfg: TwipExtraControlConfig) -> list[tuple[str, str]]:
+    """(case, system or variant) of every loop the study runs; one structure, hence one sweep."""
+    return [(case, name) for case in cfg.cases for name in (*SYSTEMS, *cfg.variants)]
 
 
-def simulate_seed(loop: Loop, lp: LoopParams, n: int, x0, spread, i, base_key):
-    sk = seed_key(base_key, i)
-    x0i = initial_state(x0, spread, i, sk)
-    carry, rec = rollout(loop, lp, x0i, sk, n, record_every=1, record_fn=lambda r: r.x)
-    return score_of(lp, rec, loop.dt), carry.diverged
-
-
-def seed_scores(cfg: TwipExtraControlConfig):
-    """(LoopParams, x0, spread, seed indices, key) -> (scores, diverged), vmapped over the seeds, not jitted
-    (the one per-seed Monte Carlo map of this experiment: batches, ``score_fn`` and the tune target use it)."""
-    loop = build_loop(cfg)
+def build(cfg: TwipExtraControlConfig):
+    """(seed-0 trial with traces, trial of the other seeds, sweep over every row): one structure for all rows."""
+    vcfgs = {spec: variant_config(cfg, spec) for spec in cfg.variants}
+    loops = [build_loop(cfg, case, name) if name in SYSTEMS else build_loop(vcfgs[name], case, "extra")
+             for case, name in rows(cfg)]
+    x0 = thesis_x0(cfg.x0)
     n = n_steps(cfg)
-    return jax.vmap(lambda lp, x0, spread, i, key: simulate_seed(loop, lp, n, x0, spread, i, key),
-                    in_axes=(None, None, None, 0, None))
+    return (S.scored(loops[0], x0, 0.0, n, save=S.trace), S.scored(loops[0], x0, cfg.init_spread, n),
+            S.sweep_of(loops))
 
 
-def batch_fn(cfg: TwipExtraControlConfig):
-    return jax.jit(seed_scores(cfg))
-
-
-def score_fn(cfg: TwipExtraControlConfig, case: str = "param", system: str = "extra", n_seeds: int = 1):
-    """(controller params -> mean score over seeds 0..n_seeds-1): the differentiable objective of a tuner."""
-    scores = seed_scores(cfg)
-    lp0 = loop_params(cfg, case, system)
-    x0 = x0_thesis(cfg)
-    key = jax.random.PRNGKey(cfg.seed)
-
-    def J(cp: ExtraControlParams):
-        s, _ = scores(lp0._replace(controller=cp), x0, cfg.init_spread, jnp.arange(n_seeds), key)
-        return jnp.mean(s)
-
-    return J, lp0.controller
-
-
-class Trace(NamedTuple):
-    x: jnp.ndarray
-    u: jnp.ndarray
-    u_nom: jnp.ndarray
-    u_e: jnp.ndarray
-
-
-def trace_fn(cfg: TwipExtraControlConfig, i: int = 0):
-    """(LoopParams -> Trace): one seed's trajectory with the controller's split of u into u_nom and u_e
-    (for the figures); compiled once, reused for every case and system."""
-    loop = build_loop(cfg)
-    n = n_steps(cfg)
-    key = jax.random.PRNGKey(cfg.seed)
-
-    @jax.jit
-    def go(lp):
-        sk = seed_key(key, i)
-        x0i = initial_state(x0_thesis(cfg), cfg.init_spread, i, sk)
-        step = make_step(loop, n)
-
-        def body(c, _):
-            c2, rec = step(lp, sk, c)
-            return c2, Trace(rec.x, rec.u[0], c2.controller.u_nom, c2.controller.u_e)
-
-        return jax.lax.scan(body, init_carry(loop, lp, x0i, sk), None, length=n)[1]
-
-    return lambda lp: jax.tree_util.tree_map(np.asarray, go(lp))
-
-
-# ---- running, summarising, reporting ---------------------------------------------------------------------
-
-
-def run_system(cfg, fn, lp, bar=None):
-    x0 = x0_thesis(cfg)
-    key = jax.random.PRNGKey(cfg.seed)
-    scores, divs = [], []
-    for start in range(0, cfg.seeds, cfg.chunk_seeds):
-        idx = jnp.arange(start, min(cfg.seeds, start + cfg.chunk_seeds))
-        pad = cfg.chunk_seeds - idx.shape[0] if cfg.seeds > cfg.chunk_seeds else 0
-        idx_p = jnp.concatenate([idx, jnp.repeat(idx[-1:], pad)]) if pad else idx
-        s, d = fn(lp, x0, cfg.init_spread, idx_p, key)
-        scores.append(np.asarray(s)[: idx.shape[0]])
-        divs.append(np.asarray(d)[: idx.shape[0]])
-        if bar is not None:
-            bar.update(int(idx.shape[0]))
-    return np.concatenate(scores), np.concatenate(divs)
+def simulate(cfg: TwipExtraControlConfig, progress: bool = False):
+    """{row: (scores, diverged)} over the seeds, and {row: seed-0 trace}: every row in one sweep (one compiled
+    program for seed 0 with its traces, one for the other seeds)."""
+    first, rest, sweep = build(cfg)
+    head, tail = run_seeds(first, rest, jax.random.PRNGKey(cfg.seed), cfg.seeds, sweep=sweep,
+                           chunk=cfg.chunk_seeds, progress=progress, desc="twip-extra-control")
+    sc, dv = np.asarray(head[0]), np.asarray(head[1])
+    if tail is not None:
+        sc = np.concatenate([sc, np.asarray(tail[0])], axis=1)
+        dv = np.concatenate([dv, np.asarray(tail[1])], axis=1)
+    out, traces = {}, {}
+    for j, row in enumerate(rows(cfg)):
+        out[row] = (sc[j], dv[j])
+        traces[row] = {k: np.asarray(v[j, 0]) for k, v in head[2].items()}
+    return out, traces
 
 
 def versus_lqr(s, d, lqr_s, lqr_d) -> dict:
@@ -383,10 +248,9 @@ def summarize_case(scores: dict, divs: dict) -> dict:
 def fig_case(case, traces: dict, cfg):
     import matplotlib.pyplot as plt
 
-    n = traces["lqr"].x.shape[0]
+    n = traces["lqr"]["x"].shape[0]
     t = np.arange(n) * cfg.dt
-    cp = controller_params(cfg, 1.0)
-    xd = np.asarray(desired_state(cp, t))
+    xd = np.asarray(desired_state(controller(cfg), t))
     scale = (1.0, 1.0, 1 / DEG, 1 / DEG)
     units = ("m", "m/s", "deg", "deg/s")
     labels = {"lqr": "Perturbed system", "extra": "Perturbed system with ue", "nominal": "Nominal system"}
@@ -394,7 +258,7 @@ def fig_case(case, traces: dict, cfg):
     fig, axes = plt.subplots(4, 1, figsize=(7, 8), sharex=True)
     for j, ax in enumerate(axes):
         for sysname in SYSTEMS:
-            ax.plot(t, traces[sysname].x[:, j] * scale[j], lw=1.0, label=labels[sysname])
+            ax.plot(t, traces[sysname]["x"][:, j] * scale[j], lw=1.0, label=labels[sysname])
         ax.plot(t, xd[:, j] * scale[j], "k--", lw=0.8, label="desired")
         ax.set_ylabel(f"{STATES[j]} ({units[j]})")
         ax.grid(alpha=0.3)
@@ -405,10 +269,10 @@ def fig_case(case, traces: dict, cfg):
     axes[-1].set_xlabel("time (s)")
     fig.tight_layout()
     fig2, ax = plt.subplots(figsize=(7, 3.2))
-    ax.plot(t, traces["nominal"].u, lw=1.0, label="optimal control (nominal system)")
-    ax.plot(t, traces["extra"].u_nom, lw=1.0, label="nominal control u_nom")
-    ax.plot(t, traces["extra"].u_e, lw=1.0, label="extra control u_e")
-    ax.plot(t, traces["extra"].u, lw=1.0, label="total control")
+    ax.plot(t, traces["nominal"]["u"], lw=1.0, label="optimal control (nominal system)")
+    ax.plot(t, traces["extra"]["u_nom"], lw=1.0, label="nominal control u_nom")
+    ax.plot(t, traces["extra"]["u_e"], lw=1.0, label="extra control u_e")
+    ax.plot(t, traces["extra"]["u"], lw=1.0, label="total control")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("V")
     ax.set_title(f"{case}: control signals, seed 0 (cf. Fig. {fsn})")
@@ -425,26 +289,17 @@ def summarize_variant(s, d, lqr_s, lqr_d) -> dict:
 
 
 def run(cfg: TwipExtraControlConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:
-    fn = batch_fn(cfg)
-    trace = trace_fn(cfg, 0)
+    res, traces = simulate(cfg, progress)
     results, figures = {}, {}
-    vcfgs = {spec: variant_config(cfg, spec) for spec in cfg.variants}
-    bar = Progress(len(cfg.cases) * (len(SYSTEMS) + len(vcfgs)) * cfg.seeds, desc="twip-extra-control",
-                   enabled=progress)
     for case in cfg.cases:
-        scores, divs, traces = {}, {}, {}
-        for sysname in SYSTEMS:
-            lp = loop_params(cfg, case, sysname)
-            scores[sysname], divs[sysname] = run_system(cfg, fn, lp, bar)
-            traces[sysname] = trace(lp)
+        scores = {s: res[(case, s)][0] for s in SYSTEMS}
+        divs = {s: res[(case, s)][1] for s in SYSTEMS}
         results[case] = summarize_case(scores, divs)
-        results[case]["variants"] = {
-            spec: summarize_variant(*run_system(cfg, fn, loop_params(vc, case, "extra"), bar), scores["lqr"],
-                                    divs["lqr"]) for spec, vc in vcfgs.items()}
-        fs, fc = fig_case(case, traces, cfg)
+        results[case]["variants"] = {spec: summarize_variant(*res[(case, spec)], scores["lqr"], divs["lqr"])
+                                     for spec in cfg.variants}
+        fs, fc = fig_case(case, {s: traces[(case, s)] for s in SYSTEMS}, cfg)
         figures[f"twip-extra-{case}-states"] = fs
         figures[f"twip-extra-{case}-control"] = fc
-    bar.close()
     figures["twip-extra-variants"] = fig_variants(cfg, results)
     imps = [results[c]["improvement"] for c in cfg.cases if c in THESIS]
     results["mean_improvement_table_cases"] = float(np.mean(imps)) if imps else float("nan")

@@ -21,10 +21,14 @@ The model has no conserved energy: the motor's back-EMF acts as viscous damping 
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.roles import Plant as EnginePlant
+from jaxdip.engine.roles import param
 from jaxdip.plants.base import Plant
 
 STATE_NAMES = ("x", "x_dot", "phi", "phi_dot")
@@ -125,3 +129,60 @@ def make() -> Plant:
         default_params=default_params,
         f=f,
     )
+
+
+_D = TWIPParams._field_defaults
+
+
+class TWIP(EnginePlant):
+    """The TWIP as an engine plant: ``TWIPParams``' fields (Table 8.1 by default) are its array fields; same
+    equations as ``f``. ``TWIP.table("8.2")`` is the perturbed truth of §8.1.2 on."""
+
+    Ip: jax.Array = param(_D["Ip"])
+    Iw: jax.Array = param(_D["Iw"])
+    ke: jax.Array = param(_D["ke"])
+    km: jax.Array = param(_D["km"])
+    l: jax.Array = param(_D["l"])  # noqa: E741
+    Mp: jax.Array = param(_D["Mp"])
+    Mw: jax.Array = param(_D["Mw"])
+    r: jax.Array = param(_D["r"])
+    R: jax.Array = param(_D["R"])
+    g: jax.Array = param(_D["g"])
+
+    state_names = STATE_NAMES
+    input_names = ("V",)
+
+    @classmethod
+    def of(cls, p: TWIPParams, **kw):
+        return cls(**p._asdict(), **kw)
+
+    @classmethod
+    def table(cls, which: str, **kw):
+        """Table "8.1" (nominal) or "8.2" (perturbed) of the thesis."""
+        tables = {"8.1": default_params, "8.2": perturbed_params}
+        if which not in tables:
+            raise ValueError(f"TWIP table must be one of {sorted(tables)}, got {which!r}")
+        return cls.of(tables[which](), **kw)
+
+    def vector_field(self, x, u):
+        return f(self, x, u)
+
+
+class TWIPUnmodeled(TWIP):
+    """The TWIP with the unmodeled accelerations of (185) added to x'' and phi'' (as they enter (87)):
+
+        d1 = g1 x' sin(freq x),   d2 = g2 x'^2        (thesis: g1 = 1/2, g2 = 1/4, freq = 180/pi printed)
+
+    With g1 = g2 = 0 it is the TWIP (its vector field differs from ``TWIP``'s only by adding zeros)."""
+
+    g1: jax.Array = param(0.0)
+    g2: jax.Array = param(0.0)
+    freq: jax.Array = param(180.0 / math.pi)
+
+    def unmodeled(self, x):
+        """(d1, d2) of (185)."""
+        return self.g1 * x[1] * jnp.sin(self.freq * x[0]), self.g2 * x[1] ** 2
+
+    def vector_field(self, x, u):
+        d1, d2 = self.unmodeled(x)
+        return f(self, x, u) + jnp.stack([jnp.zeros(()), d1, jnp.zeros(()), d2])

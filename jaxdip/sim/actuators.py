@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from jaxdip.engine.roles import Actuator, param
+from jaxdip.engine.roles import Actuator, Sensor, param
 from jaxdip.sim.component import Component, stateless
 
 
@@ -81,3 +82,35 @@ def backlash_component(size: int = 1) -> Component:
         return (psi, u), psi
 
     return Component(init, step)
+
+
+class Deadzone(Actuator):
+    """The deadzone (160) on the input: u in [d_minus, d_plus) gives 0, otherwise u passes (0, 0: no deadzone)."""
+
+    d_minus: jax.Array = param(0.0)
+    d_plus: jax.Array = param(0.0)
+
+    def step(self, state, u, key, k):
+        return state, deadzone(u, self.d_minus, self.d_plus), None
+
+
+class OutputBacklash(Sensor):
+    """Full-state measurement y = x with the backlash (161) on channel ``channel`` (starting engaged at zero).
+
+    The TWIP's tilt seen through gear backlash (§8.2.4); d_minus = d_plus = 0 with m = 1 passes x unchanged.
+    ``aux`` is the backlash output."""
+
+    m: jax.Array = param(1.0)
+    d_minus: jax.Array = param(0.0)
+    d_plus: jax.Array = param(0.0)
+    channel: int = eqx.field(default=2, static=True)
+
+    def init(self, key, x0):
+        z = jnp.zeros(1)
+        return (z, z)
+
+    def step(self, state, x, key, k):
+        psi, u_prev = state
+        u = x[self.channel:self.channel + 1]
+        psi = backlash(psi, u_prev, u, self.m, self.d_minus, self.d_plus)
+        return (psi, u), x.at[self.channel].set(psi[0]), psi[0]

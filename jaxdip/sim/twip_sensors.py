@@ -26,9 +26,12 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.roles import Sensor, param
+from jaxdip.estimators.complementary import complementary_update
 from jaxdip.sim import sensors
 from jaxdip.sim.component import Component
 
@@ -115,3 +118,59 @@ def twip_sensor(dt: float, stationary_start: bool = False, straight_through: boo
         return TwipSensorState(bias, p), y
 
     return Component(init, step)
+
+
+class TwipSensors(Sensor):
+    """The §7.4 sensors followed by the robot's complementary filter (37) on the tilt, as one engine sensor:
+    the output is [p, v, theta_cf, gyro]_k (``twip_sensor`` chained with ``tilt_prefilter``, same keys and
+    numbers). ``ideal`` = 1 hands out the true state instead (y = x, the noiseless studies), so noiseless and
+    noisy loops share one structure. Fields: ``SensorParams``' of the raw channels, the filter weight
+    ``cf_alpha``; static: the period and the variants (walking biases from stationarity, straight-through
+    encoder gradient, filter started at the first accelerometer angle)."""
+
+    C: jax.Array = param()
+    white_std: jax.Array = param()
+    const_bias: jax.Array = param()
+    gm_sigma: jax.Array = param()
+    gm_tau: jax.Array = param()
+    quantum: jax.Array = param()
+    cf_alpha: jax.Array = param(0.99)
+    ideal: jax.Array = param(0.0)
+    dt: float = eqx.field(default=0.01, static=True)
+    stationary_start: bool = eqx.field(default=False, static=True)
+    straight_through: bool = eqx.field(default=False, static=True)
+    cf_init_from_angle: bool = eqx.field(default=True, static=True)
+
+    @classmethod
+    def table_7_1(cls, dt: float, **kw) -> "TwipSensors":
+        """Table 7.1 (``table_7_1``); ``kw`` overrides any of its entries or sets a field of this class."""
+        t = {**table_7_1(), **{k: kw.pop(k) for k in list(kw) if k in table_7_1()}}
+        raw = twip_sensor_params(**t).raw
+        return cls(**raw._asdict(), dt=dt, **kw)
+
+    def init(self, key, x0):
+        k_raw, _ = jax.random.split(key, 2)
+        if self.stationary_start:
+            std0 = sensors.gauss_markov_stationary_std(self.gm_sigma, self.gm_tau)
+            b0 = std0 * jax.random.normal(k_raw, self.gm_sigma.shape)
+        else:
+            b0 = jnp.zeros_like(self.gm_sigma)
+        return TwipSensorState(b0, jnp.zeros((), jnp.float64)), jnp.zeros((), jnp.float64)
+
+    def step(self, state, x, key, k):
+        (st, theta) = state
+        k_raw, _ = jax.random.split(key, 2)
+        k_white, k_bias = jax.random.split(k_raw)
+        white = self.white_std * jax.random.normal(k_white, self.white_std.shape)
+        m = sensors.quantize(self.C @ x + self.const_bias + st.bias + white, self.quantum)
+        a, q_std = sensors.gauss_markov_coeffs(self.gm_sigma, self.gm_tau, self.dt)
+        bias = a * st.bias + q_std * jax.random.normal(k_bias, st.bias.shape)
+        p = m[0]
+        if self.straight_through:
+            p = x[0] + jax.lax.stop_gradient(p - x[0])
+        v = jnp.where(k == 0, 0.0, (p - st.p_prev) / self.dt)
+        theta = complementary_update(theta, m[3], m[2], self.cf_alpha, jnp.asarray(self.dt, jnp.float64))
+        if self.cf_init_from_angle:
+            theta = jnp.where(k == 0, m[2], theta)
+        y = jnp.stack([p, v, theta, m[3]])
+        return (TwipSensorState(bias, p), theta), jnp.where(self.ideal != 0, x, y), None
