@@ -22,11 +22,13 @@ derived here, and the tests check it against simulation.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.roles import Controller, param
 from jaxdip.sim.component import stateless
 
 
@@ -87,22 +89,62 @@ def relaxed_projection_controller(plant, kind: str = "continuous", linear_input:
     if kind not in ("continuous", "discrete"):
         raise ValueError(f"kind must be 'continuous' or 'discrete', got {kind!r}")
     fn = plant.f if plant.continuous else plant.step
-    m = plant.m
 
     def law(p: RPParams, xhat, key, k):
-        x = xhat - p.x_ref
-        fx, gx = drift_and_input(fn, p.plant, xhat, m)
-        if linear_input:
-            gx = drift_and_input(fn, p.plant, p.x_ref, m)[1]
-        fx = fx - p.x_ref if not plant.continuous else fx
-        if projection_only:
-            return projection(p.P, fx, gx)
-        g_k = state_weight(p.gamma, p.alpha, x)
-        if kind == "continuous":
-            return relaxed_continuous(p.P, fx, gx, x, g_k)
-        return relaxed_discrete(p.P, fx, gx, x, g_k)
+        return _rp_law(fn, plant.m, plant.continuous, p, xhat, kind, linear_input, projection_only)
 
     return stateless(law)
+
+
+def _rp_law(fn, m, continuous, p, xhat, kind, linear_input, projection_only):
+    """The law of ``relaxed_projection_controller`` for a plant map ``fn(model, x, u)`` (model = ``p.plant``)."""
+    x = xhat - p.x_ref
+    fx, gx = drift_and_input(fn, p.plant, xhat, m)
+    if linear_input:
+        gx = drift_and_input(fn, p.plant, p.x_ref, m)[1]
+    fx = fx - p.x_ref if not continuous else fx
+    if projection_only:
+        return projection(p.P, fx, gx)
+    g_k = state_weight(p.gamma, p.alpha, x)
+    if kind == "continuous":
+        return relaxed_continuous(p.P, fx, gx, x, g_k)
+    return relaxed_discrete(p.P, fx, gx, x, g_k)
+
+
+def _vector_field(plant, x, u):
+    return plant.vector_field(x, u)
+
+
+def _discrete_map(plant, x, u):
+    return plant.step(x, u)
+
+
+class RelaxedProjection(Controller):
+    """``relaxed_projection_controller`` as an engine controller: ``RPParams``' fields, with ``plant`` the
+    controller's model (an engine ``Plant``; continuous plants use (2.14) or (2.10) per ``kind``, discrete ones
+    their map). ``kind``, ``linear_input`` and ``projection_only`` are static, as in the function."""
+
+    P: jax.Array = param()
+    gamma: jax.Array = param()
+    alpha: jax.Array = param()
+    plant: Any
+    x_ref: jax.Array = param()
+    kind: str = eqx.field(default="continuous", static=True)
+    linear_input: bool = eqx.field(default=False, static=True)
+    projection_only: bool = eqx.field(default=False, static=True)
+
+    def __init__(self, P, gamma, plant, alpha=0.0, x_ref=None, kind: str = "continuous",
+                 linear_input: bool = False, projection_only: bool = False):
+        if kind not in ("continuous", "discrete"):
+            raise ValueError(f"kind must be 'continuous' or 'discrete', got {kind!r}")
+        p = rp_params(P, gamma, plant, alpha, x_ref)
+        self.P, self.gamma, self.alpha, self.plant, self.x_ref = p
+        self.kind, self.linear_input, self.projection_only = kind, linear_input, projection_only
+
+    def step(self, state, xhat, key, k):
+        fn = _vector_field if self.plant.continuous else _discrete_map
+        return state, _rp_law(fn, self.plant.m, self.plant.continuous, self, xhat, self.kind, self.linear_input,
+                              self.projection_only), None
 
 
 def projected_closed_loop(A, B, P):
