@@ -181,8 +181,7 @@ def velocity_trial(cfg, gamma_crit) -> dict:
     estimate x^_j, which the figure shows at the paper's gamma."""
     sc = scenario(cfg)
     fan = jd.FanOut({"cpx": sc.cpx(), "ldf": sc.ldf(), "cpx_crit": sc.cpx(gamma_crit, "current")}, drive="cpx")
-    r = jd.Rollout(sc.loop(fan), jd.Ball(jnp.zeros(6), cfg.init_radius), sc.steps, save=velocity_record,
-                   metrics=sc.metrics())
+    r = jd.Rollout(sc.loop(fan), jd.Ball(jnp.zeros(6), cfg.init_radius), sc.steps, save=velocity_record)
     sol = jd.monte_carlo(r, jax.random.PRNGKey(cfg.seed), 1, offset=cfg.figure_seed)
     tr = {k: np.asarray(v)[0] for k, v in sol.saved.items()}
     tr["diverged"] = bool(np.asarray(sol.result)[0] != jd.RESULTS.ok)
