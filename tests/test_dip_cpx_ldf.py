@@ -1,5 +1,7 @@
 """dip-cpx-ldf: the LDF against its analytic frequency response, the encoders, the input disturbance, the gamma
-criterion against an independent computation, and a tiny CLI run."""
+criterion against an independent computation, the scenario's gamma sweep (one compilation, equal to separate
+runs) and its FanOut (estimators beside the driving CPX change nothing and equal offline filtering), and a tiny
+CLI run."""
 
 import json
 import math
@@ -13,11 +15,13 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
+import jaxdip as jd
 from jaxdip import config as C
+from jaxdip.estimators.cpx import CPXParams, cpx_qr
 from jaxdip.estimators.ldf import LDFParams, ldf
 from jaxdip.estimators.run import filter_sequence
-from jaxdip.experiments import dip_cpx_ldf as E
 from jaxdip.plants import dip
+from jaxdip.scenarios import dip_cpx_ldf as S
 from jaxdip.sim import dip_sensors, linearize
 from jaxdip.sim.disturbance import input_disturbance, input_disturbance_params
 from jaxdip.theory import mhe
@@ -110,8 +114,7 @@ def test_input_disturbance_offset_and_white_part():
 
 
 def test_gamma_criterion_matches_theory_and_thesis():
-    cfg = E.DipCpxLdfConfig()
-    got = E.gamma_criterion(cfg)
+    got = S.DipCpxLdf().gamma_criterion()
     plant = dip.make("printed")
     A, _ = linearize(plant.f, plant.default_params(), jnp.zeros(6), 0.0)
     A = np.asarray(A)
@@ -125,10 +128,66 @@ def test_gamma_criterion_matches_theory_and_thesis():
 
 
 def test_q_is_mapped_by_name():
-    Q = np.asarray(E.DipCpxLdfConfig().Q)
+    Q = np.diag(S.DipCpxLdf().weight())
     named = {n: Q[dip.STATE_NAMES.index(n)] for n in ("xc", "alpha", "theta")}
     assert named == {"xc": 80.0, "alpha": 100.0, "theta": 300.0}  # paper: diag(80, 300, 100) on [xc, theta, alpha]
-    assert np.all(Q[3:] == 0) and E.DipCpxLdfConfig().R == 0.5
+    assert np.all(Q[3:] == 0) and S.DipCpxLdf().R == 0.5
+
+
+TINY = S.DipCpxLdf(duration=0.05, substeps=2)
+
+
+def test_gamma_sweep_compiles_once_and_equals_separate_runs():
+    """monte_carlo(sweep=...) over CPX's gamma traces the loop once for every gamma; each slice equals a run with
+    that gamma put in by hand (to rounding: the batched program vectorises the same arithmetic)."""
+    traces = [0]
+
+    def theta(s):
+        traces[0] += 1
+        return s.x[2]
+
+    r = TINY.rollout("cpx", save=theta)
+    gammas = jnp.asarray([3.0, 150.0, 2e4, 1e5])
+    key = jax.random.PRNGKey(0)
+    swept = jd.monte_carlo(r, key, 3, sweep=(S.gamma_leaf, gammas))
+    assert traces[0] == 1
+    assert swept.saved.shape == (4, 3, TINY.steps)
+    for j, g in enumerate(gammas):
+        alone = jd.monte_carlo(S.with_gamma(r, g), key, 3)
+        for a, b in zip(jax.tree_util.tree_leaves(jax.tree_util.tree_map(lambda v: v[j], swept)),
+                        jax.tree_util.tree_leaves(alone)):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-12 * np.abs(b).max())
+    assert traces[0] == 2  # the unswept program, once for all four gammas
+    # gamma mattered: the estimation error handed to the controller differs between the extremes
+    err = np.asarray(swept.metrics["err"])
+    assert np.all(np.abs(err[0] - err[-1]) > 1e-6 * np.abs(err[-1]))
+
+
+def _record(s):
+    est = s.aux.estimator
+    return s.x, s.y, s.u, est.xhat["ldf"], est.aux["cpx"], est.xhat["cpx_crit"]
+
+
+def test_fanout_beside_cpx_changes_nothing_and_equals_offline_filtering():
+    """LDF and a second CPX beside the driving CPX: the trajectory is bit for bit the one of CPX alone, and each
+    estimate equals filtering the recorded readings offline (``filter_sequence``) with the init/step versions."""
+    fan = jd.FanOut({"cpx": TINY.cpx(), "ldf": TINY.ldf(), "cpx_crit": TINY.cpx(2.4e4, "current")}, drive="cpx")
+    r_fan = jd.Rollout(TINY.loop(fan), jd.Ball(jnp.zeros(6), TINY.init_radius), TINY.steps, save=_record)
+    r_one = TINY.rollout("cpx", save=lambda s: (s.x, s.y, s.u))
+    key = jax.random.PRNGKey(3)
+    fan_sol = jd.monte_carlo(r_fan, key, 1, offset=5)
+    one_sol = jd.monte_carlo(r_one, key, 1, offset=5)
+    x, y, u, est_ldf, est_cpx, est_crit = (np.asarray(a)[0] for a in fan_sol.saved)
+    for a, b in zip((x, y, u), one_sol.saved):
+        np.testing.assert_array_equal(a, np.asarray(b)[0])
+    u_prev = np.concatenate([np.zeros((1, 1)), u[:-1]])
+    model, Cm = TINY.model()
+    ref_ldf = filter_sequence(ldf(3, TINY.dt), TINY.ldf(), y, u_prev, x[0])[1]
+    ref_cpx = filter_sequence(cpx_qr("current"), CPXParams(150.0, model, Cm, jnp.zeros(6)), y, u_prev, x[0])[1]
+    ref_crit = filter_sequence(cpx_qr("current"), CPXParams(2.4e4, model, Cm, jnp.zeros(6)), y, u_prev, x[0])[1]
+    for got, ref in ((est_ldf, ref_ldf), (est_cpx, ref_cpx), (est_crit, ref_crit)):
+        np.testing.assert_allclose(got, np.asarray(ref), rtol=1e-12, atol=1e-12)
+    assert np.abs(est_cpx - est_crit).max() > 1e-6  # the two gammas give different estimates
 
 
 def test_cli_tiny_run_writes_results(tmp_path):
@@ -148,5 +207,7 @@ def test_cli_tiny_run_writes_results(tmp_path):
     assert len(sw["gamma"]) == 2 and len(sw["theta_var"]) == 2 and len(sw["diverged_fraction"]) == 2
     for f in ("gamma_sweep.png", "velocity_estimates.png", "report.md", "config.toml"):
         assert (out / f).is_file(), f
+    from jaxdip.experiments import dip_cpx_ldf as E
+
     cfg = C.load(E.DipCpxLdfConfig, path=str(out / "config.toml"))
     assert cfg.seeds == 4 and cfg.sweep_points == 2

@@ -7,3 +7,7 @@ from jaxdip.control.riccati import (RiccatiCode, RiccatiError, care, care_checke
 __all__ = ["ConstantInput", "FeedbackParams", "StateFeedback", "feedback_params", "state_feedback", "care", "dare", "dlqr", "lqr",
            "lyap", "care_checked", "dare_checked", "riccati_status", "error_if_failed", "RiccatiCode",
            "RiccatiError"]
+from jaxdip.control.power_series import PowerSeries  # noqa: E402
+from jaxdip.control.projection import RelaxedProjection  # noqa: E402
+
+__all__ += ["PowerSeries", "RelaxedProjection"]

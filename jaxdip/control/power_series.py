@@ -11,12 +11,13 @@ f_3(x) = phi'''(0) / 6 (three nested forward derivatives along x). Its linear pa
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from jaxdip.control.riccati import care
+from jaxdip.engine.roles import Controller, param
 from jaxdip.sim.component import stateless
 
 
@@ -52,7 +53,10 @@ def ps_params(plant, plant_params, Q, R) -> PSParams:
 
 def power_series_law(plant, p: PSParams, x):
     m = plant.m
-    drift = lambda z: plant.f(p.plant, z, jnp.zeros(m))
+    return _law(lambda z: plant.f(p.plant, z, jnp.zeros(m)), p, x)
+
+
+def _law(drift, p, x):
     f3 = third_order_term(drift, x)
     BRB = p.B @ jnp.linalg.solve(p.R, p.B.T)
     corr = jnp.linalg.solve(p.A.T - p.P @ BRB, p.P @ f3)
@@ -61,3 +65,27 @@ def power_series_law(plant, p: PSParams, x):
 
 def power_series_controller(plant):
     return stateless(lambda p, xhat, key, k: power_series_law(plant, p, xhat))
+
+
+class PowerSeries(Controller):
+    """The power-series law (3.5) as an engine controller: ``PSParams``' fields, with ``plant`` the controller's
+    model of the plant (an engine ``Plant``, e.g. ``jaxdip.plants.DIP()``; its numbers are leaves too).
+    ``PowerSeries.design(plant, Q, R)`` solves the CARE on the plant's linearisation at its equilibrium."""
+
+    P: jax.Array = param()
+    A: jax.Array = param()
+    B: jax.Array = param()
+    R: jax.Array = param()
+    plant: Any
+
+    @classmethod
+    def design(cls, plant, Q, R) -> "PowerSeries":
+        from jaxdip.engine.roles import linearize
+
+        A, B = linearize(plant)
+        R = jnp.atleast_2d(jnp.asarray(R, dtype=jnp.float64))
+        return cls(care(A, B, Q, R), A, B, R, plant)
+
+    def step(self, state, xhat, key, k):
+        m = self.plant.m
+        return state, _law(lambda z: self.plant.vector_field(z, jnp.zeros(m)), self, xhat), None

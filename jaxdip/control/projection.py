@@ -89,22 +89,26 @@ def relaxed_projection_controller(plant, kind: str = "continuous", linear_input:
     if kind not in ("continuous", "discrete"):
         raise ValueError(f"kind must be 'continuous' or 'discrete', got {kind!r}")
     fn = plant.f if plant.continuous else plant.step
-    m = plant.m
 
     def law(p: RPParams, xhat, key, k):
-        x = xhat - p.x_ref
-        fx, gx = drift_and_input(fn, p.plant, xhat, m)
-        if linear_input:
-            gx = drift_and_input(fn, p.plant, p.x_ref, m)[1]
-        fx = fx - p.x_ref if not plant.continuous else fx
-        if projection_only:
-            return projection(p.P, fx, gx)
-        g_k = state_weight(p.gamma, p.alpha, x)
-        if kind == "continuous":
-            return relaxed_continuous(p.P, fx, gx, x, g_k)
-        return relaxed_discrete(p.P, fx, gx, x, g_k)
+        return _rp_law(fn, plant.m, plant.continuous, p, xhat, kind, linear_input, projection_only)
 
     return stateless(law)
+
+
+def _rp_law(fn, m, continuous, p, xhat, kind, linear_input, projection_only):
+    """The law of ``relaxed_projection_controller`` for a plant map ``fn(model, x, u)`` (model = ``p.plant``)."""
+    x = xhat - p.x_ref
+    fx, gx = drift_and_input(fn, p.plant, xhat, m)
+    if linear_input:
+        gx = drift_and_input(fn, p.plant, p.x_ref, m)[1]
+    fx = fx - p.x_ref if not continuous else fx
+    if projection_only:
+        return projection(p.P, fx, gx)
+    g_k = state_weight(p.gamma, p.alpha, x)
+    if kind == "continuous":
+        return relaxed_continuous(p.P, fx, gx, x, g_k)
+    return relaxed_discrete(p.P, fx, gx, x, g_k)
 
 
 def _model_map(model, x, u):

@@ -6,6 +6,7 @@ from jaxdip.estimators.cpx import CPX, CPXParams, LinearizedCPX, cpx_linearized,
 from jaxdip.estimators.kalman import EKFParams, KFParams, ekf
 from jaxdip.estimators.kalman import kalman as kalman_filter
 from jaxdip.estimators.kf import ExtendedKalmanFilter, KalmanFilter
+from jaxdip.estimators.ldf import LDF
 from jaxdip.estimators.wrappers import Delayed, InitialError
 from jaxdip.estimators.linearized import AffineStep, local_model
 from jaxdip.estimators.passthrough import passthrough
@@ -19,6 +20,6 @@ __all__ = [
     "EKFParams", "KFParams", "ekf", "kalman_filter", "AffineStep", "local_model", "LSMHEParams", "ls_mhe",
     "ls_mhe_filter", "prox_ls", "prox_ls_svd", "scpx_linearized", "scpx_lti", "filter_sequence",
 ]
-__all__ += ["CPX", "LinearizedCPX", "KalmanFilter", "ExtendedKalmanFilter", "Passthrough", "FanOut", "Delayed",
+__all__ += ["CPX", "LinearizedCPX", "KalmanFilter", "ExtendedKalmanFilter", "Passthrough", "FanOut", "LDF", "Delayed",
             "InitialError"]  # engine estimators (equinox Modules)
 __all__ += ["bias_observers", "continuous", "homd", "luenberger"]

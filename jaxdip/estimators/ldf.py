@@ -12,9 +12,11 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.roles import Estimator, param
 from jaxdip.sim.component import Component
 from jaxdip.sim.discretize import zoh
 
@@ -55,3 +57,25 @@ def ldf(n_pos: int, dt: float) -> Component:
         return (Phi, W, filt), xhat
 
     return Component(init, step)
+
+
+class LDF(Estimator):
+    """The LDF as an engine estimator: ``LDFParams``' fields (``omega`` per measured position, ``zeta``), the
+    number of positions and the sample period static. ``aux`` is the filter state (position, derivative) per
+    channel. ``LDF.dip(dt)`` has the paper's settings."""
+
+    omega: jax.Array = param()
+    zeta: jax.Array = param()
+    n_pos: int = eqx.field(static=True)
+    dt: float = eqx.field(static=True)
+
+    @classmethod
+    def dip(cls, dt: float, cart_cutoff=100 * jnp.pi, angle_cutoff=20 * jnp.pi, zeta=0.9) -> "LDF":
+        return cls(*dip_ldf_params(cart_cutoff, angle_cutoff, zeta), n_pos=3, dt=dt)
+
+    def init(self, key, x0):
+        return ldf(self.n_pos, self.dt).init(self, key, x0)
+
+    def step(self, state, y, u_prev, key, k):
+        state, xhat = ldf(self.n_pos, self.dt).step(self, state, (y, u_prev), key, k)
+        return state, xhat, state[2]

@@ -16,18 +16,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
-from jaxdip.control import feedback_params, lqr, state_feedback
-from jaxdip.control.power_series import power_series_controller, ps_params
-from jaxdip.control.projection import relaxed_projection_controller, rp_params
 from jaxdip.control.spd import P_v, P_Vs, surface_normal
-from jaxdip.estimators import passthrough
 from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.common import ball_sampler, fmt_ci, trajectory_summary, weight_matrix
+from jaxdip.experiments.common import failure_lines, fmt_ci, loop_summary, weight_matrix
 from jaxdip.plants import dip
-from jaxdip.sim import Loop, LoopParams, linearize, montecarlo, rollout, sensors
 
 INF = float("inf")
 # thesis (3.6): the P basis and singular values used on the laboratory system
@@ -39,6 +35,7 @@ THESIS_X0 = [0.0192, 0.0025, 0.0287, -0.0392, -0.004, -0.0242]  # Fig. 3.3
 TABLE_3_1 = {"lqr": {"alpha": (3.4, 3.03), "theta": (1.9, 0.81), "xc": (29.4, 410.7), "u": (1.7, 1.5)},
              "ps": {"alpha": (1.8, 1.1), "theta": (0.9, 0.35), "xc": (36.5, 639.4), "u": (1.8, 2.9)},
              "rp": {"alpha": (1.4, 0.85), "theta": (0.46, 0.09), "xc": (23.4, 285.1), "u": (2.5, 5.0)}}
+NAMES = ("lqr", "ps", "rp", "rp_published")
 
 
 @dataclass
@@ -72,22 +69,45 @@ class DipControllersConfig:
             raise C.ConfigError("rp_extra_pole", "must be negative (a stable pole)")
 
 
-def controllers(cfg, plant, p):
-    A, B = linearize(plant.f, p, jnp.zeros(6), jnp.zeros(1))
+def controllers(cfg: DipControllersConfig, plant: dip.DIP):
+    """The LQR, PS and RP controllers (RP with the library's P; the published P goes in by a sweep over P)."""
+    A, B = jd.linearize(plant)
     Q = weight_matrix("Q", cfg.Q, 6)
-    K, _, E = lqr(A, B, Q, cfg.R)
+    K, _, E = jd.control.lqr(A, B, Q, cfg.R)
     E = np.asarray(E)
     slow = E[np.argsort(-E.real)][:4]
     c = surface_normal(A, B, np.concatenate([slow, [cfg.rp_extra_pole]]))
     P_lib = P_v(c, cfg.rp_surface_s)
     P_pub = P_Vs(jnp.asarray(PUBLISHED_V).T, jnp.asarray(PUBLISHED_S))
-    rp = relaxed_projection_controller(plant)
     return {
-        "lqr": (state_feedback(), feedback_params(K)),
-        "ps": (power_series_controller(plant), ps_params(plant, p, Q, cfg.R)),
-        "rp": (rp, rp_params(P_lib, cfg.rp_gamma, p)),
-        "rp_published": (rp, rp_params(P_pub, cfg.rp_gamma, p)),
+        "lqr": jd.control.StateFeedback(K),
+        "ps": jd.control.PowerSeries.design(plant, Q, cfg.R),
+        "rp": jd.control.RelaxedProjection(plant, P_lib, cfg.rp_gamma),
     }, (A, B, P_pub, P_lib, c)
+
+
+def rp_P(r: jd.Rollout):
+    """Where RP's P sits: rp and rp_published share one structure and run as one sweep over P."""
+    return r.loop.controller.P
+
+
+def trajectory(s: jd.Sample):
+    return s.x, s.u
+
+
+def build(cfg: DipControllersConfig, controller, noise_std=None, x0=None, save=None) -> jd.Rollout:
+    """One trial of the DIP under ``controller``: full-state measurements with white noise, initial states
+    uniform in a ball around upright (or ``x0``)."""
+    plant = dip.DIP()
+    n_steps = int(round(cfg.duration / cfg.dt))
+    loop = jd.Loop(plant=plant, sensor=jd.sensors.WhiteNoise(cfg.noise_std if noise_std is None else noise_std),
+                   estimator=jd.Passthrough(), controller=controller, dt=cfg.dt, substeps=cfg.substeps,
+                   state_bound=cfg.state_bound)
+    tail = min(n_steps, int(round(1.0 / cfg.dt)))
+    metrics = {"x": jd.metrics.Moments("x"), "u": jd.metrics.Moments("u"),
+               "tail": jd.metrics.Window(jd.metrics.MaxAbs("x"), start=n_steps - tail)}
+    return jd.Rollout(loop, jd.Ball(jnp.zeros(6), cfg.init_radius) if x0 is None else x0, n_steps, save=save,
+                      metrics=metrics)
 
 
 def linear_rp_eigs(A, B, P, gamma):
@@ -96,32 +116,44 @@ def linear_rp_eigs(A, B, P, gamma):
     return np.asarray(jnp.linalg.eigvals(A - B @ Kc))
 
 
-def run(cfg: DipControllersConfig, ctx: RunContext | None = None) -> Outcome:
+def _pick(sol, j):
+    return jax.tree_util.tree_map(lambda a: a[j], sol)
+
+
+def simulate(cfg: DipControllersConfig, progress: bool = True) -> tuple[dict, dict, tuple]:
+    """Monte Carlo Solutions and the noise-free trajectories from the thesis's x0, per controller."""
+    ctrls, design = controllers(cfg, dip.DIP())
+    P_pub, P_lib = design[2], design[3]
+    key = jax.random.PRNGKey(cfg.seed)
+    sols, clean = {}, {}
+    sweep = (rp_P, jnp.stack([P_lib, P_pub]))  # rp, rp_published: one program
+    for name, ctrl in ctrls.items():
+        mc = jd.monte_carlo(build(cfg, ctrl), key, cfg.seeds, progress=progress, desc=f"dip-controllers {name}",
+                            sweep=sweep if name == "rp" else None)
+        # noise-free run from the thesis's initial state (Fig. 3.3); no randomness is left in it
+        one = jd.monte_carlo(build(cfg, ctrl, noise_std=np.zeros(6), x0=jnp.asarray(THESIS_X0), save=trajectory),
+                             key, 1, sweep=sweep if name == "rp" else None)
+        if name == "rp":
+            for j, n in enumerate(("rp", "rp_published")):
+                sols[n], clean[n] = _pick(mc, j), _pick(one, j)
+        else:
+            sols[name], clean[name] = mc, one
+    return sols, clean, design
+
+
+def run(cfg: DipControllersConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:
     import matplotlib.pyplot as plt
 
-    plant = dip.make("printed")
-    p = plant.default_params()
-    ctrls, (A, B, P_pub, P_lib, c) = controllers(cfg, plant, p)
-    n_steps = int(round(cfg.duration / cfg.dt))
-    sensor_p = sensors.full_state_params(6, white_std=jnp.asarray(cfg.noise_std))
+    sols, clean, (A, B, P_pub, P_lib, c) = simulate(cfg, progress)
     results, traj = {}, {}
-    x0 = jnp.asarray(THESIS_X0)
-    for name, (ctrl, cp) in ctrls.items():
-        loop = Loop(plant, cfg.dt, sensors.linear_sensor(cfg.dt), passthrough, ctrl, substeps=cfg.substeps,
-                    tail_steps=min(n_steps, int(round(1.0 / cfg.dt))))
-        lp = LoopParams(p, sensor_p, (), cp, state_bound=jnp.asarray(cfg.state_bound))
-        # noiseless run from the thesis's initial state (Fig. 3.3)
-        clean = lp._replace(sensor=sensors.full_state_params(6))
-        carry, rec = jax.jit(lambda q: rollout(loop, q, x0, jax.random.PRNGKey(cfg.seed), n_steps, 1))(clean)
-        traj[name] = (np.asarray(rec.x), np.asarray(rec.u)[:, 0], bool(carry.diverged))
-        res = montecarlo.run(loop, lp, ball_sampler(jnp.zeros(6), cfg.init_radius), jax.random.PRNGKey(cfg.seed),
-                             cfg.seeds, n_steps, shard=jax.device_count() > 1 and cfg.seeds >= 512,
-                             desc=f"dip-controllers {name}")
-        r = trajectory_summary(res, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol)
-        x_fin = traj[name][0][-1]
-        r["from_thesis_x0"] = {"diverged": traj[name][2],
-                               "stabilized": (not traj[name][2]) and bool(np.all(np.abs(x_fin[1:3]) < cfg.stabilized_tol)),
-                               "max_abs_u": float(np.max(np.abs(traj[name][1])))}
+    for name in NAMES:
+        x, u = (np.asarray(a)[0] for a in clean[name].saved)
+        div = bool(np.asarray(clean[name].result)[0] != jd.RESULTS.ok)
+        traj[name] = (x, u[:, 0], div)
+        r = loop_summary(sols[name], dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt, bound=cfg.state_bound)
+        r["from_thesis_x0"] = {"diverged": div,
+                               "stabilized": (not div) and bool(np.all(np.abs(x[-1][1:3]) < cfg.stabilized_tol)),
+                               "max_abs_u": float(np.max(np.abs(u[:, 0])))}
         results[name] = r
     eig_pub = linear_rp_eigs(A, B, P_pub, cfg.rp_gamma)
     eig_lib = linear_rp_eigs(A, B, P_lib, cfg.rp_gamma)
@@ -135,9 +167,10 @@ def run(cfg: DipControllersConfig, ctx: RunContext | None = None) -> Outcome:
                             "linearised_eigs_real": np.sort(eig_lib.real).tolist(),
                             "linearised_max_real_eig": float(eig_lib.real.max())}
 
+    n_steps = int(round(cfg.duration / cfg.dt))
     t = np.arange(n_steps) * cfg.dt
     fig, axes = plt.subplots(4, 1, figsize=(7, 8), sharex=True)
-    for name in ("lqr", "ps", "rp", "rp_published"):
+    for name in NAMES:
         x, u, div = traj[name]
         lab = name + (" (diverged)" if div else "")
         for ax, series in zip(axes, (x[:, 0], x[:, 1], x[:, 2], u)):
@@ -166,17 +199,25 @@ def report(cfg, r) -> str:
         "mean abs xc (mm) | mean abs u (V) | var u |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    for name in ("lqr", "ps", "rp", "rp_published"):
+    for name in NAMES:
         s = r[name]
         st = s["states"]
+        stab = fmt_ci(s['stabilized_fraction'], s['stabilized_fraction_ci95'], 3)
+        if not st:
+            lines.append(f"| {name} | {stab} | all {cfg.seeds} seeds diverged: nothing to average | | | | | | |")
+            continue
         lines.append(
-            f"| {name} | {fmt_ci(s['stabilized_fraction'], s['stabilized_fraction_ci95'], 3)} | "
+            f"| {name} | {stab} | "
             f"{1e3 * st['alpha']['mean_abs']:.3g} | {1e6 * st['alpha']['var_abs']:.3g} | "
             f"{1e3 * st['theta']['mean_abs']:.3g} | {1e6 * st['theta']['var_abs']:.3g} | "
             f"{1e3 * st['xc']['mean_abs']:.3g} | {s['u']['mean_abs']:.3g} | {s['u']['var']:.3g} |")
+    lines += ["", "(variances of |alpha|, |theta| in mrad^2; per-trajectory time averages, then the mean over the "
+              "seeds that did not diverge.)"]
+    for name in NAMES:
+        fl = failure_lines(r[name], cfg.seeds)
+        if fl:
+            lines += ["", f"{name}:", *fl]
     lines += [
-        "",
-        "(variances of |alpha|, |theta| in mrad^2; NaN where every seed diverged.)",
         "",
         "Thesis Table 3.1 (laboratory, not simulation; units not printed): "
         + "; ".join(f"{k}: |alpha| {v['alpha'][0]}, |theta| {v['theta'][0]}, |xc| {v['xc'][0]}, |u| {v['u'][0]}"

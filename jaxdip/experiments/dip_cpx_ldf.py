@@ -1,25 +1,18 @@
 """dip-cpx-ldf: power-series control of the DIP fed by the centred proximal-point MHE (CPX) or by the low-pass
 derivative filter (LDF) (paper §5 Table 1, thesis §3.3 Table 3.2, Fig. 3.5).
 
-Loop (printed model, 1 kHz, ``jaxdip.sim.loop``): the encoders measure xc, alpha, theta (quantised, with white
-noise, ``jaxdip.sim.dip_sensors``); the estimator gets (y_k, u_{k-1}); the power-series law (3.5) with
-Q = xc 80, theta 300, alpha 100, velocities 0 (the paper's diag(80, 300, 100, 0, 0, 0) is on [xc, theta, alpha],
-mapped here by name) and R = 0.5 computes u_k; the plant receives u_k plus an input disturbance (a per-trial
-constant offset and white noise, ``jaxdip.sim.disturbance``).
-
-CPX is ``cpx_qr`` on the ZOH discretisation of the model's linearisation at upright, x_hat_0 = 0 (as in the
-paper). What it hands the controller is, by default, its one-step model prediction
-x~_{k+1} = Phi x^_k + W u_{k-1} (the documents' x~_{k+2} in their indexing, with the last applied input held:
-see ``jaxdip.estimators.cpx``); ``cpx_output = "current"`` hands x^_k instead. The LDF hands the measured
-positions and the filtered derivatives (``jaxdip.estimators.ldf``).
+The scenario (loop, encoders, estimators, power-series control, input disturbance) is
+``jaxdip.scenarios.dip_cpx_ldf``; this module runs it and reports.
 
 Table 1 reports, for one laboratory run of 6.5 s, the signed time mean and the variance of each measured state,
 xc in cm and the angles in degrees (variances in cm^2 and deg^2). We report the same per-trial statistics
 averaged over seeds; because the disturbance is symmetric, the seed average of a signed mean is ~0, so we also
 report the seed average of |trial mean|, which is what one laboratory run's mean should be compared with.
 
-The gamma sweep runs CPX at each gamma of a log grid with the same compiled loop (gamma is a leaf of the
-params pytree; the QR factor of H is computed from it inside ``init``), so the sweep compiles once.
+The gamma sweep is one ``jaxdip.monte_carlo`` call with ``sweep`` over CPX's gamma (a leaf of the estimator;
+the QR factor of H is computed from it in ``init``), so the whole sweep is one compiled program. The
+velocity-estimate trial runs LDF, CPX at the paper's gamma and CPX at the criterion's gamma side by side in a
+``jaxdip.FanOut`` on the readings of one CPX-controlled trial.
 """
 
 from __future__ import annotations
@@ -31,22 +24,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
-from jaxdip.control.power_series import power_series_controller, ps_params
-from jaxdip.estimators.cpx import CPXParams, cpx_qr
-from jaxdip.estimators.ldf import dip_ldf_params, ldf
-from jaxdip.estimators.run import filter_sequence
 from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.common import ball_sampler, fmt_ci, trajectory_summary, weight_matrix
+from jaxdip.experiments.common import fmt_ci, weight_matrix
 from jaxdip.plants import dip
-from jaxdip.progress import Progress
-from jaxdip.sim import Loop, LoopParams, advance, init_carry, linearize, montecarlo, rollout, zoh
+from jaxdip.scenarios import dip_cpx_ldf as S
 from jaxdip.sim import dip_sensors
-from jaxdip.sim.disturbance import input_disturbance, input_disturbance_params
-from jaxdip.theory.mhe import cpx_gamma_criterion
 
 INF = float("inf")
 DEG = 180.0 / math.pi
@@ -66,7 +53,7 @@ class DipCpxLdfConfig:
     substeps: int = C.field(10, C.positive, doc="RK4 sub-steps per period")
     duration: float = C.field(6.5, C.positive_finite, doc="simulated time (s), Table 1's 6.5 s interval")
     Q: list[float] | list[list[float]] = C.field(
-        [80.0, 100.0, 300.0, 0.0, 0.0, 0.0],
+        list(S.PAPER_Q),
         doc="PS state weight on [xc, alpha, theta, velocities] (paper: diag(80,300,100,0,0,0) on [xc, theta, alpha])")
     R: float = C.field(0.5, C.positive_finite, doc="PS input weight")
     cpx_gamma: float = C.field(150.0, C.positive_finite, doc="CPX proximal weight gamma")
@@ -109,151 +96,96 @@ class DipCpxLdfConfig:
 # ---- construction -------------------------------------------------------------------------------------------
 
 
-def build(cfg: DipCpxLdfConfig):
-    """Loops and parameters for both estimators, the initial-state sampler, n_steps, and the CPX model."""
-    plant = dip.make(cfg.variant)
-    p = plant.default_params()
-    A, B = linearize(plant.f, p, jnp.zeros(6), jnp.zeros(1))
-    model = zoh(A, B, cfg.dt)
-    Cmat = dip_sensors.output_matrix(plant.state_names)
-    n_steps = int(round(cfg.duration / cfg.dt))
-    common = dict(plant=plant, dt=cfg.dt, sensor=dip_sensors.encoder_sensor(cfg.dt),
-                  controller=power_series_controller(plant), actuator=input_disturbance(), substeps=cfg.substeps,
-                  tail_steps=min(n_steps, int(round(1.0 / cfg.dt))))
-    loops = {"cpx": Loop(estimator=cpx_qr(output=cfg.cpx_output), **common),
-             "ldf": Loop(estimator=ldf(3, cfg.dt), **common)}
-    base = dict(plant=p,
-                sensor=dip_sensors.encoder_params(plant.state_names, cfg.encoder_quanta, cfg.noise_counts),
-                controller=ps_params(plant, p, weight_matrix("Q", cfg.Q, 6), cfg.R),
-                actuator=input_disturbance_params(cfg.input_offset_std, cfg.input_noise_std),
-                state_bound=jnp.asarray(cfg.state_bound))
-    params = {"cpx": LoopParams(estimator=cpx_params(cfg.cpx_gamma, model, Cmat), **base),
-              "ldf": LoopParams(estimator=dip_ldf_params(cfg.ldf_cart_cutoff, cfg.ldf_angle_cutoff, cfg.ldf_zeta),
-                                **base)}
-    return loops, params, ball_sampler(jnp.zeros(6), cfg.init_radius), n_steps, (model, Cmat)
+def scenario(cfg: DipCpxLdfConfig) -> S.DipCpxLdf:
+    return S.DipCpxLdf(
+        variant=cfg.variant, dt=cfg.dt, substeps=cfg.substeps, duration=cfg.duration, Q=weight_matrix("Q", cfg.Q, 6),
+        R=cfg.R, cpx_gamma=cfg.cpx_gamma, cpx_output=cfg.cpx_output, ldf_cart_cutoff=cfg.ldf_cart_cutoff,
+        ldf_angle_cutoff=cfg.ldf_angle_cutoff, ldf_zeta=cfg.ldf_zeta, encoder_quanta=tuple(cfg.encoder_quanta),
+        noise_counts=cfg.noise_counts, input_offset_std=cfg.input_offset_std, input_noise_std=cfg.input_noise_std,
+        init_radius=cfg.init_radius, state_bound=tuple(cfg.state_bound))
 
 
-def cpx_params(gamma, model, Cmat) -> CPXParams:
-    return CPXParams(jnp.asarray(gamma, dtype=jnp.float64), model, Cmat, jnp.zeros(6))
+def build(cfg: DipCpxLdfConfig) -> dict:
+    """One Monte Carlo trial per estimator driving the controller: ``{"cpx": Rollout, "ldf": Rollout}``."""
+    sc = scenario(cfg)
+    return {name: sc.rollout(name) for name in ("cpx", "ldf")}
 
 
 def gamma_criterion(cfg: DipCpxLdfConfig) -> dict:
-    """Prop. 1.4.3 for CPX on this model at this period (``jaxdip.theory.mhe.cpx_gamma_criterion``)."""
-    plant = dip.make(cfg.variant)
-    A, B = linearize(plant.f, plant.default_params(), jnp.zeros(6), jnp.zeros(1))
-    model = zoh(A, B, cfg.dt)
-    g, K, lam = cpx_gamma_criterion(model.Phi, model.Phi_inv, dip_sensors.output_matrix(plant.state_names))
-    return {"gamma": float(g), "K_max": float(K), "lambda_min": float(lam), "thesis": THESIS_GAMMA_CRITERION}
+    return {**scenario(cfg).gamma_criterion(), "thesis": THESIS_GAMMA_CRITERION}
 
 
 # ---- statistics ---------------------------------------------------------------------------------------------
 
 
-def summarize(cfg, res) -> dict:
+def summarize(cfg, sol: jd.Solution) -> dict:
     """Table 1's quantities per estimator: seed means of per-trial signed means and variances (cm, deg)."""
-    s = trajectory_summary(res, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol)
-    st = jax.tree_util.tree_map(np.asarray, res.carry.stats)
-    ok = ~np.asarray(res.carry.diverged)
-    cnt = np.maximum(st.count, 1)[:, None]
-    tmean = st.sum_x / cnt
-    rms_err = np.sqrt(st.sum_err2 / cnt)
-    out = {"diverged": s["diverged"], "stabilized_fraction": s["stabilized_fraction"],
-           "stabilized_fraction_ci95": s["stabilized_fraction_ci95"]}
+    m = jax.tree_util.tree_map(np.asarray, sol.metrics)
+    div = np.asarray(sol.result) != jd.RESULTS.ok
+    ok = ~div
+    x, u = m["x"], m["u"]
+    stab = ok & np.all(m["tail"][:, [1, 2]] < cfg.stabilized_tol, axis=1)
+    frac, fci = stats.wilson(int(stab.sum()), len(stab))
+    out = {"diverged": int(div.sum()), "stabilized_fraction": frac, "stabilized_fraction_ci95": fci}
     for name in ("xc", "alpha", "theta"):
         k, unit = SCALE[name]
         i = dip.STATE_NAMES.index(name)
-        m, mci = s["states"][name]["mean"], s["states"][name]["mean_ci95"]
-        v, vci = s["states"][name]["var"], s["states"][name]["var_ci95"]
-        out[f"{name}_mean_{unit}"] = k * m
-        out[f"{name}_mean_{unit}_ci95"] = [k * c for c in mci]
-        out[f"{name}_var"] = k**2 * v
-        out[f"{name}_var_ci95"] = [k**2 * c for c in vci]
-        out.update({f"{name}_abs_trial_mean_{unit}" if kk == "a" else f"{name}_abs_trial_mean_{unit}_ci95": val
-                    for kk, val in zip(("a", "c"), _scaled(stats.mean_ci(np.abs(tmean[:, i]), ok), k))})
+        for key, v, kk in ((f"{name}_mean_{unit}", x["mean"][:, i], k), (f"{name}_var", x["var"][:, i], k**2),
+                           (f"{name}_abs_trial_mean_{unit}", np.abs(x["mean"][:, i]), k)):
+            mean, ci = stats.mean_ci(v, ok)
+            out[key], out[f"{key}_ci95"] = kk * mean, [kk * c for c in ci]
     for name in ("xc_dot", "alpha_dot", "theta_dot"):
         i = dip.STATE_NAMES.index(name)
-        m, ci = stats.mean_ci(rms_err[:, i], ok)
-        out[f"{name}_rms_err"], out[f"{name}_rms_err_ci95"] = m, ci
-    u_var = s["u"]["var"]
-    out["u_var"], out["u_var_ci95"] = u_var, s["u"]["var_ci95"]
+        out[f"{name}_rms_err"], out[f"{name}_rms_err_ci95"] = stats.mean_ci(m["err"][:, i], ok)
+    out["u_var"], out["u_var_ci95"] = stats.mean_ci(u["var"][:, 0], ok)
     return out
 
 
-def _scaled(mci, k):
-    m, ci = mci
-    return k * m, [k * c for c in ci]
+# ---- the gamma sweep: one monte_carlo call, one compiled program ------------------------------------------
 
 
-# ---- the gamma sweep: one compiled loop, gamma a params leaf ------------------------------------------------
-
-
-def make_batch_fn(loop: Loop, x0_fn, n_steps: int):
-    """jit(vmap over seeds) of a whole trajectory's statistics; params are an argument, so new gammas reuse it."""
-
-    def one(params, base_key, i):
-        sk = montecarlo.seed_key(base_key, i)
-        carry = init_carry(loop, params, x0_fn(jax.random.fold_in(sk, 0)), sk)
-        carry, _ = advance(loop, n_steps, params, sk, carry, n_steps)
-        return carry
-
-    return jax.jit(jax.vmap(one, in_axes=(None, None, 0)))
-
-
-def gamma_sweep(cfg, loop, params, x0_fn, n_steps, progress=True) -> dict:
+def gamma_sweep(cfg, rollout: jd.Rollout, progress=True) -> dict:
     gammas = np.geomspace(cfg.sweep_min, cfg.sweep_max, cfg.sweep_points)
-    fn = make_batch_fn(loop, x0_fn, n_steps)
-    seeds = np.arange(cfg.sweep_seeds, dtype=np.uint32)
-    seeds_arr = jnp.asarray(seeds)
-    n_dev = jax.device_count()
-    if n_dev > 1 and cfg.sweep_seeds % n_dev == 0:
-        from jax.sharding import NamedSharding, PartitionSpec
-
-        seeds_arr = jax.device_put(seeds_arr, NamedSharding(montecarlo.device_mesh(), PartitionSpec("seeds")))
+    sol = jd.monte_carlo(rollout, jax.random.PRNGKey(cfg.seed), cfg.sweep_seeds, progress=progress,
+                         desc="dip-cpx-ldf gamma sweep", sweep=(S.gamma_leaf, jnp.asarray(gammas)))
+    m = jax.tree_util.tree_map(np.asarray, sol.metrics)  # (gamma, seed, ...)
+    divs = np.asarray(sol.result) != jd.RESULTS.ok
     i_th, i_thd = dip.STATE_NAMES.index("theta"), dip.STATE_NAMES.index("theta_dot")
     out = {"gamma": gammas.tolist(), "seeds": cfg.sweep_seeds, "theta_var": [], "theta_var_ci95": [],
            "theta_dot_rms_err": [], "diverged_fraction": [], "diverged_fraction_ci95": []}
-    bar = Progress(len(gammas), desc="dip-cpx-ldf gamma sweep", enabled=progress)
-    key = jax.random.PRNGKey(cfg.seed)
-    for g in gammas:
-        p = params._replace(estimator=params.estimator._replace(gamma=jnp.asarray(g, dtype=jnp.float64)))
-        carry = jax.tree_util.tree_map(np.asarray, fn(p, key, seeds_arr))
-        st, div = carry.stats, carry.diverged
-        ok = ~div
-        cnt = np.maximum(st.count, 1)
-        var = DEG**2 * (st.sum_x2[:, i_th] / cnt - (st.sum_x[:, i_th] / cnt) ** 2)
-        m, ci = stats.mean_ci(var, ok)
-        e, _ = stats.mean_ci(np.sqrt(st.sum_err2[:, i_thd] / cnt), ok)
+    for j in range(len(gammas)):
+        div = divs[j]
+        mean, ci = stats.mean_ci(DEG**2 * m["x"]["var"][j, :, i_th], ~div)
+        e, _ = stats.mean_ci(m["err"][j, :, i_thd], ~div)
         f, fci = stats.wilson(int(div.sum()), len(div))
-        out["theta_var"].append(m)
+        out["theta_var"].append(mean)
         out["theta_var_ci95"].append(ci)
         out["theta_dot_rms_err"].append(e)
         out["diverged_fraction"].append(f)
         out["diverged_fraction_ci95"].append(fci)
-        bar.update(1, postfix=f"gamma={g:.3g} div={f:.2f}")
-    bar.close()
     return out
 
 
 # ---- one trial's velocity estimates (thesis Fig. 3.5) ------------------------------------------------------
 
 
-def velocity_trial(cfg, loop, params, x0_fn, n_steps, model, Cmat, gamma_crit):
-    """One CPX-controlled trial; on its measurements, offline: LDF, CPX at cfg.cpx_gamma and at the criterion."""
-    sk = montecarlo.seed_key(jax.random.PRNGKey(cfg.seed), cfg.figure_seed)
-    x0 = x0_fn(jax.random.fold_in(sk, 0))
-    carry, rec = jax.jit(lambda q: rollout(loop, q, x0, sk, n_steps, 1))(params)
-    ys, us = rec.y, rec.u
-    us_prev = jnp.concatenate([jnp.zeros_like(us[:1]), us[:-1]])
-    est_ldf = filter_sequence(ldf(3, cfg.dt), params_ldf(cfg), ys, us_prev, x0)[1]
-    cur = cpx_qr(output="current")
-    est_cpx = filter_sequence(cur, cpx_params(cfg.cpx_gamma, model, Cmat), ys, us_prev, x0)[1]
-    est_crit = filter_sequence(cur, cpx_params(gamma_crit, model, Cmat), ys, us_prev, x0)[1]
-    return {"x": np.asarray(rec.x), "ldf": np.asarray(est_ldf), "cpx": np.asarray(est_cpx),
-            "cpx_crit": np.asarray(est_crit), "diverged": bool(carry.diverged)}
+def velocity_record(s: jd.Sample) -> dict:
+    """The truth and the three estimates compared in the figure (current estimates, not predictions)."""
+    est = s.aux.estimator
+    return {"x": s.x, "ldf": est.xhat["ldf"], "cpx": est.aux["cpx"], "cpx_crit": est.xhat["cpx_crit"]}
 
 
-def params_ldf(cfg):
-    return dip_ldf_params(cfg.ldf_cart_cutoff, cfg.ldf_angle_cutoff, cfg.ldf_zeta)
+def velocity_trial(cfg, gamma_crit) -> dict:
+    """One CPX-controlled trial (seed ``figure_seed``); beside the driving CPX, on the same readings: the LDF and
+    CPX at the criterion's gamma (a FanOut: the trajectory is the one CPX alone drives). CPX's aux is its current
+    estimate x^_j, which the figure shows at the paper's gamma."""
+    sc = scenario(cfg)
+    fan = jd.FanOut({"cpx": sc.cpx(), "ldf": sc.ldf(), "cpx_crit": sc.cpx(gamma_crit, "current")}, drive="cpx")
+    r = jd.Rollout(sc.loop(fan), jd.Ball(jnp.zeros(6), cfg.init_radius), sc.steps, save=velocity_record)
+    sol = jd.monte_carlo(r, jax.random.PRNGKey(cfg.seed), 1, offset=cfg.figure_seed)
+    tr = {k: np.asarray(v)[0] for k, v in sol.saved.items()}
+    tr["diverged"] = bool(np.asarray(sol.result)[0] != jd.RESULTS.ok)
+    return tr
 
 
 def velocity_figure(cfg, tr, gamma_crit):
@@ -312,17 +244,16 @@ def sweep_figure(cfg, sw, gamma_crit):
 
 
 def run(cfg: DipCpxLdfConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:
-    loops, params, x0_fn, n_steps, (model, Cmat) = build(cfg)
+    rollouts = build(cfg)
     crit = gamma_criterion(cfg)
     results = {}
-    for name in ("cpx", "ldf"):
-        res = montecarlo.run(loops[name], params[name], x0_fn, jax.random.PRNGKey(cfg.seed), cfg.seeds, n_steps,
-                             shard=jax.device_count() > 1 and cfg.seeds >= 512, progress=progress,
+    for name, r in rollouts.items():
+        sol = jd.monte_carlo(r, jax.random.PRNGKey(cfg.seed), cfg.seeds, progress=progress,
                              desc=f"dip-cpx-ldf {name}")
-        results[name] = summarize(cfg, res)
+        results[name] = summarize(cfg, sol)
     results["gamma_criterion"] = crit
-    results["gamma_sweep"] = gamma_sweep(cfg, loops["cpx"], params["cpx"], x0_fn, n_steps, progress)
-    tr = velocity_trial(cfg, loops["cpx"], params["cpx"], x0_fn, n_steps, model, Cmat, crit["gamma"])
+    results["gamma_sweep"] = gamma_sweep(cfg, rollouts["cpx"], progress)
+    tr = velocity_trial(cfg, crit["gamma"])
     i = dip.STATE_NAMES.index("theta_dot")
     rms = lambda e: float(np.sqrt(np.mean((e[:, i] - tr["x"][:, i]) ** 2)))
     results["velocity_trial"] = {"seed": cfg.figure_seed, "diverged": tr["diverged"],

@@ -6,7 +6,7 @@ the whole closed loop), evaluates them on a disjoint held-out set of seeds, and 
 values and with a random search given the same number of closed-loop simulations (also converted to
 evaluation-equivalents with the measured cost of a gradient step).
 
-cpx: gamma of CPX on the DIP stabilisation task of ``dip-cpx-ldf`` (its loop, built by its own ``build``);
+cpx: gamma of CPX on the DIP stabilisation task of ``dip-cpx-ldf`` (the scenario ``jaxdip.scenarios.dip_cpx_ldf``);
 loss per seed = time variance of alpha plus that of theta (deg^2) + ``divergence_penalty`` if it diverged.
 The encoders quantise, so one sample path's loss is piecewise constant in gamma with jumps (finite differences
 of it measure the jumps); ``smoothing = "straight_through"`` differentiates the quantiser as the identity
@@ -36,7 +36,7 @@ from jaxdip import stats
 from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import fmt_ci
-from jaxdip.tune import Bounded, Log, mc_objective, random_search, straight_through_sensor, tune
+from jaxdip.tune import Bounded, Log, random_search, tune
 
 IMPLEMENTED = ("cpx", "rwp", "dmso", "rp", "extra")
 HELDOUT_OFFSET = 1_000_000  # held-out seed i is base seed HELDOUT_OFFSET + i; tuning seeds are 0 .. seeds-1
@@ -110,34 +110,51 @@ class Target:
 
 
 class CPXTarget(Target):
+    """gamma of CPX on the DIP stabilisation scenario ``jaxdip.scenarios.dip_cpx_ldf`` (its defaults: printed DIP,
+    power-series control, encoders, input disturbance) over ``duration``, through ``jaxdip.monte_carlo``."""
+
     name, param = "cpx", "gamma"
 
     def __init__(self, cfg: TuneConfig, quanta=None):
-        from jaxdip.experiments import dip_cpx_ldf as D
+        import dataclasses
 
-        kw = {} if quanta is None else {"encoder_quanta": list(quanta)}
-        self.dcfg = D.DipCpxLdfConfig(duration=cfg.duration, substeps=cfg.substeps, **kw)
-        loops, params, self.x0_fn, self.n_steps, _ = D.build(self.dcfg)
-        self.loop, self.base = loops["cpx"], params["cpx"]
-        self.paper = {"gamma": jnp.asarray(self.dcfg.cpx_gamma)}
+        from jaxdip.scenarios import dip_cpx_ldf as S
+
+        kw = {} if quanta is None else {"encoder_quanta": tuple(quanta)}
+        self.scenario = S.DipCpxLdf(duration=cfg.duration, substeps=cfg.substeps, **kw)
+        self.rollouts = {smooth: dataclasses.replace(self.scenario, straight_through=smooth).rollout("cpx")
+                         for smooth in (False, True)}
+        self.with_gamma = S.with_gamma
+        self.paper = {"gamma": jnp.asarray(self.scenario.cpx_gamma)}
         self.spec = {"gamma": Log()}
         self.penalty = cfg.divergence_penalty
-        self.deg2 = D.DEG**2
+        self.deg2 = (180.0 / math.pi) ** 2
         self.lo, self.hi = cfg.search_low, cfg.search_high
 
-    def make_params(self, theta):
-        return self.base._replace(estimator=self.base.estimator._replace(gamma=theta["gamma"]))
+    def loss(self, sol):
+        """Per seed: time variance of alpha plus that of theta (deg^2), plus the penalty if it diverged."""
+        from jaxdip.engine import RESULTS
 
-    def loss(self, carry, params):
-        st = carry.stats
-        cnt = jnp.maximum(st.count, 1)
-        mean = st.sum_x / cnt
-        var = st.sum_x2 / cnt - mean**2
-        return self.deg2 * (var[1] + var[2]) + self.penalty * carry.diverged
+        var = sol.metrics["x"]["var"]
+        return self.deg2 * (var[..., 1] + var[..., 2]) + self.penalty * (sol.result != RESULTS.ok)
 
     def objective(self, seeds, smooth: bool):
-        loop = self.loop._replace(sensor=straight_through_sensor(self.dcfg.dt)) if smooth else self.loop
-        return mc_objective(loop, self.make_params, self.x0_fn, self.n_steps, self.loss, seeds)
+        from jaxdip.engine import monte_carlo
+
+        seeds = np.asarray(seeds)
+        if seeds.size == 0 or np.any(np.diff(seeds) != 1):
+            raise ValueError("the cpx target's seeds must be consecutive (monte_carlo's offset .. offset + n - 1)")
+        offset, n = int(seeds[0]), int(seeds.size)
+        base = self.rollouts[bool(smooth)]
+
+        def per_seed(theta, key):
+            return self.loss(monte_carlo(self.with_gamma(base, theta["gamma"]), key, n, offset=offset, shard=False))
+
+        def J(theta, key):
+            return jnp.mean(per_seed(theta, key))
+
+        J.per_seed = per_seed
+        return J
 
     def sample(self, key):
         return {"gamma": jnp.exp(jax.random.uniform(key, minval=math.log(self.lo), maxval=math.log(self.hi)))}

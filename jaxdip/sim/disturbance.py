@@ -15,6 +15,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.roles import Actuator, param
 from jaxdip.sim.component import Component
 
 
@@ -36,3 +37,23 @@ def input_disturbance() -> Component:
         return offset, u + offset + p.white_std * jax.random.normal(key, p.white_std.shape)
 
     return Component(init, step)
+
+
+class InputDisturbance(Actuator):
+    """The input disturbance as an engine actuator: ``InputDisturbanceParams``' fields, one entry per input.
+
+    The state is the per-trial offset d, drawn at ``init``; ``aux`` is d as well."""
+
+    offset_std: jax.Array = param()
+    white_std: jax.Array = param()
+
+    def __init__(self, offset_std=0.0, white_std=0.0, m: int = 1):
+        p = input_disturbance_params(offset_std, white_std, m)
+        self.offset_std, self.white_std = p.offset_std, p.white_std
+
+    def init(self, key, x0):
+        return input_disturbance().init(self, key, x0)
+
+    def step(self, state, u, key, k):
+        offset, out = input_disturbance().step(self, state, u, key, k)
+        return offset, out, offset
