@@ -36,7 +36,7 @@ from jaxdip import stats
 from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import fmt_ci
-from jaxdip.tune import Bounded, Log, random_search, tune
+from jaxdip.tune import Bounded, Log, Objective, random_search, tune
 
 IMPLEMENTED = ("cpx", "rwp", "dmso", "rp", "extra")
 HELDOUT_OFFSET = 1_000_000  # held-out seed i is base seed HELDOUT_OFFSET + i; tuning seeds are 0 .. seeds-1
@@ -150,11 +150,7 @@ class CPXTarget(Target):
         def per_seed(theta, key):
             return self.loss(monte_carlo(self.with_gamma(base, theta["gamma"]), key, n, offset=offset, shard=False))
 
-        def J(theta, key):
-            return jnp.mean(per_seed(theta, key))
-
-        J.per_seed = per_seed
-        return J
+        return Objective(per_seed)
 
     def sample(self, key):
         return {"gamma": jnp.exp(jax.random.uniform(key, minval=math.log(self.lo), maxval=math.log(self.hi)))}
@@ -215,11 +211,7 @@ class RWPTarget(Target):
             x2 = sol.metrics["x2"]
             return self.dt * (x2[:, 0] + self.w * x2[:, 3]) + self.penalty * (sol.result != jd.RESULTS.ok)
 
-        def J(theta, key):
-            return jnp.mean(per_seed(theta, key))
-
-        J.per_seed = per_seed
-        return J
+        return Objective(per_seed)
 
     def sample(self, key):
         ks = jax.random.split(key, 4)
@@ -273,11 +265,7 @@ class DMSOTarget(Target):
             parts = [jd.monte_carlo(run, key, n, offset=off) for off, n in runs]
             return jnp.concatenate([e + self.penalty * d for e, d in parts])
 
-        def J(theta, key):
-            return jnp.mean(per_seed(theta, key))
-
-        J.per_seed = per_seed
-        return J
+        return Objective(per_seed)
 
     def sample(self, key):
         return self.log_uniform_around(("Gamma", "K"), jax.random.split(key))
@@ -318,11 +306,7 @@ class RPTarget(Target):
             G = continuous_performance(self.plant, self.scfg._replace(gamma=theta["gamma"]))
             return jax.vmap(lambda i: jnp.log(G(member, jax.random.fold_in(key, i))[0]))(seeds)
 
-        def J(theta, key):
-            return jnp.mean(per_seed(theta, key))
-
-        J.per_seed = per_seed
-        return J
+        return Objective(per_seed)
 
     def sample(self, key):
         return self.log_uniform_around(("gamma",), (key,))
@@ -382,12 +366,7 @@ class ExtraTarget(Target):
             s, d = score_div(theta, key)
             return s + self.penalty * d
 
-        def J(theta, key):
-            return jnp.mean(per_seed(theta, key))
-
-        J.per_seed = per_seed
-        J.diverged = lambda theta, key: score_div(theta, key)[1]
-        return J
+        return Objective(per_seed, diverged=lambda theta, key: score_div(theta, key)[1])
 
     def sample(self, key):
         return self.log_uniform_around(self.KEYS, jax.random.split(key, len(self.KEYS)))
@@ -417,7 +396,7 @@ def run(cfg: TuneConfig, ctx: RunContext | None = None, progress: bool = True) -
     J_eval = jax.jit(tg.objective(tune_seeds, smooth=False))  # forward values are the same; no gradient needed
     held_obj = tg.objective(held_seeds, smooth=False)
     held = jax.jit(held_obj.per_seed)
-    held_div = jax.jit(held_obj.diverged) if hasattr(held_obj, "diverged") else None
+    held_div = jax.jit(held_obj.diverged) if held_obj.diverged is not None else None
 
     res = tune(J_tune, tg.paper, key, steps=cfg.steps, lr=cfg.lr, spec=tg.spec, clip=cfg.clip,
                optimizer=optax.rprop(cfg.lr) if cfg.optimizer == "rprop" else None,

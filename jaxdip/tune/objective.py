@@ -26,6 +26,19 @@ from jaxdip.sim.loop import Loop, advance, init_carry
 from jaxdip.sim.sensors import linear_sensor, quantize
 
 
+class Objective:
+    """J(theta, key) = mean over seeds of ``per_seed(theta, key)``; ``diverged(theta, key)`` (optional) flags
+    the seeds whose trajectories failed. A plain object rather than attributes stuck on a function, so what an
+    objective offers is visible in its type."""
+
+    def __init__(self, per_seed: Callable, diverged: Callable | None = None):
+        self.per_seed = per_seed
+        self.diverged = diverged
+
+    def __call__(self, theta, key):
+        return jnp.mean(self.per_seed(theta, key))
+
+
 def straight_through_sensor(dt: float, stationary_start: bool = True) -> Component:
     base = linear_sensor(dt, stationary_start)
 
@@ -55,12 +68,12 @@ def checkpointed_rollout(loop: Loop, params, x0, seed_key, n_steps: int, chunk: 
 
 
 def mc_objective(loop: Loop, make_params: Callable, x0_fn: Callable, n_steps: int, loss_fn: Callable,
-                 seeds, chunk: int = 0) -> Callable:
+                 seeds, chunk: int = 0) -> Objective:
     """``J(theta, key)`` = mean over ``seeds`` of ``loss_fn(final_carry, params)``.
 
     ``make_params(theta) -> LoopParams`` puts the hyperparameters into the loop's params; seed i uses
     ``montecarlo.seed_key(key, i)`` (as ``jaxdip.sim.montecarlo.run`` does), its x0 from ``fold_in(., 0)``.
-    ``per_seed(theta, key)`` (an attribute of the returned function) gives the vector of per-seed losses.
+    The ``Objective``'s ``per_seed(theta, key)`` gives the vector of per-seed losses.
     """
     seeds = jnp.asarray(seeds, dtype=jnp.uint32)
 
@@ -74,8 +87,4 @@ def mc_objective(loop: Loop, make_params: Callable, x0_fn: Callable, n_steps: in
         params = make_params(theta)
         return jax.vmap(one, in_axes=(None, None, 0))(params, key, seeds)
 
-    def J(theta, key):
-        return jnp.mean(per_seed(theta, key))
-
-    J.per_seed = per_seed
-    return J
+    return Objective(per_seed)
