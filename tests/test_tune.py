@@ -8,7 +8,7 @@ import pytest
 
 from jaxdip import config as C
 from jaxdip.experiments import tune as T
-from jaxdip.tune import (Bounded, Log, Softplus, SPDFactor, checkpointed_rollout, random_search, to_constrained,
+from jaxdip.tune import (Bounded, Log, Softplus, SPDFactor, random_search, to_constrained,
                          to_unconstrained, tune, value_and_grad_fn)
 
 
@@ -144,29 +144,19 @@ def test_reverse_mode_through_the_cpx_target_matches_forward():
 
 @pytest.mark.slow
 def test_reverse_mode_with_checkpointed_chunks_matches_forward():
-    """checkpointed_rollout (jaxdip.sim.loop) on the DIP under power-series control fed by CPX: reverse mode
-    through checkpointed chunks equals forward mode through one scan, and chunking changes no value."""
-    from jaxdip.control.power_series import power_series_controller, ps_params
-    from jaxdip.estimators.cpx import CPXParams, cpx_qr
-    from jaxdip.plants import dip
-    from jaxdip.sim import Loop, LoopParams, dip_sensors, linearize, zoh
-    from jaxdip.sim.disturbance import input_disturbance, input_disturbance_params
+    """checkpointed() on the DIP under power-series control fed by CPX (the dip-cpx-ldf scenario, exact
+    encoders off): reverse mode through checkpointed chunks equals forward mode through one scan, and chunking
+    changes no value."""
+    from jaxdip.scenarios import dip_cpx_ldf as S
+    from jaxdip.tune import checkpointed
 
-    plant, dt = dip.make("printed"), 1e-3
-    p = plant.default_params()
-    model = zoh(*linearize(plant.f, p, jnp.zeros(6), jnp.zeros(1)), dt)
-    loop = Loop(plant, dt, dip_sensors.encoder_sensor(dt), cpx_qr(), power_series_controller(plant),
-                input_disturbance(), substeps=2)
-    base = LoopParams(p, dip_sensors.encoder_params(plant.state_names, (0.0, 0.0, 0.0)),
-                      CPXParams(150.0, model, dip_sensors.output_matrix(plant.state_names), jnp.zeros(6)),
-                      ps_params(plant, p, np.diag([80.0, 100.0, 300.0, 0, 0, 0]), 0.5),
-                      input_disturbance_params(0.0, 1.0))
-    key, x0 = jax.random.PRNGKey(0), 0.01 * jnp.ones(6)
+    sc = S.DipCpxLdf(duration=0.06, substeps=2, encoder_quanta=(0.0, 0.0, 0.0))
+    base = sc.rollout("cpx")
+    key = jax.random.PRNGKey(0)
 
     def f(lg, chunk):
-        params = base._replace(estimator=base.estimator._replace(gamma=jnp.exp(lg)))
-        st = checkpointed_rollout(loop, params, x0, key, 60, chunk).stats
-        return jnp.sum(st.sum_x2[1:3]) / st.count
+        var = checkpointed(S.with_gamma(base, jnp.exp(lg)), key, chunk).metrics["x"]["var"]
+        return var[1] + var[2]
 
     lg0 = jnp.log(150.0)
     g_rev = jax.jit(jax.grad(lambda lg: f(lg, 7)))(lg0)

@@ -1,9 +1,9 @@
 """Monte Carlo objectives over closed loops, with memory bounded on long horizons.
 
-``checkpointed_rollout`` runs the loop of ``jaxdip.sim.loop`` as an outer ``lax.scan`` over chunks whose body
-is ``jax.checkpoint``-ed: reverse mode stores one carry per chunk and recomputes a chunk's periods while it
+``checkpointed`` runs a ``jd.Rollout`` as an outer ``lax.scan`` over chunks whose body is
+``jax.checkpoint``-ed: reverse mode stores one loop state per chunk and recomputes a chunk's periods while it
 differentiates through it, so memory grows like n_steps / chunk + chunk instead of n_steps (chunk ~ sqrt(n_steps)
-is the usual choice). Randomness is per period (``fold_in(seed_key, k)``), so the chunking changes no number.
+is the usual choice). Randomness is per period (keyed by the absolute period index), so the chunking changes no number.
 
 ``straight_through_sensor`` is the sensor of ``jaxdip.sim.sensors.linear_sensor`` whose quantiser passes
 gradients straight through (forward: the same rounded readings; backward: d round(y)/dy := 1). With the exact
@@ -20,9 +20,7 @@ from typing import Callable
 import jax
 import jax.numpy as jnp
 
-from jaxdip.sim import montecarlo
 from jaxdip.sim.component import Component
-from jaxdip.sim.loop import Loop, advance, init_carry
 from jaxdip.sim.sensors import linear_sensor, quantize
 
 
@@ -50,41 +48,35 @@ def straight_through_sensor(dt: float, stationary_start: bool = True) -> Compone
     return Component(base.init, step)
 
 
-def checkpointed_rollout(loop: Loop, params, x0, seed_key, n_steps: int, chunk: int = 0):
-    """Final carry of one trajectory of ``n_steps`` periods (no records), rematerialised per chunk."""
-    carry = init_carry(loop, params, x0, seed_key)
-    if chunk <= 0 or chunk >= n_steps:
-        return advance(loop, n_steps, params, seed_key, carry, n_steps)[0]
-    n_chunks, rest = divmod(n_steps, chunk)
+def checkpointed(rollout, key, chunk: int = 0):
+    """``rollout(key)`` (a ``jd.Rollout`` without ``save``) with its periods rematerialised per ``chunk``:
+    reverse mode stores one loop state per chunk and recomputes a chunk's periods while it differentiates
+    through it. ``chunk <= 0`` or ``>= steps`` is one plain scan. Same numbers either way."""
+    steps = rollout.steps
+    if chunk <= 0 or chunk >= steps:
+        return rollout(key)
+    if rollout.save is not None:
+        raise ValueError("checkpointed() records nothing: build the rollout without save")
+    n_chunks, rest = divmod(steps, chunk)
 
     @jax.checkpoint
-    def body(c, _):
-        return advance(loop, n_steps, params, seed_key, c, chunk)[0], None
+    def body(state, _):
+        return rollout.advance(key, state, chunk)[0], None
 
-    carry, _ = jax.lax.scan(body, carry, None, length=n_chunks)
+    state, _ = jax.lax.scan(body, rollout.init(key), None, length=n_chunks)
     if rest:
-        carry = advance(loop, n_steps, params, seed_key, carry, rest)[0]
-    return carry
+        state = rollout.advance(key, state, rest)[0]
+    return rollout.finish(state, None)
 
 
-def mc_objective(loop: Loop, make_params: Callable, x0_fn: Callable, n_steps: int, loss_fn: Callable,
-                 seeds, chunk: int = 0) -> Objective:
-    """``J(theta, key)`` = mean over ``seeds`` of ``loss_fn(final_carry, params)``.
-
-    ``make_params(theta) -> LoopParams`` puts the hyperparameters into the loop's params; seed i uses
-    ``montecarlo.seed_key(key, i)`` (as ``jaxdip.sim.montecarlo.run`` does), its x0 from ``fold_in(., 0)``.
-    The ``Objective``'s ``per_seed(theta, key)`` gives the vector of per-seed losses.
-    """
+def mc_objective(make_rollout: Callable, loss_fn: Callable, seeds, chunk: int = 0) -> Objective:
+    """``J(theta, key)`` = mean over ``seeds`` of ``loss_fn(solution)``, the rollout ``make_rollout(theta)``
+    run for seed i with the Monte Carlo driver's key ``fold_in(key, i)`` (the seeds of ``jd.monte_carlo``),
+    rematerialised per ``chunk`` periods for reverse mode (see ``checkpointed``)."""
     seeds = jnp.asarray(seeds, dtype=jnp.uint32)
 
-    def one(params, key, i):
-        sk = montecarlo.seed_key(key, i)
-        x0 = x0_fn(jax.random.fold_in(sk, 0))
-        carry = checkpointed_rollout(loop, params, x0, sk, n_steps, chunk)
-        return loss_fn(carry, params)
-
     def per_seed(theta, key):
-        params = make_params(theta)
-        return jax.vmap(one, in_axes=(None, None, 0))(params, key, seeds)
+        r = make_rollout(theta)
+        return jax.vmap(lambda i: loss_fn(checkpointed(r, jax.random.fold_in(key, i), chunk)))(seeds)
 
     return Objective(per_seed)

@@ -90,7 +90,7 @@ def tune(objective: Callable, init_params, key, *, steps: int = 100, lr: float =
     (default ``clip_by_global_norm(clip)`` then ``adam(lr)``). ``callback(step, theta, loss)`` is called after
     every step (host side). ``mode``: "forward" (``jacfwd``: one forward pass carrying one tangent per
     unconstrained coordinate; no stored trajectory, and far cheaper to compile for a handful of
-    hyperparameters) or "reverse" (``grad``: for many hyperparameters; pair it with ``checkpointed_rollout``).
+    hyperparameters) or "reverse" (``grad``: for many hyperparameters; pair it with ``jaxdip.tune.checkpointed``).
     With ``checkpoint_path`` the state is saved every ``checkpoint_every`` steps and at
     the end; ``resume`` continues from it (refused if ``fingerprint`` differs).
     ``project(theta) -> theta``: applied after every update (projected gradient descent, e.g. re-orthonormalising
