@@ -19,11 +19,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import jaxdip as jd
 from jaxdip import config as C
 from jaxdip.experiments import dip_lqr
+from jaxdip.outdir import write_file_atomic
 from jaxdip.plants.dip import DIPParams
-from jaxdip.sim import montecarlo
-from jaxdip.sim.loop import advance, init_carry
 
 
 def numpy_dip_f(p: DIPParams, x, V):
@@ -83,25 +83,28 @@ def matmul_peak(n=1024):
     return 2 * n**3 / t
 
 
+def is_bench_file(text: str) -> bool:
+    """Whether ``text`` is a bench.json that jaxdip wrote (so ``--out`` may replace it)."""
+    try:
+        d = json.loads(text)
+    except ValueError:
+        return False
+    return isinstance(d, dict) and (d.get("tool") == "jaxdip bench" or {"machine", "periods_per_s"} <= set(d))
+
+
 def run_bench(quick: bool = False, out: str = "bench.json") -> dict:
     cfg = C.load(dip_lqr.DipLqrConfig)
-    loop, params, x0_fn, _ = dip_lqr.build(cfg)
     n_periods = 200 if quick else 1000
+    r = dip_lqr.build(cfg)
+    r = jd.Rollout(r.loop, r.x0, n_periods, metrics=r.metrics)  # the statistics, no stored trajectory
     key = jax.random.PRNGKey(0)
 
     def batched(batch, shard):
-        seeds = jnp.arange(batch, dtype=jnp.uint32)
-        if shard:
-            from jax.sharding import NamedSharding, PartitionSpec
+        def run():
+            return jd.monte_carlo(r, key, batch, shard=shard)
 
-            seeds = jax.device_put(seeds, NamedSharding(montecarlo.device_mesh(), PartitionSpec("seeds")))
-        init = jax.jit(jax.vmap(lambda i: init_carry(loop, params, x0_fn(jax.random.fold_in(
-            jax.random.fold_in(key, i), 0)), jax.random.fold_in(key, i))))
-        carry = init(seeds)
-        run = jax.jit(jax.vmap(lambda i, c: advance(loop, n_periods, params, jax.random.fold_in(key, i), c,
-                                                    n_periods)[0]))
-        jax.block_until_ready(run(seeds, carry))  # compile
-        t = _time(lambda: run(seeds, carry))
+        jax.block_until_ready(run())  # compile
+        t = _time(run)
         return batch * n_periods / t
 
     rows = {}
@@ -110,20 +113,21 @@ def run_bench(quick: bool = False, out: str = "bench.json") -> dict:
     if jax.device_count() > 1:
         rows["jax_batch_4096_sharded"] = batched(4096, shard=True)
 
-    K = np.asarray(params.controller.K)
+    K = np.asarray(r.loop.controller.K)
     noise = np.asarray(cfg.noise_std)
     n_np = 100 if quick else 500
     t = time.perf_counter()
     numpy_loop(K, noise, np.full(6, 0.01), n_np, cfg.dt, cfg.substeps)
     np_rate = n_np / (time.perf_counter() - t)
 
-    # FLOPs of one period, from a loop-free program (unrolled sub-steps)
-    from jaxdip.sim.loop import make_step
+    # FLOPs of one period, from a loop-free program (one RK4 sub-step, one period)
+    import dataclasses
 
-    flat = loop._replace(substeps=1)
-    one = jax.jit(lambda c: make_step(flat, n_periods)(params, key, c)[0])
-    c0 = init_carry(flat, params, jnp.zeros(6), key)
-    cost = one.lower(c0).compile().cost_analysis()
+    import equinox as eqx
+
+    arrays, static = eqx.partition(dataclasses.replace(r.loop, substeps=1), eqx.is_array)
+    one = jax.jit(lambda a: jd.simulate(eqx.combine(a, static), jnp.zeros(6), key, 1, metrics=r.metrics))
+    cost = one.lower(arrays).compile().cost_analysis()
     cost = cost[0] if isinstance(cost, (list, tuple)) else cost
     flops_sub = float(cost.get("flops", float("nan")))
     # one period = `substeps` RK4 steps; the sensor/controller part is counted once per period
@@ -132,6 +136,7 @@ def run_bench(quick: bool = False, out: str = "bench.json") -> dict:
 
     best = max(v for k, v in rows.items())
     result = {
+        "tool": "jaxdip bench",
         "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "devices": jax.device_count(),
                     "backend": jax.default_backend(), "jax_version": jax.__version__},
         "periods_per_s": {**rows, "numpy_loop": np_rate},
@@ -143,9 +148,7 @@ def run_bench(quick: bool = False, out: str = "bench.json") -> dict:
         "n_periods": n_periods,
         "quick": quick,
     }
-    with open(out + ".tmp", "w") as fh:
-        json.dump(result, fh, indent=2)
-    os.replace(out + ".tmp", out)
+    write_file_atomic(out, json.dumps(result, indent=2))
     w = max(len(k) for k in result["periods_per_s"])
     for k, v in result["periods_per_s"].items():
         ratio = result["ratio_vs_numpy"].get(k)

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import re
+import shlex
+import signal
 import sys
 import time
 
@@ -22,9 +25,24 @@ def _use_all_cores():
             os.environ["XLA_FLAGS"] = (flags + f" --xla_force_host_platform_device_count={n}").strip()
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the project's one-line errors: ``error: <flag>: <why>`` and exit 2, no usage block."""
+
+    def error(self, message: str):
+        message = " ".join(message.split())
+        if m := re.match(r"argument ([^:]+): (.*)", message):
+            message = f"{m.group(1).split('/')[0]}: {m.group(2)}"
+        elif m := re.match(r"the following arguments are required: (.*)", message):
+            message = f"{m.group(1)}: required"
+        elif m := re.match(r"unrecognized arguments: (.*)", message):
+            message = f"{m.group(1)}: unrecognized argument (see jaxdip {self.prog.split()[-1]} --help)"
+        print(f"error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+
+
 def _parser():
-    p = argparse.ArgumentParser(prog="jaxdip", description=__doc__)
-    sub = p.add_subparsers(dest="cmd", required=True)
+    p = _Parser(prog="jaxdip", description=__doc__)
+    sub = p.add_subparsers(dest="cmd", metavar="command", required=True, parser_class=_Parser)
     sub.add_parser("list", help="print the experiment ids, one a line")
 
     r = sub.add_parser("run", help="run one experiment")
@@ -35,6 +53,8 @@ def _parser():
     r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override one config key")
     r.add_argument("--quick", action="store_true", help="reduced run: few seeds, short horizon")
     r.add_argument("--resume", action="store_true", help="continue an interrupted search from its checkpoint")
+    r.add_argument("--force", action="store_true",
+                   help="replace a jaxdip result folder of another experiment (a user's files are never replaced)")
 
     c = sub.add_parser("config", help="print an experiment's default config as TOML")
     c.add_argument("id")
@@ -46,12 +66,46 @@ def _parser():
     rp = sub.add_parser("reproduce", help="run every registered experiment and write one combined report")
     rp.add_argument("--quick", action="store_true")
     rp.add_argument("--out", default="results")
+    rp.add_argument("--force", action="store_true", help="replace jaxdip result folders of other experiments")
     return p
 
 
 def _error(msg: str) -> int:
-    print(f"error: {msg}", file=sys.stderr)
+    print(f"error: {' '.join(str(msg).split())}", file=sys.stderr)
     return 2
+
+
+class _Signals:
+    """SIGINT and SIGTERM stop a run: the first raises KeyboardInterrupt and is remembered, so a run whose
+    library code swallowed it still refuses to write its folder (``run_experiment``'s ``stop_requested``)."""
+
+    def __init__(self):
+        self.hit = None
+        self._old = {}
+
+    def _handler(self, signum, frame):
+        self.hit = signum
+        raise KeyboardInterrupt
+
+    def __enter__(self):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._old[sig] = signal.signal(sig, self._handler)
+        return self
+
+    def __exit__(self, *exc):
+        for sig, h in self._old.items():
+            signal.signal(sig, h)
+        return False
+
+    def requested(self) -> bool:
+        return self.hit is not None
+
+
+def _flag_keys(args) -> dict:
+    keys = {}
+    if getattr(args, "seeds", None) is not None:
+        keys["seeds"] = "--seeds"
+    return keys
 
 
 def _resolve(exp_id, args):
@@ -59,74 +113,153 @@ def _resolve(exp_id, args):
     from jaxdip.experiments import get
 
     exp = get(exp_id)
-    if args.seeds is not None and args.seeds < 1:
-        raise C.ConfigError("seeds", "must be positive")
     cfg = C.load(exp.config_cls, path=args.config, quick=exp.quick if args.quick else None,
                  seeds=args.seeds, sets=args.set)
     return exp, cfg
 
 
-def cmd_run(args) -> int:
-    from jaxdip.config import ConfigError
-    from jaxdip.experiments import run_experiment
+def _interrupted(checkpoint: str | None, argv: list[str] | None) -> int:
+    if checkpoint and os.path.exists(checkpoint):
+        again = list(argv or sys.argv[1:])
+        if "--resume" not in again:
+            again.append("--resume")
+        print(f"interrupted: progress kept in {checkpoint}; continue with: jaxdip {shlex.join(again)}",
+              file=sys.stderr)
+    else:
+        print("interrupted: nothing was written", file=sys.stderr)
+    return 130
 
+
+def _out_of_memory(e: BaseException) -> bool:
+    return isinstance(e, MemoryError) or "RESOURCE_EXHAUSTED" in str(e) or "Out of memory" in str(e)
+
+
+def _riccati_keys(cfg) -> str:
+    """The config keys that shape a Riccati design, to point the user at what to change."""
+    names = [f.name for f in dataclasses.fields(cfg)] if dataclasses.is_dataclass(cfg) else []
+    keys = [n for n in names if n in ("Q", "R", "Q_lqr", "R_lqr", "Qk", "Rk", "W", "V")
+            or n.startswith(("Q_", "R_", "lqr_"))]
+    return ", ".join(keys) if keys else "the weights"
+
+
+def cmd_run(args, argv=None) -> int:
+    from jaxdip.checkpoint import CheckpointMismatch
+    from jaxdip.config import ConfigError
+    from jaxdip.control.riccati import RiccatiError
+    from jaxdip.experiments import run_experiment
+    from jaxdip.experiments.base import RunContext
+    from jaxdip.outdir import OutputError
+
+    flags = _flag_keys(args)
     try:
         exp, cfg = _resolve(args.id, args)
     except ConfigError as e:
-        return _error(f"{e.key}: {e.why}")
+        return _error(f"{flags.get(e.key, e.key)}: {e.why}")
     except KeyError as e:
         return _error(e.args[0])
     out = args.out or os.path.join("results", exp.id)
-    from jaxdip.checkpoint import CheckpointMismatch
-
-    try:
-        metrics = run_experiment(exp, cfg, out, resume=args.resume)
-    except CheckpointMismatch as e:
-        return _error(f"--resume: {e}")
+    ckpt = RunContext(out).checkpoint_path
+    if args.resume and not os.path.exists(ckpt):
+        return _error(f"--resume: no checkpoint of an interrupted run at {ckpt}")
+    with _Signals() as sig:
+        try:
+            metrics = run_experiment(exp, cfg, out, resume=args.resume, force=args.force,
+                                     flag_keys=flags, stop_requested=sig.requested)
+        except ConfigError as e:
+            return _error(f"{e.key}: {e.why}")
+        except OutputError as e:
+            return _error(f"{e.key}: {e.why}")
+        except CheckpointMismatch as e:
+            return _error(f"--resume: {e}")
+        except RiccatiError as e:
+            return _error(f"{_riccati_keys(cfg)}: {e}")
+        except KeyboardInterrupt:
+            return _interrupted(ckpt, argv)
+        except Exception as e:
+            if _out_of_memory(e):
+                return _error("--seeds: the run ran out of memory; lower --seeds, shorten the run or save less")
+            raise
     print(f"{exp.id}: wrote {out} ({metrics['wall_s']:.1f} s)")
     return 0
 
 
-def cmd_reproduce(args) -> int:
+def cmd_reproduce(args, argv=None) -> int:
     from jaxdip import config as C
+    from jaxdip import outdir
+    from jaxdip.config import ConfigError
+    from jaxdip.control.riccati import RiccatiError
     from jaxdip.experiments import registry, run_experiment
+    from jaxdip.outdir import OutputError
+
+    reg = sorted(registry().items())
+    report_path = os.path.join(args.out, "REPORT.md")
+    # every destination is checked before the first experiment compiles
+    try:
+        if os.path.exists(args.out) and not os.path.isdir(args.out):
+            raise OutputError("--out", f"{args.out} exists and is a file, not a folder")
+        cfgs = {}
+        for exp_id, exp in reg:
+            cfgs[exp_id] = C.load(exp.config_cls, quick=exp.quick if args.quick else None)
+            outdir.check_destination(os.path.join(args.out, exp_id), exp_id, force=args.force)
+        outdir.check_file(report_path, lambda text: text.startswith("# jaxdip reproduction"))
+    except (ConfigError, OutputError) as e:
+        return _error(f"{e.key}: {e.why}")
 
     t0 = time.perf_counter()
     rows, sections = [], []
-    for exp_id, exp in sorted(registry().items()):
-        cfg = C.load(exp.config_cls, quick=exp.quick if args.quick else None)
-        out = os.path.join(args.out, exp_id)
-        print(f"== {exp_id}", file=sys.stderr)
-        m = run_experiment(exp, cfg, out)
-        rows.append(f"| [{exp_id}]({exp_id}/report.md) | {exp.title} | {m['seeds']} | {m['wall_s']:.1f} |")
-        with open(os.path.join(out, "report.md")) as fh:
-            body = fh.read()
-        sections.append(re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", rf"![\1]({exp_id}/\2)", body))
+    with _Signals() as sig:
+        try:
+            for exp_id, exp in reg:
+                out = os.path.join(args.out, exp_id)
+                print(f"== {exp_id}", file=sys.stderr)
+                m = run_experiment(exp, cfgs[exp_id], out, force=args.force, stop_requested=sig.requested)
+                rows.append(f"| [{exp_id}]({exp_id}/report.md) | {exp.title} | {m['seeds']} | {m['wall_s']:.1f} |")
+                with open(os.path.join(out, "report.md")) as fh:
+                    body = fh.read()
+                sections.append(re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", rf"![\1]({exp_id}/\2)", body))
+        except (ConfigError, OutputError) as e:
+            return _error(f"{e.key}: {e.why}")
+        except RiccatiError as e:
+            return _error(f"{exp_id}: {_riccati_keys(cfgs[exp_id])}: {e}")
+        except KeyboardInterrupt:
+            print(f"interrupted: the experiments finished before it are in {args.out}", file=sys.stderr)
+            return 130
     wall = time.perf_counter() - t0
     text = (
         f"# jaxdip reproduction{' (quick)' if args.quick else ''}\n\n"
         f"Total wall time {wall:.1f} s.\n\n| experiment | what | seeds | wall (s) |\n|---|---|---|---|\n"
         + "\n".join(rows) + "\n\n" + "\n\n---\n\n".join(sections)
     )
-    path = os.path.join(args.out, "REPORT.md")
-    tmp = path + ".tmp"
-    os.makedirs(args.out, exist_ok=True)
-    with open(tmp, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
-    print(f"reproduce: wrote {path} ({wall:.1f} s)")
+    outdir.write_file_atomic(report_path, text)
+    print(f"reproduce: wrote {report_path} ({wall:.1f} s)")
     return 0
 
 
-def cmd_bench(args) -> int:
-    from jaxdip.bench import run_bench
+def cmd_bench(args, argv=None) -> int:
+    from jaxdip import outdir
+    from jaxdip.bench import is_bench_file, run_bench
 
-    run_bench(quick=args.quick, out=args.out)
+    try:
+        outdir.check_file(args.out, is_bench_file)
+    except outdir.OutputError as e:
+        return _error(f"{e.key}: {e.why}")
+    with _Signals():
+        try:
+            run_bench(quick=args.quick, out=args.out)
+        except KeyboardInterrupt:
+            return _interrupted(None, argv)
     return 0
 
 
 def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
+    try:
+        args = _parser().parse_args(argv)
+    except SystemExit as e:
+        return int(e.code or 0)
+    for flag in ("out", "config"):
+        v = getattr(args, flag, None)
+        if v is not None and not v.strip():
+            return _error(f"--{flag}: empty path")
     if args.cmd in ("run", "reproduce", "bench"):
         _use_all_cores()
     if args.cmd == "list":
@@ -145,7 +278,7 @@ def main(argv=None) -> int:
             return _error(e.args[0])
         print(C.documented_toml(exp.config_cls(), f"{exp.id}: {exp.title}", exp.source), end="")
         return 0
-    return {"run": cmd_run, "reproduce": cmd_reproduce, "bench": cmd_bench}[args.cmd](args)
+    return {"run": cmd_run, "reproduce": cmd_reproduce, "bench": cmd_bench}[args.cmd](args, argv)
 
 
 if __name__ == "__main__":

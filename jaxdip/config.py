@@ -1,10 +1,11 @@
 """Typed experiment configs loaded from TOML and validated before anything compiles.
 
 An experiment's config is a dataclass whose defaults are the documents' values. Each field may carry
-``check`` metadata (see ``positive``, ``nonneg``, ...). ``load`` merges, in order: the defaults, a TOML file,
-the experiment's ``--quick`` overrides, ``--seeds`` and ``--set key=value`` pairs; then checks every key's
-type and constraint and the config's own ``validate()``. Any problem raises ``ConfigError(key, why)``, which
-the CLI prints as one line ``error: <key>: <why>``.
+``check`` metadata (see ``positive``, ``nonneg``, ...). ``load`` merges, in order: the defaults, the
+experiment's ``--quick`` overrides, a TOML file, ``--seeds`` and ``--set key=value`` pairs (so what the user
+wrote is never silently replaced by ``--quick``); then checks every key's type and constraint and the config's
+own ``validate()``. Any problem raises ``ConfigError(key, why)``, which the CLI prints as one line
+``error: <key>: <why>``.
 """
 
 from __future__ import annotations
@@ -12,10 +13,15 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
-import tomllib
+import os
 import types
 import typing
 from typing import Any
+
+import tomllib
+
+INT_MAX = 2**63 - 1
+INT_MIN = -(2**63)
 
 
 class ConfigError(ValueError):
@@ -97,8 +103,12 @@ def _check_type(key: str, value: Any, tp) -> Any:
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             if isinstance(value, float) and value.is_integer():
-                return int(value)
-            raise ConfigError(key, f"expected an integer, got {value!r}")
+                value = int(value)
+            else:
+                raise ConfigError(key, f"expected an integer, got {value!r}")
+        if not INT_MIN <= value <= INT_MAX:
+            # JAX keys, counters and shapes are 64-bit at most; a larger value would overflow deep inside a compile
+            raise ConfigError(key, f"{value} is out of range (at most {INT_MAX})")
         return value
     if tp is bool:
         if not isinstance(value, bool):
@@ -112,6 +122,12 @@ def _check_type(key: str, value: Any, tp) -> Any:
         (inner,) = typing.get_args(tp)
         if not isinstance(value, list):
             raise ConfigError(key, f"expected a list, got {value!r}")
+        rows = [v for v in value if isinstance(v, list)]
+        if rows and len(rows) != len(value):
+            raise ConfigError(key, "mixes numbers and lists: give a flat list or a matrix (a list of rows)")
+        if rows and len({len(r) for r in rows}) > 1:
+            lens = [len(r) for r in rows]
+            raise ConfigError(key, f"ragged matrix: rows have {', '.join(map(str, lens))} entries")
         return [_check_type(f"{key}[{i}]", v, inner) for i, v in enumerate(value)]
     if origin is typing.Union or origin is types.UnionType:  # e.g. list[float] | list[list[float]]: first that fits wins
         errors = []
@@ -179,12 +195,16 @@ def _set_path(d: dict, dotted: str, value):
 def parse_set(item: str):
     """``key=value`` with a TOML value (numbers, true/false, [lists], "strings"); bare words are strings."""
     if "=" not in item:
-        raise ConfigError(item, "--set expects key=value")
+        raise ConfigError("--set", f"expects key=value, got {item!r}")
     key, raw = item.split("=", 1)
     key = key.strip()
+    if not key or any(not part for part in key.split(".")):
+        raise ConfigError("--set", f"expects key=value, got {item!r}")
     try:
-        value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
+        parsed = tomllib.loads(f"v = {raw}")
+        # a value that smuggles in more TOML lines ("1\nseeds = 5") is not one value: keep it as text
+        value = parsed["v"] if list(parsed) == ["v"] else raw
+    except (tomllib.TOMLDecodeError, RecursionError):
         value = raw
     return key, value
 
@@ -197,19 +217,44 @@ def _merge(base: dict, over: dict):
             base[k] = v
 
 
+MAX_CONFIG_BYTES = 1 << 20  # a config is a page of numbers; anything larger is the wrong file
+
+
+def read_toml(path: str) -> dict:
+    """A TOML file as a dict, every failure (missing, a folder, unreadable, binary, not TOML) a ConfigError."""
+    try:
+        if os.path.isdir(path):
+            raise ConfigError("--config", f"{path} is a folder, not a TOML file")
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_CONFIG_BYTES + 1)
+    except FileNotFoundError:
+        raise ConfigError("--config", f"no such file: {path}") from None
+    except OSError as e:
+        raise ConfigError("--config", f"cannot read {path}: {e.strerror or e}") from None
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError("--config", f"{path} is larger than {MAX_CONFIG_BYTES // 1024} KiB: not a config file")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ConfigError("--config", f"{path} is not UTF-8 text (byte {e.start}): not a TOML config") from None
+    if "\x00" in text:
+        raise ConfigError("--config", f"{path} holds NUL bytes: not a TOML config")
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError("--config", f"not valid TOML: {e}") from None
+    except RecursionError:
+        raise ConfigError("--config", "not valid TOML: nested too deeply") from None
+
+
 def load(cls, path: str | None = None, quick: dict | None = None, seeds: int | None = None,
          sets: list[str] | None = None):
+    """Defaults <- ``--quick`` overrides <- the file at ``path`` <- ``seeds`` <- ``--set`` pairs, then validated."""
     data = to_dict(cls())
-    if path is not None:
-        try:
-            with open(path, "rb") as fh:
-                _merge(data, tomllib.load(fh))
-        except FileNotFoundError:
-            raise ConfigError("--config", f"no such file: {path}") from None
-        except tomllib.TOMLDecodeError as e:
-            raise ConfigError("--config", f"not valid TOML: {e}") from None
     if quick:
         _merge(data, quick)
+    if path is not None:
+        _merge(data, read_toml(path))
     if seeds is not None:
         data["seeds"] = seeds
     for item in sets or []:

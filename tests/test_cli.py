@@ -7,6 +7,7 @@ import sys
 
 import pytest
 
+from jaxdip import cli
 from jaxdip import config as C
 from jaxdip.experiments import dip_lqr, registry
 
@@ -52,7 +53,7 @@ def test_list_and_unknown_experiment():
     r = jaxdip("list")
     assert r.returncode == 0 and "dip-lqr" in r.stdout.split()
     r = jaxdip("run", "dip-lqq")
-    assert r.returncode == 2 and r.stderr.startswith("error: unknown experiment 'dip-lqq'")
+    assert r.returncode == 2 and r.stderr.startswith("error: dip-lqq: unknown experiment")
 
 
 def test_run_writes_contract_and_is_reproducible(tmp_path):
@@ -79,3 +80,34 @@ def test_config_files_match_defaults(exp_id):
     path = os.path.join(ROOT, "configs", f"{exp_id}.toml")
     assert os.path.isfile(path), f"configs/{exp_id}.toml missing"
     assert C.load(exp.config_cls, path=path) == exp.config_cls()
+
+
+def _no_nulls(obj, path="results"):
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            _no_nulls(v, f"{path}.{k}")
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj):
+            _no_nulls(v, f"{path}[{i}]")
+    else:
+        assert obj is not None, path
+
+
+def test_all_seeds_diverged_is_reported_not_averaged(tmp_path):
+    """Initial states far outside the LQR's basin: every seed leaves the bound, the report says so and how, and
+    metrics.json holds no NaN or null in place of statistics over zero seeds."""
+    out = tmp_path / "o"
+    code = cli.main(["run", "dip-lqr", "--quick", "--seeds", "8", "--set", "init_radius=3", "--set",
+                     "duration=0.2", "--set", "record_every=1", "--out", str(out)])
+    assert code == 0
+    text = (out / "metrics.json").read_text()
+    m = json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in metrics.json"))
+    r = m["results"]
+    _no_nulls(r)
+    assert r["diverged"] == 8 and r["states"] == {}
+    f = r["failures"]
+    assert f["out_of_bounds"] + f["nonfinite"] == 8
+    assert sum(f["bound_crossed_first"].values()) == f["out_of_bounds"]
+    assert 0 < f["time_to_failure_s"]["min"] <= f["time_to_failure_s"]["max"] <= 0.2
+    report = (out / "report.md").read_text()
+    assert "all 8 seeds diverged" in report and "nan" not in report.lower()

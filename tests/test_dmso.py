@@ -83,7 +83,7 @@ def _linear_run(F, G, K, x0, T, rng):
     Klqr = np.asarray(twip_dlqr(twip.default_params(), Q_THESIS, R_THESIS, 0.01).K)
     xs = [np.asarray(x0, float)]
     us = []
-    for k in range(T):
+    for _ in range(T):
         us.append(-Klqr @ xs[-1] + rng.uniform(-2, 2, size=1))
         xs.append(F @ xs[-1] + G @ us[-1])
     xs, us = np.array(xs[:T]), np.array(us)

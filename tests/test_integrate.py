@@ -127,7 +127,7 @@ def test_lagrangian_conserves_energy():
 
 
 def test_printed_does_not_conserve_energy():
-    """The printed equations (cos(2a+th) couplings, I2 missing from the alpha row; DESIGN.md) are not a
+    """The printed equations (cos(2a+th) couplings, I2 missing from the alpha row; docs/models.md) are not a
     Lagrangian system of the energy in dip.energy: with no damping and no input its 'energy' moves by O(1)."""
     drift, _ = _energy_drift(dip.f_printed)
     assert drift > 1e-3, drift  # measured ~3.8 (relative)

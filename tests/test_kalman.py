@@ -8,7 +8,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from jaxdip.estimators import filter_sequence
-from jaxdip.estimators.kalman import EKFParams, KFParams, ekf, kalman
+from jaxdip.estimators.kalman import EKFParams, KFParams, ekf, kalman, kf_update
 from jaxdip.plants import lorenz
 from jaxdip.sim import rk4_zoh
 
@@ -133,3 +133,107 @@ def test_ekf_lorenz_matches_numpy():
     ref = np_ekf_lorenz(p, C, Q, R, P0, x0, ys, h)
     print(f"\nEKF (Lorenz) vs NumPy: rel {rel(out, ref):.1e}")
     assert rel(out, ref) < 1e-9
+
+
+# ---- singular innovation covariance and jitter ----------------------------------------------------------------
+
+
+def test_kf_update_singular_s_matches_pseudo_inverse():
+    """R = 0 and a rank-2 prior seen by 3 sensors: S has rank 2. The gain is the limit P C^T S^+ (NumPy pinv)."""
+    rng = np.random.default_rng(7)
+    M = rng.standard_normal((5, 2))
+    P = M @ M.T
+    C = rng.standard_normal((3, 5))
+    R = np.zeros((3, 3))
+    x, y = rng.standard_normal(5), rng.standard_normal(3)
+    S = C @ P @ C.T
+    assert np.linalg.matrix_rank(S) == 2
+    x_new, P_new = jax.jit(kf_update)(x, P, y, C, R)
+    K = P @ C.T @ np.linalg.pinv(S, rcond=1e-10, hermitian=True)
+    IKC = np.eye(5) - K @ C
+    x_ref, P_ref = x + K @ (y - C @ x), IKC @ P @ IKC.T
+    # the posterior covariance is ~0 here (the prior's two directions are measured exactly): measure against P
+    dP = np.linalg.norm(P_new - P_ref) / np.linalg.norm(P)
+    print(f"\nsingular S: correction rel {rel(x_new - x, x_ref - x):.1e}, covariance error / |P| {dP:.1e}")
+    assert np.all(np.isfinite(x_new)) and np.all(np.isfinite(P_new))
+    # kalman.py: the regularised solve is within ~eps / 1e-10 of the pseudo-inverse gain
+    assert rel(x_new - x, x_ref - x) < 1e-5
+    assert dP < 1e-5
+
+
+def _duplicated_sensor_case(T=200):
+    """Sensors 0 and 1 read state 0 exactly (R = 0 there), sensor 2 reads state 2 with noise: S is singular at
+    every step. Duplicating an exact reading adds no information, so the filter must equal the KF that has the
+    reading once (an invertible S: the NumPy reference with explicit inverses)."""
+    rng = np.random.default_rng(3)
+    A, B, F, G, _ = _system(rng)
+    C1 = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
+    ys1, us_prev = _data(rng, F, G, C1, T, 0.1, 0.0)
+    ys1[:, 1] += 0.3 * rng.standard_normal(T)
+    C2 = C1[[0, 0, 1]]
+    ys2 = ys1[:, [0, 0, 1]]
+    Q, P0, x0 = 0.01 * np.eye(4), np.eye(4), np.zeros(4)
+    R1, R2 = np.diag([0.0, 0.09]), np.diag([0.0, 0.0, 0.09])
+    return A, B, F, G, C1, C2, ys1, ys2, us_prev, Q, R1, R2, P0, x0
+
+
+def test_kf_duplicated_exact_sensor_is_finite_and_matches_single_sensor():
+    A, B, F, G, C1, C2, ys1, ys2, us_prev, Q, R1, R2, P0, x0 = _duplicated_sensor_case()
+    params = KFParams(*map(jnp.asarray, (F, G, C2, Q, R2, P0, x0)))
+    st, out = jax.jit(lambda prm: filter_sequence(kalman(), prm, ys2, us_prev, jnp.zeros(4)))(params)
+    ref, covs = np_kf(F, G, C1, Q, R1, P0, x0, ys1, us_prev)
+    print(f"\nduplicated exact sensor vs single: state rel {rel(out, ref):.1e}, covariance rel {rel(st.P, covs[-1]):.1e}")
+    assert np.all(np.isfinite(out))
+    assert rel(out, ref) < 1e-6
+    assert rel(st.P, covs[-1]) < 1e-6
+    # the EKF shares the guarded update
+    f = lambda prm, x, u: prm[0] @ x + prm[1] @ u  # noqa: E731
+    eparams = EKFParams((jnp.asarray(A), jnp.asarray(B)), *map(jnp.asarray, (C2, Q, R2, P0, x0)))
+    _, out_e = filter_sequence(ekf(f, 0.1, 2), eparams, ys2, us_prev, x0)
+    assert rel(out_e, ref) < 1e-6
+
+
+def test_kf_singular_s_gradient_is_finite_and_matches_finite_differences():
+    _, _, F, G, _, C2, _, ys2, us_prev, Q, _, R2, P0, x0 = _duplicated_sensor_case(T=50)
+
+    def loss(q):
+        params = KFParams(*map(jnp.asarray, (F, G, C2, q * Q, R2, P0, x0)))
+        return jnp.sum(filter_sequence(kalman(), params, ys2, us_prev, jnp.zeros(4))[1] ** 2)
+
+    g = jax.jit(jax.grad(loss))(1.0)
+    h = 1e-5
+    fd = (loss(1.0 + h) - loss(1.0 - h)) / (2 * h)
+    assert np.isfinite(g)
+    assert abs(g - fd) < 1e-5 * abs(fd), (g, fd)
+
+
+def np_kf_jitter(F, G, H, Q, R, P0, x0, ys, us_prev, jitter):
+    """The NumPy KF with the gain from S + jitter I and the Joseph update with the true R."""
+    x, P = np.array(x0, float), np.array(P0, float)
+    out = []
+    for j, (y, u) in enumerate(zip(ys, us_prev)):
+        if j > 0:
+            x = F @ x + G @ u
+            P = F @ P @ F.T + Q
+        K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R + jitter * np.eye(len(y)))
+        x = x + K @ (y - H @ x)
+        I_KH = np.eye(len(x)) - K @ H
+        P = I_KH @ P @ I_KH.T + K @ R @ K.T
+        out.append(x)
+    return np.array(out), P
+
+
+def test_kf_jitter_matches_numpy():
+    rng = np.random.default_rng(0)
+    A, B, F, G, H = _system(rng)
+    ys, us_prev = _data(rng, F, G, H, 400, 0.1, 0.5)
+    Q, R, P0 = 0.01 * np.eye(4), np.array([[0.25, 0.05], [0.05, 0.3]]), 2.0 * np.eye(4)
+    x0 = np.array([1.0, -1.0, 0.0, 0.5])
+    params = KFParams(*map(jnp.asarray, (F, G, H, Q, R, P0, x0)))
+    st, out = jax.jit(lambda prm: filter_sequence(kalman(jitter=0.05), prm, ys, us_prev, jnp.zeros(4)))(params)
+    ref, P_ref = np_kf_jitter(F, G, H, Q, R, P0, x0, ys, us_prev, 0.05)
+    plain, _ = np_kf_jitter(F, G, H, Q, R, P0, x0, ys, us_prev, 0.0)
+    assert rel(out, ref) < 1e-9
+    assert rel(st.P, P_ref) < 1e-9
+    # the jitter does change the estimates (the system is unstable, so compare the first samples)
+    assert rel(plain[:50], ref[:50]) > 1e-3

@@ -3,13 +3,15 @@
 import jaxdip  # noqa: F401  (enables float64)
 
 import control
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from jaxdip.control.riccati import care, dare, dlqr, lqr, lyap
+from jaxdip.control.riccati import (RiccatiCode, RiccatiError, care, care_checked, dare, dare_checked, dlqr,
+                                   error_if_failed, lqr, lyap, riccati_status)
 from jaxdip.plants import dip
 from jaxdip.sim.discretize import linearize, zoh
 
@@ -182,3 +184,148 @@ def test_lyap_matches_scipy(seed):
     assert rel(X, Xs) < 1e-12, rel(X, Xs)
     assert np.linalg.norm(A.T @ X + X @ A + Q) < 1e-12 * np.linalg.norm(Q) * max(1.0, np.linalg.norm(X))
     assert np.linalg.eigvalsh(X).min() > 0  # Q > 0 and A Hurwitz give X > 0
+
+
+# ---- failures: reported, and the same verdicts as python-control --------------------------------------------
+
+R1 = np.eye(1)
+# the issue's example: the unstable mode 1 is not reachable from B
+NONSTAB_C = (np.diag([1.0, -1.0]), np.array([[0.0], [1.0]]), np.eye(2))
+NONSTAB_D = (np.diag([1.2, 0.5]), np.array([[0.0], [1.0]]), np.eye(2))
+# stabilisable, and (Q, A) not detectable: the unstable mode is not weighted, but it is off the boundary
+NONDET_C = (np.diag([1.0, -1.0]), np.array([[1.0], [1.0]]), np.diag([0.0, 1.0]))
+NONDET_D = (np.diag([1.2, 0.5]), np.array([[1.0], [1.0]]), np.diag([0.0, 1.0]))
+# an unweighted mode on the boundary: no stabilising solution
+BOUNDARY_C = (np.diag([0.0, -1.0]), np.array([[1.0], [1.0]]), np.diag([0.0, 1.0]))
+BOUNDARY_D = (np.diag([1.0, 0.5]), np.array([[1.0], [1.0]]), np.diag([0.0, 1.0]))
+
+
+@pytest.mark.parametrize("ours,theirs,case", [(lqr, control.lqr, NONSTAB_C), (dlqr, control.dlqr, NONSTAB_D)],
+                         ids=["lqr", "dlqr"])
+def test_non_stabilisable_raises_like_python_control(ours, theirs, case):
+    A, B, Q = case
+    with pytest.raises(np.linalg.LinAlgError):
+        theirs(A, B, Q, R1)
+    with pytest.raises(RiccatiError, match=r"not stabilisable: the mode 1(\.2)? of A"):
+        ours(A, B, Q, R1)
+    assert issubclass(RiccatiError, np.linalg.LinAlgError) and issubclass(RiccatiError, ValueError)
+
+
+def test_non_stabilisable_care_dare_raise_and_checked_variants_report():
+    A, B, Q = NONSTAB_C
+    with pytest.raises(RiccatiError, match="CARE.*not stabilisable"):
+        care(A, B, Q, R1)
+    # the old silent answer: a solution of the equation that leaves the mode at 1 in place
+    X, code = jax.jit(care_checked)(A, B, Q, R1)
+    assert int(code) == RiccatiCode.NOT_STABILISING
+    assert np.linalg.norm(A.T @ X + X @ A - X @ B @ B.T @ X + Q) < 1e-12
+    A, B, Q = NONSTAB_D
+    with pytest.raises(RiccatiError, match="DARE.*not stabilisable"):
+        dare(A, B, Q, R1)
+    assert int(jax.jit(dare_checked)(A, B, Q, R1)[1]) != RiccatiCode.OK
+
+
+def test_traced_calls_never_raise_and_codes_vmap():
+    A, B, Q = NONSTAB_C
+    K, S, E = jax.jit(lqr)(A, B, Q, R1)  # inside jit: no check, no exception
+    assert np.real(np.asarray(E)).max() > 0
+    assert int(jax.jit(riccati_status)(A, B, Q, R1, S)) == RiccatiCode.NOT_STABILISING
+    # a batch with a well-posed and an ill-posed member: one code each
+    As = jnp.stack([jnp.diag(jnp.array([-1.0, -1.0])), jnp.asarray(A)])
+    _, codes = jax.jit(jax.vmap(care_checked, in_axes=(0, None, None, None)))(As, B, Q, R1)
+    assert np.asarray(codes).tolist() == [RiccatiCode.OK, RiccatiCode.NOT_STABILISING]
+    assert RiccatiCode.describe(codes[1]).startswith("not stabilising")
+
+
+def test_error_if_failed_is_opt_in_inside_jit():
+    B, Q = NONSTAB_C[1:]
+    f = eqx.filter_jit(lambda a: error_if_failed(*care_checked(a, B, Q, R1)))
+    with pytest.raises(Exception, match="not stabilising"):
+        f(NONSTAB_C[0])
+    # a well-posed problem passes through unchanged
+    A = np.diag([-1.0, -3.0])
+    assert rel(f(A), sla.solve_continuous_are(A, B, Q, R1)) < TOL
+
+
+@pytest.mark.parametrize("ours,theirs,case", [(lqr, control.lqr, NONDET_C), (dlqr, control.dlqr, NONDET_D)],
+                         ids=["lqr", "dlqr"])
+def test_non_detectable_but_stabilisable_matches_python_control(ours, theirs, case):
+    """python-control returns the stabilising solution here (X >= 0 singular), and so does jaxdip, host or jit.
+    For the DARE this is the regularised-doubling fallback: the doubling itself diverges on such problems."""
+    A, B, Q = case
+    Kc, Sc, Ec = theirs(A, B, Q, R1)
+    for f in (ours, jax.jit(ours)):
+        K, S, E = f(A, B, Q, R1)
+        assert rel(K, Kc) < TOL and rel(S, Sc) < TOL
+        assert eig_match(E, Ec) < 1e-8
+
+
+def test_dare_fallback_gradient_matches_finite_differences():
+    A, B, Q = NONDET_D
+
+    def gain(t):
+        return dlqr(A + t * np.array([[0.0, 0.3], [0.2, -0.1]]), B, Q, R1)[0]
+
+    g = jax.jacfwd(gain)(0.0)
+    h = 1e-6
+    fd = (control.dlqr(A + h * np.array([[0.0, 0.3], [0.2, -0.1]]), B, Q, R1)[0]
+          - control.dlqr(A - h * np.array([[0.0, 0.3], [0.2, -0.1]]), B, Q, R1)[0]) / (2 * h)
+    assert rel(g, fd) < 1e-6, rel(g, fd)
+
+
+@pytest.mark.parametrize("ours,theirs,case,discrete", [(lqr, control.lqr, BOUNDARY_C, False),
+                                                       (dlqr, control.dlqr, BOUNDARY_D, True)],
+                         ids=["lqr", "dlqr"])
+def test_unobservable_boundary_mode_raises_where_python_control_returns_marginal_gain(ours, theirs, case, discrete):
+    """A documented difference: no stabilising solution exists; python-control (SciPy's Schur solver) returns a
+    gain that leaves the mode on the boundary, jaxdip raises and names it."""
+    A, B, Q = case
+    _, _, Ec = theirs(A, B, Q, R1)
+    margin = np.abs(Ec).max() - 1 if discrete else np.real(Ec).max()
+    assert abs(margin) < 1e-12
+    with pytest.raises(RiccatiError, match="unobservable from Q"):
+        ours(A, B, Q, R1)
+
+
+def test_r_not_positive_definite_raises():
+    with pytest.raises(ValueError, match="singular"):
+        control.lqr(np.eye(2), np.eye(2), np.eye(2), np.zeros((2, 2)))
+    with pytest.raises(RiccatiError, match="R is not positive definite"):
+        lqr(np.eye(2), np.eye(2), np.eye(2), np.zeros((2, 2)))
+
+
+def test_too_few_iterations_are_reported():
+    _, A, B, Q, R = CONT[2]
+    with pytest.raises(RiccatiError, match="did not converge.*raise sign_iters"):
+        care(A, B, Q, R, 2, 0)
+    assert int(jax.jit(care_checked, static_argnums=(4, 5))(A, B, Q, R, 2, 0)[1]) == RiccatiCode.NOT_CONVERGED
+    _, A, B, Q, R = DISC[3]
+    with pytest.raises(RiccatiError, match="did not converge.*raise iters"):
+        dare(A, B, Q, R, 2)
+    assert int(jax.jit(dare_checked, static_argnums=4)(A, B, Q, R, 2)[1]) == RiccatiCode.NOT_CONVERGED
+
+
+@pytest.mark.parametrize("name,A,B,Q,R,discrete", [c + (False,) for c in CONT] + [c + (True,) for c in DISC],
+                         ids=[c[0] for c in CONT] + [c[0] + "-d" for c in DISC])
+def test_well_posed_host_path_passes_its_check(name, A, B, Q, R, discrete):
+    """Eager calls (checked on the host: the call raises on a failed check) accept every well-posed system and
+    agree with python-control."""
+    f, theirs = (dlqr, control.dlqr) if discrete else (lqr, control.lqr)
+    K, S, E = f(A, B, Q, R)
+    Kc, Sc, _ = theirs(A, B, Q, R)
+    assert rel(K, Kc) < TOL and rel(S, Sc) < TOL
+
+
+@pytest.mark.parametrize("discrete", [False, True], ids=["care", "dare"])
+def test_checked_variant_keeps_the_implicit_gradient(discrete):
+    name, A, B, Q, R = (DISC if discrete else CONT)[2]
+    solve, checked = (dare, dare_checked) if discrete else (care, care_checked)
+
+    def loss(f, a):
+        X = f(a, B, Q, R)
+        X = X[0] if isinstance(X, tuple) else X
+        return jnp.sum(X ** 2)
+
+    g1 = jax.jit(jax.grad(lambda a: loss(solve, a)))(A)
+    g2 = jax.jit(jax.grad(lambda a: loss(checked, a)))(A)
+    assert np.array_equal(np.asarray(g1), np.asarray(g2))

@@ -95,7 +95,7 @@ def test_rwp_table2_gains_stabilise_with_settled_B_not_with_printed_B():
     assert np.all(eig.real < 0)
 
     # B as printed in (4): [0, +k/J, k/J + k/Jr]. With it the published gains do NOT stabilise the model,
-    # which is why DESIGN.md takes the input column from (2)-(3) (-k/J), consistent with the observer (9).
+    # which is why docs/models.md takes the input column from (2)-(3) (-k/J), consistent with the observer (9).
     J = p.Jp + p.mp * p.lp**2 + p.mr * p.lr**2
     B_printed = np.array([[0.0], [p.k / J], [p.k / J + p.k / p.Jr]])
     eig_printed = np.linalg.eigvals(A - B_printed @ K)

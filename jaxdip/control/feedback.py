@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.roles import Controller, param
 from jaxdip.sim.component import stateless
 
 
@@ -25,3 +27,18 @@ def feedback_params(K, x_ref=None, u_ref=None) -> FeedbackParams:
 
 def state_feedback():
     return stateless(lambda p, xhat, key, k: p.u_ref - p.K @ (xhat - p.x_ref))
+
+
+class StateFeedback(Controller):
+    """u = u_ref - K (xhat - x_ref); x_ref and u_ref default to zero."""
+
+    K: jax.Array = param()
+    x_ref: jax.Array = param()
+    u_ref: jax.Array = param()
+
+    def __init__(self, K, x_ref=None, u_ref=None):
+        p = feedback_params(K, x_ref, u_ref)
+        self.K, self.x_ref, self.u_ref = p.K, p.x_ref, p.u_ref
+
+    def step(self, state, xhat, key, k):
+        return state, self.u_ref - self.K @ (xhat - self.x_ref), None

@@ -1,9 +1,11 @@
 """Estimators of the common init/step interface (``jaxdip.sim.component``)."""
 
 from jaxdip.estimators import cpx, kalman, linearized, proximal, scpx
-from jaxdip.estimators.cpx import CPXParams, cpx_linearized, cpx_qr
+from jaxdip.engine.roles import FanOut, Passthrough
+from jaxdip.estimators.cpx import CPX, CPXParams, cpx_linearized, cpx_qr
 from jaxdip.estimators.kalman import EKFParams, KFParams, ekf
 from jaxdip.estimators.kalman import kalman as kalman_filter
+from jaxdip.estimators.kf import KalmanFilter
 from jaxdip.estimators.linearized import AffineStep, local_model
 from jaxdip.estimators.passthrough import passthrough
 from jaxdip.estimators.run import filter_sequence
@@ -16,4 +18,5 @@ __all__ = [
     "EKFParams", "KFParams", "ekf", "kalman_filter", "AffineStep", "local_model", "LSMHEParams", "ls_mhe",
     "ls_mhe_filter", "prox_ls", "prox_ls_svd", "scpx_linearized", "scpx_lti", "filter_sequence",
 ]
+__all__ += ["CPX", "KalmanFilter", "Passthrough", "FanOut"]  # engine estimators (equinox Modules)
 __all__ += ["bias_observers", "continuous", "homd", "luenberger"]

@@ -44,8 +44,11 @@ from __future__ import annotations
 
 from typing import Any, Callable, NamedTuple, Optional
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.roles import Estimator, param
 from jaxdip.estimators.linearized import AffineStep, local_model, lti_step
 from jaxdip.estimators.proximal import prox_from_qr, prox_from_svd, qr_factor, svd_factor
 from jaxdip.sim.component import Component
@@ -145,3 +148,33 @@ def cpx_linearized(f: Callable, h: float, n_inputs: int, keep: Optional[int] = N
 
     return centered_component(model_fn, lambda params: (), solve, n_inputs=n_inputs, output=output,
                               from_truth=from_truth)
+
+
+class CPX(Estimator):
+    """CPX for an LTI model as an engine estimator (the ``cpx_qr`` estimator with its params as fields).
+
+    ``model`` is ``Discrete(Phi, Phi_inv, W)``; ``gamma`` is a traced leaf (the QR factor of H is computed from
+    it in ``init``, so gradients and sweeps over gamma need no recompilation). ``aux`` is the current estimate
+    xhat_j (the output is the prediction unless ``output="current"``)."""
+
+    gamma: jax.Array = param()
+    model: Discrete = eqx.field(converter=lambda m: Discrete(*(jnp.asarray(a, jnp.result_type(float)) for a in m)))
+    C: jax.Array = param()
+    xhat0: jax.Array = param()
+    output: str = eqx.field(default="prediction", static=True)
+    from_truth: bool = eqx.field(default=False, static=True)
+
+    def __check_init__(self):
+        if self.output not in ("current", "prediction"):
+            raise ValueError(f"output must be 'current' or 'prediction', got {self.output!r}")
+
+    def _component(self) -> Component:
+        # the module has CPXParams' field names, so it is the params of the shared centred step
+        return cpx_qr(self.output, self.from_truth)
+
+    def init(self, key, x0):
+        return self._component().init(self, key, x0)
+
+    def step(self, state, y, u_prev, key, k):
+        state, out = self._component().step(self, state, (y, u_prev), key, k)
+        return state, out, state.xc

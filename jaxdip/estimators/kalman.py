@@ -12,6 +12,20 @@ Stumfoll prints P-_k on the right of (167) and K_k, y_k in (170); the indices ab
 (the a-posteriori covariance is propagated; the gain and the measurement of the same step are used). The gain
 comes from a Cholesky solve with S = H P- H^T + R, not from an explicit inverse.
 
+Singular S. With R = 0 (or R singular) and H P- H^T of lower rank, for instance two sensors reading the same
+state exactly, S is singular and a plain Cholesky gives NaN. The limit of the gain as R -> R + d I, d -> 0, is
+P- H^T S^+ (the columns of P- H^T have no component along the null space of S when R = 0), so a pseudo-inverse
+gain is the right answer there. The solve is guarded: when the Cholesky factor of S is not finite or its
+smallest pivot is tiny (pivot^2 <= d = 1e-10 max diag S; pivot^2 >= the smallest eigenvalue of S, so this needs
+cond(S) >= 1e10, where the error bound cond * eps of a plain Cholesky gain is ~1e-6 already), S + d I is
+factored instead. That gain is finite and differentiable and differs from P- H^T S^+ by about
+d / (smallest nonzero eigenvalue of S) plus eps / 1e-10 ~ 1e-6 relative (rounding left in the null directions
+of S, amplified by 1/d); d equal to the threshold keeps the gain continuous up to a factor 2 across it.
+A well-conditioned S takes the unguarded path, bit for bit.
+
+``jitter`` (default 0) adds jitter * I to S in the gain only; the Joseph form (171) keeps the true R,
+so P stays the error covariance of the estimator that uses that (slightly suboptimal) gain.
+
 In the init/step interface sample j brings y_j and u_{j-1}: the filter predicts with u_{j-1} (for j >= 1; at
 j = 0 the prior is (xhat0, P0)) and updates with y_j; the output is x+_j.
 
@@ -24,6 +38,7 @@ from __future__ import annotations
 
 from typing import Any, Callable, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
@@ -55,11 +70,29 @@ class KFState(NamedTuple):
     P: jnp.ndarray
 
 
-def kf_update(x_pred, P_pred, y, C, R):
-    """Measurement update (168), (170), (171)."""
+_PIVOT_RTOL = 1e-10  # guarded innovation solve: smallest Cholesky pivot^2 relative to max diag S (see above)
+
+
+def _guarded_cho_factor(S):
+    """Cholesky factor of S, or of S + d I when S is singular or nearly so (d = _PIVOT_RTOL max diag S)."""
+    L = jnp.linalg.cholesky(jax.lax.stop_gradient(S))
+    d = _PIVOT_RTOL * jnp.max(jnp.diag(S)) + jnp.finfo(S.dtype).tiny
+    piv = jnp.diag(L)
+    bad = ~jnp.all(jnp.isfinite(L)) | (jnp.min(piv) ** 2 <= d)
+    # factor the selected matrix, not the selected factor: a NaN factor left in a jnp.where would poison
+    # gradients through the unselected branch
+    S = jnp.where(bad, S + d * jnp.eye(S.shape[0], dtype=S.dtype), S)
+    return jsl.cho_factor(S, lower=True)
+
+
+def kf_update(x_pred, P_pred, y, C, R, jitter: float = 0.0):
+    """Measurement update (168), (170), (171); ``jitter`` (>= 0, a number or an array) adds jitter * I to S
+    for the gain only."""
     S = C @ P_pred @ C.T + R
     S = 0.5 * (S + S.T)
-    cf = jsl.cho_factor(S, lower=True)
+    if not (isinstance(jitter, (int, float)) and jitter == 0):  # a literal 0 leaves the graph as it was
+        S = S + jitter * jnp.eye(S.shape[0], dtype=S.dtype)
+    cf = _guarded_cho_factor(S)
     K = jsl.cho_solve(cf, C @ P_pred).T  # K = P- C^T S^{-1}, S and P- symmetric
     x = x_pred + K @ (y - C @ x_pred)
     IKC = jnp.eye(P_pred.shape[0], dtype=P_pred.dtype) - K @ C
@@ -77,8 +110,8 @@ def _init(params, from_truth, x0):
     return KFState(x, jnp.asarray(params.P0, x.dtype))
 
 
-def kalman(from_truth: bool = False) -> Component:
-    """Discrete Kalman filter for an LTI model (``KFParams``)."""
+def kalman(from_truth: bool = False, jitter: float = 0.0) -> Component:
+    """Discrete Kalman filter for an LTI model (``KFParams``); ``jitter``: see ``kf_update``."""
 
     def init(params: KFParams, key, x0):
         return _init(params, from_truth, x0)
@@ -89,15 +122,16 @@ def kalman(from_truth: bool = False) -> Component:
         xp, Pp = kf_predict(st.x, st.P, params.Phi, params.W @ u_prev, params.Q)
         first = k == 0
         xp, Pp = jnp.where(first, st.x, xp), jnp.where(first, st.P, Pp)
-        x, P = kf_update(xp, Pp, y, params.C, params.R)
+        x, P = kf_update(xp, Pp, y, params.C, params.R, jitter)
         return KFState(x, P), x
 
     return Component(init, step)
 
 
-def ekf(f: Callable, h: float, n_inputs: int, from_truth: bool = False, expm_squarings: int = 24) -> Component:
+def ekf(f: Callable, h: float, n_inputs: int, from_truth: bool = False, expm_squarings: int = 24,
+        jitter: float = 0.0) -> Component:
     """Extended Kalman filter for continuous dynamics ``f(model_params, x, u)`` sampled every ``h``
-    (``expm_squarings``: see ``linearized.expm_small``)."""
+    (``expm_squarings``: see ``linearized.expm_small``; ``jitter``: see ``kf_update``)."""
 
     def init(params: EKFParams, key, x0):
         return _init(params, from_truth, x0)
@@ -109,7 +143,7 @@ def ekf(f: Callable, h: float, n_inputs: int, from_truth: bool = False, expm_squ
         xp, Pp = kf_predict(st.x, st.P, lm.Phi, lm.W @ u_prev + lm.b, params.Q)
         first = k == 0
         xp, Pp = jnp.where(first, st.x, xp), jnp.where(first, st.P, Pp)
-        x, P = kf_update(xp, Pp, y, params.C, params.R)
+        x, P = kf_update(xp, Pp, y, params.C, params.R, jitter)
         return KFState(x, P), x
 
     return Component(init, step)

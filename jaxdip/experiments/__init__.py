@@ -42,7 +42,7 @@ def get(exp_id: str) -> Experiment:
 
         close = difflib.get_close_matches(exp_id, reg, n=1)
         hint = f" (did you mean {close[0]!r}?)" if close else f" (known: {', '.join(sorted(reg))})"
-        raise KeyError(f"unknown experiment {exp_id!r}{hint}")
+        raise KeyError(f"{exp_id}: unknown experiment{hint}")
     return reg[exp_id]
 
 

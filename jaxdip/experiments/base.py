@@ -1,19 +1,20 @@
 """The experiment contract: an id, a typed config, a run function, and an atomic writer for its outputs.
 
-``run_experiment`` produces, in the output folder: ``metrics.json`` (provenance + ``results``), ``report.md``,
-the figures as PNG and ``config.toml`` (the resolved config). Everything is written into a temporary sibling
-folder that is renamed into place only when complete, so an interrupted or failed run leaves nothing
-half-written.
+``run_experiment`` produces, in the output folder: ``metrics.json`` (provenance, ``results`` and a separate
+``timing`` block), ``report.md``, the figures as PNG and ``config.toml`` (the resolved config). Before anything
+compiles it checks the config's resource estimate and that the destination may be written
+(``jaxdip.outdir``); everything is written into a temporary sibling folder that is moved into place only when
+complete, so an interrupted or failed run leaves nothing half-written and never touches a user's files.
+
+Time is not a result: wall times and anything derived from them go to ``Outcome.timing``, so a resumed or
+repeated run has ``results`` identical to an uninterrupted one.
 """
 
 from __future__ import annotations
 
-import contextvars
 import json
 import math
 import os
-import shutil
-import tempfile
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -21,6 +22,7 @@ from typing import Any, Callable
 import jax
 
 from jaxdip import config as cfgmod
+from jaxdip import outdir, resources
 
 
 @dataclass
@@ -37,18 +39,12 @@ class RunContext:
                             f".{os.path.basename(os.path.abspath(self.out_dir))}.ckpt.npz")
 
 
-_CONTEXT: contextvars.ContextVar[RunContext | None] = contextvars.ContextVar("jaxdip_run", default=None)
-
-
-def current_run() -> RunContext | None:
-    return _CONTEXT.get()
-
-
 @dataclass
 class Outcome:
     results: dict
     report: str  # markdown body (the runner adds a provenance header)
     figures: dict = field(default_factory=dict)  # name -> matplotlib Figure
+    timing: dict = field(default_factory=dict)  # wall times and what is derived from them: never in results
 
 
 @dataclass(frozen=True)
@@ -56,7 +52,7 @@ class Experiment:
     id: str
     title: str
     config_cls: type
-    run: Callable[[Any], Outcome]
+    run: Callable[[Any, RunContext | None], Outcome]  # run(cfg, ctx): ctx says where to checkpoint
     quick: dict = field(default_factory=dict)  # overrides applied by --quick
     source: str = ""  # which document, table or figure it reproduces
 
@@ -77,27 +73,6 @@ def dump_json(obj) -> str:
     return json.dumps(_jsonable(obj), indent=2, sort_keys=False, allow_nan=False)
 
 
-def write_atomic_dir(out_dir: str, write: Callable[[str], None]):
-    """Call ``write(tmpdir)`` and move the finished folder to ``out_dir`` (replacing an older one)."""
-    out_dir = os.path.abspath(out_dir)
-    parent = os.path.dirname(out_dir)
-    os.makedirs(parent, exist_ok=True)
-    tmp = tempfile.mkdtemp(prefix=f".{os.path.basename(out_dir)}.tmp-", dir=parent)
-    try:
-        write(tmp)
-        if os.path.exists(out_dir):
-            old = tempfile.mkdtemp(prefix=f".{os.path.basename(out_dir)}.old-", dir=parent)
-            os.rmdir(old)
-            os.rename(out_dir, old)
-            os.rename(tmp, out_dir)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.rename(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-
-
 def provenance(exp_id: str, seeds: int, wall_s: float) -> dict:
     return {
         "experiment": exp_id,
@@ -110,34 +85,42 @@ def provenance(exp_id: str, seeds: int, wall_s: float) -> dict:
     }
 
 
-def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False) -> dict:
+def check_resources(cfg, flag_keys: dict[str, str] | None = None) -> None:
+    """The config's resource estimate against this machine (a ConfigError naming the key to change)."""
+    if hasattr(cfg, "loads"):
+        resources.check(cfg.loads(), flag_keys=flag_keys)
+
+
+def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, force: bool = False,
+                   flag_keys: dict[str, str] | None = None, stop_requested: Callable[[], bool] | None = None) -> dict:
     """Run an experiment with a validated config and write its folder; returns metrics.json's content.
 
-    Experiments with long searches checkpoint beside ``out_dir`` (``current_run().checkpoint_path``) and, with
-    ``resume``, continue from there; the checkpoint is removed once the folder is complete.
+    Raises ``ConfigError`` (resources) or ``outdir.OutputError`` (destination) before anything is compiled.
+    Experiments with long searches checkpoint beside ``out_dir`` (``ctx.checkpoint_path`` of the ``RunContext`` passed to ``run``) and, with
+    ``resume``, continue from there; the checkpoint is removed once the folder is complete. ``stop_requested``
+    is asked once more before the folder is moved into place, so an interrupt that a library swallowed still
+    leaves no folder behind.
     """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    check_resources(cfg, flag_keys)
+    staging = outdir.prepare(out_dir, exp.id, force=force)
     ctx = RunContext(out_dir, resume)
-    token = _CONTEXT.set(ctx)
     try:
         t0 = time.perf_counter()
-        outcome = exp.run(cfg)
+        outcome = exp.run(cfg, ctx)
         wall = time.perf_counter() - t0
-    finally:
-        _CONTEXT.reset(token)
-    seeds = getattr(cfg, "seeds", 1)
-    metrics = {**provenance(exp.id, seeds, wall), "results": outcome.results}
-    header = (
-        f"# {exp.id}: {exp.title}\n\n"
-        f"Reproduces: {exp.source}. Seeds: {seeds}; {metrics['dtype']} on {metrics['backend']} "
-        f"({metrics['devices']} device(s)), JAX {metrics['jax_version']}; wall time {wall:.1f} s.\n\n"
-    )
-
-    def write(tmp):
+        seeds = getattr(cfg, "seeds", 1)
+        metrics = {**provenance(exp.id, seeds, wall), "results": outcome.results, "timing": outcome.timing}
+        header = (
+            f"# {exp.id}: {exp.title}\n\n"
+            f"Reproduces: {exp.source}. Seeds: {seeds}; {metrics['dtype']} on {metrics['backend']} "
+            f"({metrics['devices']} device(s)), JAX {metrics['jax_version']}; wall time {wall:.1f} s.\n\n"
+        )
+        tmp = staging.tmp
         with open(os.path.join(tmp, "metrics.json"), "w") as fh:
             fh.write(dump_json(metrics) + "\n")
         with open(os.path.join(tmp, "report.md"), "w") as fh:
@@ -149,8 +132,11 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False) -> 
         for name, fig in outcome.figures.items():
             fig.savefig(os.path.join(tmp, f"{name}.png"), dpi=120, bbox_inches="tight")
             plt.close(fig)
-
-    write_atomic_dir(out_dir, write)
+        if stop_requested is not None and stop_requested():
+            raise KeyboardInterrupt
+        staging.commit()
+    finally:
+        staging.discard()  # a no-op once committed
     if os.path.exists(ctx.checkpoint_path):
         os.remove(ctx.checkpoint_path)
     return metrics

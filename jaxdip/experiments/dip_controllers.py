@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip.control import feedback_params, lqr, state_feedback
 from jaxdip.control.power_series import power_series_controller, ps_params
@@ -23,7 +24,7 @@ from jaxdip.control.projection import relaxed_projection_controller, rp_params
 from jaxdip.control.spd import P_v, P_Vs, surface_normal
 from jaxdip.estimators import passthrough
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import ball_sampler, fmt_ci, trajectory_summary, weight_matrix
 from jaxdip.plants import dip
 from jaxdip.sim import Loop, LoopParams, linearize, montecarlo, rollout, sensors
@@ -60,6 +61,11 @@ class DipControllersConfig:
                                        doc="|x_i| above this counts as divergence")
     stabilized_tol: float = C.field(0.02, C.positive_finite, doc="max |alpha|, |theta| over the last second")
 
+    def loads(self) -> list[Load]:
+        n = steps_of(self.duration, self.dt)
+        return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds, n),
+                Load("the noise-free trajectory", ("duration",), 1, n, saved=20 * n)]
+
     def validate(self):
         weight_matrix("Q", self.Q, 6)
         if self.rp_extra_pole >= 0:
@@ -90,7 +96,7 @@ def linear_rp_eigs(A, B, P, gamma):
     return np.asarray(jnp.linalg.eigvals(A - B @ Kc))
 
 
-def run(cfg: DipControllersConfig) -> Outcome:
+def run(cfg: DipControllersConfig, ctx: RunContext | None = None) -> Outcome:
     import matplotlib.pyplot as plt
 
     plant = dip.make("printed")

@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.control.power_series import power_series_controller, ps_params
@@ -38,7 +39,7 @@ from jaxdip.estimators.cpx import CPXParams, cpx_qr
 from jaxdip.estimators.ldf import dip_ldf_params, ldf
 from jaxdip.estimators.run import filter_sequence
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import ball_sampler, fmt_ci, trajectory_summary, weight_matrix
 from jaxdip.plants import dip
 from jaxdip.progress import Progress
@@ -90,6 +91,12 @@ class DipCpxLdfConfig:
     sweep_max: float = C.field(1e5, C.positive_finite, doc="gamma sweep: largest gamma")
     sweep_seeds: int = C.field(100, C.positive, doc="gamma sweep: seeds per gamma")
     figure_seed: int = C.field(0, C.nonneg, doc="seed of the trial shown in the velocity-estimate figure")
+
+    def loads(self) -> list[Load]:
+        n = steps_of(self.duration, self.dt)
+        return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds, n),
+                Load("the gamma sweep", ("sweep_seeds", "duration"), self.sweep_seeds, n),
+                Load("the velocity-estimate trial", ("duration",), 1, n, saved=80 * n)]
 
     def validate(self):
         weight_matrix("Q", self.Q, 6)
@@ -304,7 +311,7 @@ def sweep_figure(cfg, sw, gamma_crit):
 # ---- run and report -----------------------------------------------------------------------------------------
 
 
-def run(cfg: DipCpxLdfConfig, progress: bool = True) -> Outcome:
+def run(cfg: DipCpxLdfConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:
     loops, params, x0_fn, n_steps, (model, Cmat) = build(cfg)
     crit = gamma_criterion(cfg)
     results = {}

@@ -14,14 +14,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import jaxdip as jd
+from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
-from jaxdip.control import feedback_params, lqr, state_feedback
-from jaxdip.estimators import passthrough
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome
-from jaxdip.experiments.common import ball_sampler, band_figure, fmt_ci, trajectory_summary, weight_matrix
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
+from jaxdip.experiments.common import band_figure, failure_lines, fmt_ci, loop_summary, weight_matrix
 from jaxdip.plants import dip
-from jaxdip.sim import Loop, LoopParams, linearize, montecarlo, sensors
 
 INF = float("inf")
 
@@ -46,6 +45,11 @@ class DipLqrConfig:
                                     doc="stabilised: max |alpha|, |theta| over the last second below this (rad)")
     record_every: int = C.field(10, C.positive, doc="keep every n-th period for the figures")
 
+    def loads(self) -> list[Load]:
+        n = steps_of(self.duration, self.dt)
+        return [Load("the Monte Carlo", ("seeds", "duration", "record_every"), self.seeds, n,
+                     saved=2 * (n // self.record_every))]
+
     def validate(self):
         weight_matrix("Q", self.Q, 6)
         if self.duration < self.dt:
@@ -55,45 +59,33 @@ class DipLqrConfig:
             raise C.ConfigError("record_every", f"must divide the number of periods ({steps})")
 
 
-def build(cfg: DipLqrConfig):
-    """The loop, its parameters, the initial-state sampler and the number of periods."""
-    plant = dip.make(cfg.variant)
-    p = plant.default_params()
-    A, B = linearize(plant.f, p, jnp.zeros(6), 0.0)
-    K, _, _ = lqr(A, B, weight_matrix("Q", cfg.Q, 6), cfg.R)
+def angles(sample):
+    """What the band figure needs from each recorded period: alpha and theta."""
+    return sample.x[1:3]
+
+
+def build(cfg: DipLqrConfig) -> jd.Rollout:
+    """One Monte Carlo trial: the loop, initial states uniform in a ball, what to record and the metrics."""
+    plant = dip.DIP(variant=cfg.variant)
+    K, _, _ = jd.control.lqr(*jd.linearize(plant), weight_matrix("Q", cfg.Q, 6), cfg.R)
     n_steps = int(round(cfg.duration / cfg.dt))
-    loop = Loop(
-        plant=plant,
-        dt=cfg.dt,
-        sensor=sensors.linear_sensor(cfg.dt),
-        estimator=passthrough,
-        controller=state_feedback(),
-        substeps=cfg.substeps,
-        tail_steps=min(n_steps, int(round(1.0 / cfg.dt))),
-    )
-    params = LoopParams(
-        plant=p,
-        sensor=sensors.full_state_params(6, white_std=jnp.asarray(cfg.noise_std)),
-        estimator=(),
-        controller=feedback_params(K),
-        state_bound=jnp.asarray(cfg.state_bound),
-    )
-    return loop, params, ball_sampler(jnp.zeros(6), cfg.init_radius), n_steps
+    loop = jd.Loop(plant=plant, sensor=jd.sensors.WhiteNoise(cfg.noise_std), estimator=jd.Passthrough(),
+                   controller=jd.control.StateFeedback(K), dt=cfg.dt, substeps=cfg.substeps,
+                   state_bound=cfg.state_bound)
+    tail = min(n_steps, int(round(1.0 / cfg.dt)))  # the last second decides "stabilised"
+    metrics = {"x": jd.metrics.Moments("x"), "u": jd.metrics.Moments("u"),
+               "tail": jd.metrics.Window(jd.metrics.MaxAbs("x"), start=n_steps - tail)}
+    return jd.Rollout(loop, jd.Ball(jnp.zeros(6), cfg.init_radius), n_steps, save=angles,
+                      save_every=cfg.record_every, metrics=metrics)
 
 
-def simulate(cfg: DipLqrConfig, progress: bool = True, shard: bool | None = None):
-    loop, params, x0_fn, n_steps = build(cfg)
-    # sharding pays once the batch is large enough to amortise its extra compile (bench: 2.5x at 4096)
-    shard = (jax.device_count() > 1 and cfg.seeds >= 512) if shard is None else shard
-    return montecarlo.run(
-        loop, params, x0_fn, jax.random.PRNGKey(cfg.seed), cfg.seeds, n_steps,
-        record_every=cfg.record_every, record_fn=lambda r: r.x[1:3], shard=shard, progress=progress,
-        desc="dip-lqr",
-    ), n_steps
+def simulate(cfg: DipLqrConfig, progress: bool = True, shard: bool | None = None) -> jd.Solution:
+    return jd.monte_carlo(build(cfg), jax.random.PRNGKey(cfg.seed), cfg.seeds, shard=shard, progress=progress,
+                          desc="dip-lqr")
 
 
-def summarize(cfg: DipLqrConfig, res, n_steps: int) -> dict:
-    return trajectory_summary(res, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol)
+def summarize(cfg: DipLqrConfig, sol: jd.Solution) -> dict:
+    return loop_summary(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt, bound=cfg.state_bound)
 
 
 # Thesis Table 3.1, LQR column: the laboratory system over a typical 20 s interval (units not printed).
@@ -109,17 +101,17 @@ def report(cfg: DipLqrConfig, r: dict) -> str:
         f"- stabilised fraction: **{fmt_ci(r['stabilized_fraction'], r['stabilized_fraction_ci95'])}** "
         f"(max |alpha|, |theta| over the last second < {cfg.stabilized_tol} rad)",
         f"- diverged: {r['diverged']} of {cfg.seeds}",
-        "",
-        "Per-trajectory time averages, then mean over seeds with 95% intervals:",
-        "",
-        "| state | mean | var | mean abs |",
-        "|---|---|---|---|",
+        *failure_lines(r, cfg.seeds),
     ]
-    for name, s in r["states"].items():
-        lines.append(f"| {name} | {fmt_ci(s['mean'], s['mean_ci95'])} | {fmt_ci(s['var'], s['var_ci95'])} | "
-                     f"{fmt_ci(s['mean_abs'], s['mean_abs_ci95'])} |")
-    lines.append(f"| u (V) | | {fmt_ci(r['u']['var'], r['u']['var_ci95'])} | "
-                 f"{fmt_ci(r['u']['mean_abs'], r['u']['mean_abs_ci95'])} |")
+    if r["states"]:
+        survivors = cfg.seeds - r["diverged"]
+        lines += ["", f"Per-trajectory time averages, then mean over the {survivors} seeds that did not diverge, "
+                  "with 95% intervals:", "", "| state | mean | var | mean abs |", "|---|---|---|---|"]
+        for name, s in r["states"].items():
+            lines.append(f"| {name} | {fmt_ci(s['mean'], s['mean_ci95'])} | {fmt_ci(s['var'], s['var_ci95'])} | "
+                         f"{fmt_ci(s['mean_abs'], s['mean_abs_ci95'])} |")
+        lines.append(f"| u (V) | | {fmt_ci(r['u']['var'], r['u']['var_ci95'])} | "
+                     f"{fmt_ci(r['u']['mean_abs'], r['u']['mean_abs_ci95'])} |")
     lines += [
         "",
         "For orientation only: thesis Table 3.1 (LQR column) gives laboratory means/variances of |alpha| 3.4/3.03, "
@@ -130,11 +122,11 @@ def report(cfg: DipLqrConfig, r: dict) -> str:
     return "\n".join(lines)
 
 
-def run(cfg: DipLqrConfig) -> Outcome:
-    res, n_steps = simulate(cfg)
-    results = summarize(cfg, res, n_steps)
-    ok = ~np.asarray(res.carry.diverged)
-    rec = np.asarray(res.records)[ok]  # (seeds, T, 2)
+def run(cfg: DipLqrConfig, ctx: RunContext | None = None) -> Outcome:
+    sol = simulate(cfg)
+    results = summarize(cfg, sol)
+    ok = np.asarray(sol.result) == jd.RESULTS.ok
+    rec = np.asarray(sol.saved)[ok]  # (seeds, T, 2)
     t = np.arange(rec.shape[1]) * cfg.dt * cfg.record_every
     fig = band_figure(t, {"alpha": rec[:, :, 0], "theta": rec[:, :, 1]}, "(rad)",
                       title=f"dip-lqr: {int(ok.sum())} of {cfg.seeds} trajectories (diverged ones left out)")

@@ -36,13 +36,14 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from jaxdip.resources import Load, steps_of
 from jaxdip import checkpoint
 from jaxdip import config as C
 from jaxdip.control import lqr
 from jaxdip.control.projection import relaxed_projection_controller, rp_params
 from jaxdip.estimators import passthrough
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome, current_run
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import ball_sampler, fmt_ci, trajectory_summary
 from jaxdip.plants import dip
 from jaxdip.progress import Progress
@@ -109,6 +110,14 @@ class EkiDipConfig:
     grad_common_states: bool = C.field(True, doc="the same training states at every step (else fresh ones)")
     eval_states: int = C.field(64, C.positive, doc="common initial states scoring both searches")
 
+    def loads(self) -> list[Load]:
+        n = steps_of(self.T, self.dt)
+        return [Load("the ensemble search", ("ensemble", "n_x0", "T"), self.ensemble * self.n_x0, n),
+                Load("the gradient search", ("grad_x0", "T"), self.grad_x0 if self.grad_steps else 0, n,
+                     saved=60 * n),
+                Load("the judging Monte Carlo", ("seeds", "judge_duration"), self.seeds,
+                     steps_of(self.judge_duration, self.dt))]
+
     def validate(self):
         if self.t_star >= self.T:
             raise C.ConfigError("t_star", f"must be below T = {self.T}")
@@ -153,7 +162,7 @@ def judge(cfg, plant, p, member, key_seed):
     return trajectory_summary(res, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol)
 
 
-def run(cfg: EkiDipConfig) -> Outcome:
+def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
     import matplotlib.pyplot as plt
 
     plant = dip.make("printed")
@@ -171,7 +180,6 @@ def run(cfg: EkiDipConfig) -> Outcome:
     state = eki.init(members0, jax.random.fold_in(base, 2))
 
     # --- the ensemble Kalman search, checkpointed ---------------------------------------------------------
-    ctx = current_run()
     fp = checkpoint.fingerprint(C.to_dict(cfg))
     history = np.zeros((0, 1))
     wall_before = 0.0
@@ -258,7 +266,8 @@ def run(cfg: EkiDipConfig) -> Outcome:
         perf_grad = eval_perf(m)
         grad = {"P_basis": np.asarray(m.V).tolist(), "P_singular_values": np.exp(np.asarray(m.log_s)).tolist(),
                 "steps": cfg.grad_steps, "simulations": cfg.grad_steps * cfg.grad_x0,
-                "wall_s": time.perf_counter() - tg, "performance": perf_grad, "loss_history": glosses}
+                "performance": perf_grad, "loss_history": glosses}
+        grad_wall = time.perf_counter() - tg
         grad["judge"] = judge(cfg, plant, p, m, cfg.seed + 7)
         grad["stabilized_fraction"] = grad["judge"]["stabilized_fraction"]
 
@@ -269,7 +278,6 @@ def run(cfg: EkiDipConfig) -> Outcome:
         "v1_lqr": np.asarray(v1_lqr).tolist(),
         "iterations": iters,
         "simulations": iters * cfg.ensemble * cfg.n_x0,
-        "wall_s": eki_wall,
         "stabilized_fraction": judged["stabilized_fraction"],
         "stabilized_fraction_ci95": judged["stabilized_fraction_ci95"],
         "judge": judged,
@@ -291,15 +299,16 @@ def run(cfg: EkiDipConfig) -> Outcome:
     ax.set_ylabel("performance (2.24)")
     ax.legend(fontsize=8)
     ax.set_title("eki-dip search")
-    return Outcome(results, report(cfg, results), {"search_history": fig})
+    timing = {"search_wall_s": eki_wall, **({"gradient_search_wall_s": grad_wall} if grad else {})}
+    return Outcome(results, report(cfg, results, timing), {"search_history": fig}, timing=timing)
 
 
-def report(cfg, r):
+def report(cfg, r, timing):
     j = r["judge"]
     lines = [
         f"Ensemble Kalman search on the printed DIP: J = {cfg.ensemble}, up to {cfg.iterations} iterations "
         f"(stopped at {r['iterations']}), T = {cfg.T} s, t* = {cfg.t_star} s, gamma = {cfg.gamma}, state noise std "
-        f"{cfg.noise_std} every {cfg.dt * 1e3:g} ms. Wall time of the search: **{r['wall_s']:.1f} s** on this "
+        f"{cfg.noise_std} every {cfg.dt * 1e3:g} ms. Wall time of the search: **{timing['search_wall_s']:.1f} s** on this "
         f"machine ({r['simulations']} closed-loop simulations of {cfg.T} s; the thesis used a 12-core cluster).",
         "",
         f"- found P: basis rows {np.round(r['P_basis'], 4).tolist()}, singular values "
@@ -315,7 +324,7 @@ def report(cfg, r):
         lines += [
             "",
             f"Gradient search (Adam, {g['steps']} steps x {cfg.grad_x0} initial states = {g['simulations']} forward "
-            f"simulations plus as many backward passes, {g['wall_s']:.1f} s): performance {g['performance']['mean']:.3g}"
+            f"simulations plus as many backward passes, {timing['gradient_search_wall_s']:.1f} s): performance {g['performance']['mean']:.3g}"
             f" (failed {g['performance']['failed']}); stabilised fraction "
             f"{fmt_ci(g['judge']['stabilized_fraction'], g['judge']['stabilized_fraction_ci95'])}.",
             f"EKI used {r['simulations']} simulations for {r['performance']['mean']:.3g}; the gradient search used "

@@ -22,13 +22,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.resources import Load
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.control import dlqr
 from jaxdip.control.projection import drift_and_input, projected_closed_loop, relaxed_discrete, state_weight
 from jaxdip.control.spd import P_v
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import examples2d
 from jaxdip.progress import Progress
 from jaxdip.search import EKI
@@ -64,6 +65,14 @@ class EkiExampleConfig:
     judge_std: float = C.field(1.0, C.positive_finite, doc="std of those initial states")
     judge_steps: int = C.field(200, C.positive, doc="steps of those simulations")
     judge_tol: float = C.field(1e-3, C.positive_finite, doc="final |x| below this counts as stabilised")
+
+    def loads(self) -> list[Load]:
+        # searches run in vmapped batches of up to 250 (with their restarts side by side)
+        batch = min(self.seeds, 250) * self.restarts
+        return [Load("the batch of searches", ("seeds", "ensemble", "iterations"), batch * self.ensemble,
+                     self.iterations, saved=4 * self.iterations // self.ensemble + 16),
+                Load("the judging rollouts", ("judge_states", "judge_steps"), self.judge_states, self.judge_steps,
+                     saved=3 * self.judge_steps)]
 
 
 THESIS_V = {"linear": [-0.9975, -0.07], "nonlinear": [0.9950, 0.1003]}
@@ -160,7 +169,7 @@ def search_success(cfg, base):
     return stats.wilson(int(ok.sum()), len(ok))
 
 
-def run(cfg: EkiExampleConfig) -> Outcome:
+def run(cfg: EkiExampleConfig, ctx: RunContext | None = None) -> Outcome:
     import matplotlib.pyplot as plt
 
     plant, prm = _plant(cfg)

@@ -30,13 +30,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.estimators.cpx import CPXParams, cpx_linearized
 from jaxdip.estimators.kalman import EKFParams, ekf
 from jaxdip.estimators.scpx import scpx_linearized
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import lorenz
 from jaxdip.progress import Progress
 from jaxdip.sim import rk4_zoh
@@ -74,6 +75,11 @@ class LorenzMheConfig:
     chunk_steps: int = C.field(1000, C.positive, doc="samples per compiled chunk (progress granularity)")
     figure_trial: int = C.field(0, C.nonneg, doc="trial shown in the xL figure")
     record_every: int = C.field(10, C.positive, doc="keep every n-th sample of the figure trial")
+
+    def loads(self) -> list[Load]:
+        n = steps_of(self.duration, self.h)
+        return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds, n, state=4096),
+                Load("the figure trial", ("duration", "record_every"), 1, n, saved=12 * (n // self.record_every))]
 
     def validate(self):
         if self.scpx_p > 3:
@@ -483,7 +489,7 @@ def figures(cfg: LorenzMheConfig, per_trial: dict, rec):
     return {"errors_per_method": fig1, "xL_scpx_vs_ekf": fig2}
 
 
-def run(cfg: LorenzMheConfig) -> Outcome:
+def run(cfg: LorenzMheConfig, ctx: RunContext | None = None) -> Outcome:
     carry = simulate(cfg)
     results, per_trial = summarize(cfg, carry)
     rec = record_trial(cfg)

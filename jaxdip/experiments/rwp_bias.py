@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.control import feedback_params, state_feedback
@@ -30,7 +31,7 @@ from jaxdip.estimators import bias_observers as bo
 from jaxdip.estimators import homd
 from jaxdip.estimators import luenberger as lu
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import rwp
 from jaxdip.progress import Progress
 from jaxdip.sim import Loop, LoopParams, actuators, montecarlo, sensors
@@ -89,6 +90,16 @@ class RwpBiasConfig:
     lmi_mu: float = C.field(-0.2, C.finite, doc="mu of (27)")
     lmi_c0: float = C.field(0.9, C.positive_finite, doc="c0 of Assumption 2 (not given in the paper)")
     record_every: int = C.field(5, C.positive, doc="keep every n-th period for figures and settle times")
+
+    def loads(self) -> list[Load]:
+        every = self.record_every
+        n_a = steps_of(self.no_bias_duration, self.dt)
+        n_b = steps_of(max(self.bias_duration, self.lowpass_duration, self.reduced_duration,
+                           self.gamma_check_duration), self.dt)
+        return [Load("part (a)", ("seeds", "no_bias_duration", "record_every"), 2 * len(self.theta0) * self.seeds,
+                     n_a, saved=8 * (n_a // every)),
+                Load("the biased runs", ("bias_seeds", "lowpass_duration", "record_every"),
+                     (len(self.gamma_d) + 2) * self.bias_seeds, n_b, saved=8 * (n_b // every))]
 
     def validate(self):
         for key in ("no_bias_duration", "bias_duration", "lowpass_duration", "reduced_duration",
@@ -677,7 +688,7 @@ def claims(cfg, r):
 # ---- run --------------------------------------------------------------------------------------------------------
 
 
-def run(cfg: RwpBiasConfig) -> Outcome:
+def run(cfg: RwpBiasConfig, ctx: RunContext | None = None) -> Outcome:
     a, curves_a = part_a(cfg)
     b, curve_b = part_b(cfg)
     c, curves_c = part_c(cfg)

@@ -28,11 +28,12 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from jaxdip.resources import Load, steps_of
 from jaxdip import checkpoint as ckpt
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome, current_run
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import fmt_ci
 from jaxdip.tune import Bounded, Log, mc_objective, random_search, straight_through_sensor, tune
 
@@ -70,6 +71,11 @@ class TuneConfig:
                                        "x/÷ this")
     wheel_weight: float = C.field(1e-3, C.nonneg_finite,
                                   doc="rwp: weight of the integrated squared wheel speed ((rad/s)^2 s) in the loss")
+
+    def loads(self) -> list[Load]:
+        n = steps_of(self.duration, 0.001)  # the finest period of the targets (the DIP's 1 ms)
+        return [Load("a tuning step", ("seeds", "duration"), self.seeds, n, saved=64 * n),
+                Load("the held-out evaluation", ("heldout_seeds", "duration"), self.heldout_seeds, n)]
 
     def validate(self):
         if self.target not in IMPLEMENTED:
@@ -364,7 +370,7 @@ def _scalar(theta):
     return {k: float(v) if np.ndim(v) == 0 else np.asarray(v, dtype=float).tolist() for k, v in theta.items()}
 
 
-def run(cfg: TuneConfig, progress: bool = True) -> Outcome:
+def run(cfg: TuneConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:
     import time
 
     t_all = time.perf_counter()
@@ -378,7 +384,6 @@ def run(cfg: TuneConfig, progress: bool = True) -> Outcome:
     held = jax.jit(held_obj.per_seed)
     held_div = jax.jit(held_obj.diverged) if hasattr(held_obj, "diverged") else None
 
-    ctx = current_run()
     res = tune(J_tune, tg.paper, key, steps=cfg.steps, lr=cfg.lr, spec=tg.spec, clip=cfg.clip,
                optimizer=optax.rprop(cfg.lr) if cfg.optimizer == "rprop" else None,
                common_random_numbers=cfg.crn, early_stop_patience=cfg.patience or None,
@@ -426,9 +431,6 @@ def run(cfg: TuneConfig, progress: bool = True) -> Outcome:
         "tuning_loss_best": res.loss, "random_search_tuning_loss_best": best_rs,
         "gradient_simulations_to_reach_random_search_best": sims_to_rs_best,
         "random_search_simulations_to_its_best": rs_sims_to_best,
-        "gradient_step_cost_in_evaluations": step_cost,
-        "gradient_evaluation_equivalents_to_reach_random_search_best":
-            None if sims_to_rs_best is None else sims_to_rs_best * step_cost,
         "steps": res.steps, "stopped_early": res.stopped_early,
         "trajectory": {"loss": res.loss_history.tolist(),
                        **{k: np.asarray(v).tolist() for k, v in res.theta_history.items()},
@@ -436,14 +438,21 @@ def run(cfg: TuneConfig, progress: bool = True) -> Outcome:
         "random_search_losses": rs.losses.tolist(),
         "random_search_samples": {k: np.asarray(v).tolist() for k, v in rs.samples.items()},
         "landscape": {tg.param: grid, "loss": land},
+    }
+    # measured time, and what is derived from it, is not a result: a resumed run must give identical results
+    timing = {
         "wall_s": {"tune": res.wall_s, "random_search": rs.wall_s, "heldout_eval": eval_wall,
                    "total": time.perf_counter() - t_all},
+        "gradient_step_cost_in_evaluations": step_cost,
+        "gradient_evaluation_equivalents_to_reach_random_search_best":
+            None if sims_to_rs_best is None else sims_to_rs_best * step_cost,
     }
     if hasattr(tg, "describe"):
         out.update(tg.describe())
     results = {cfg.target: out}
     figures = {"tune_" + cfg.target: figure(cfg, tg, out)}
-    return Outcome(results=results, report=report(cfg, out), figures=figures)
+    return Outcome(results=results, report=report(cfg, out, timing), figures=figures,
+                   timing={cfg.target: timing})
 
 
 def figure(cfg, tg, r):
@@ -476,7 +485,7 @@ def figure(cfg, tg, r):
     return fig
 
 
-def report(cfg, r) -> str:
+def report(cfg, r, timing) -> str:
     p = list(r["paper_value"])
     num = lambda v: f"{v:.5g}" if np.ndim(v) == 0 else "[" + ", ".join(f"{x:.4g}" for x in v) + "]"
     fmt = lambda d: ", ".join(f"{k} = {num(v)}" for k, v in d.items())
@@ -509,9 +518,9 @@ def report(cfg, r) -> str:
         f", the random search found it after "
         f"{r['random_search_simulations_to_its_best']}. A gradient step (one forward-mode pass per seed carrying "
         f"{n_tan} tangent{'s' if n_tan > 1 else ''}) cost "
-        f"{r['gradient_step_cost_in_evaluations']:.3g}x a plain evaluation in wall time (medians, compilation "
+        f"{timing['gradient_step_cost_in_evaluations']:.3g}x a plain evaluation in wall time (medians, compilation "
         f"excluded), so in evaluation-equivalents the gradient run needed "
-        f"{'n/a' if g is None else format(r['gradient_evaluation_equivalents_to_reach_random_search_best'], '.4g')}"
+        f"{'n/a' if g is None else format(timing['gradient_evaluation_equivalents_to_reach_random_search_best'], '.4g')}"
         f" simulations to reach the random search's best.",
     ]
     return "\n".join(lines)

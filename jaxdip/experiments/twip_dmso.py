@@ -56,6 +56,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.control import feedback_params, state_feedback
@@ -64,7 +65,7 @@ from jaxdip.estimators.complementary import complementary_params, tilt_prefilter
 from jaxdip.estimators.dmso import DMSOParams, dmso, dmso_params, dmso_sequence, selection_matrix
 from jaxdip.estimators.kalman import KFParams, kalman
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import weight_matrix
 from jaxdip.plants import twip
 from jaxdip.progress import Progress
@@ -148,6 +149,11 @@ class TwipDmsoConfig:
                                   "estimate converges in 0.25 s)")
     tilt_bound_deg: float = C.field(90.0, C.positive_finite, doc="|phi| above this counts as a fall (diverged)")
     chunk_seeds: int = C.field(64, C.positive, doc="seeds per compiled batch")
+
+    def loads(self) -> list[Load]:
+        n = max(steps_of(self.duration, self.dt), steps_of(self.duration_fine, self.dt_fine))
+        return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds, n, saved=48 * n),
+                Load("the deterministic cases", ("det_seeds", "duration"), self.det_seeds, n, saved=48 * n)]
 
     def validate(self):
         for i, c in enumerate(self.cases):
@@ -578,7 +584,7 @@ def fig_uncertainty(name, tr: Trace, dt):
 # ---- the experiment ---------------------------------------------------------------------------------------
 
 
-def run(cfg: TwipDmsoConfig, progress: bool = True) -> Outcome:
+def run(cfg: TwipDmsoConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:
     specs = case_specs(cfg)
     total = sum(s.n_seeds * n_steps(s) * len(s.estimators) for s in specs)
     bar = Progress(total, desc="twip-dmso", enabled=progress)

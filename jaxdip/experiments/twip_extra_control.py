@@ -54,13 +54,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.control.extra_control import ExtraControlParams, desired_state, extra_control, extra_control_params
 from jaxdip.control.twip_lqr import twip_dlqr
 from jaxdip.estimators.passthrough import passthrough
 from jaxdip.experiments import register, twip_dmso
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import twip
 from jaxdip.plants.base import Plant
 from jaxdip.progress import Progress
@@ -135,6 +136,11 @@ class TwipExtraControlConfig:
                                   doc="further LQR + extra rows on the same seeds, each 'key=value; key=value' over "
                                       "the controller keys " + ", ".join(VARIANT_KEYS))
     chunk_seeds: int = C.field(250, C.positive, doc="seeds per compiled batch")
+
+    def loads(self) -> list[Load]:
+        n = steps_of(self.duration, self.dt)
+        return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds, n, saved=24 * n,
+                     state=64 * self.n_hidden + 256)]
 
     def validate(self):
         for i, spec in enumerate(self.variants):
@@ -418,7 +424,7 @@ def summarize_variant(s, d, lqr_s, lqr_d) -> dict:
             **versus_lqr(s, d, lqr_s, lqr_d)}
 
 
-def run(cfg: TwipExtraControlConfig, progress: bool = True) -> Outcome:
+def run(cfg: TwipExtraControlConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:
     fn = batch_fn(cfg)
     trace = trace_fn(cfg, 0)
     results, figures = {}, {}

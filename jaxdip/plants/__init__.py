@@ -2,5 +2,6 @@
 
 from jaxdip.plants import dip, examples2d, lorenz, rwp, twip
 from jaxdip.plants.base import Plant
+from jaxdip.plants.dip import DIP
 
-__all__ = ["Plant", "dip", "examples2d", "lorenz", "rwp", "twip"]
+__all__ = ["Plant", "DIP", "dip", "examples2d", "lorenz", "rwp", "twip"]

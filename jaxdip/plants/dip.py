@@ -20,9 +20,12 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.roles import Plant as EnginePlant
+from jaxdip.engine.roles import param
 from jaxdip.plants.base import Plant
 
 STATE_NAMES = ("xc", "alpha", "theta", "xc_dot", "alpha_dot", "theta_dot")
@@ -91,7 +94,7 @@ def solve_sym3(m11, m12, m13, m22, m23, m33, b1, b2, b3):
 
 def f_printed(p: DIPParams, x, u):
     """Equations of motion as printed in thesis §3.1.1, with Mw in the cart mass."""
-    xc, a, th, xcd, ad, thd = x[0], x[1], x[2], x[3], x[4], x[5]
+    _xc, a, th, xcd, ad, thd = x[0], x[1], x[2], x[3], x[4], x[5]
     V = jnp.reshape(u, (-1,))[0]
     s_a, c_a = jnp.sin(a), jnp.cos(a)
     s_at, c_at = jnp.sin(a + th), jnp.cos(a + th)
@@ -187,3 +190,50 @@ def make(variant: str = "printed") -> Plant:
         f=f,
         energy=energy if variant == "lagrangian" else None,
     )
+
+
+# ---- the engine's plant --------------------------------------------------------------------------------------
+
+_D = DIPParams._field_defaults
+
+
+class DIP(EnginePlant):
+    """The DIP as an engine plant: the Table 3.3 parameters (``DIPParams``, SI units) are its array fields, the
+    variant (``"printed"``, the default, or ``"lagrangian"``) is static. Same equations as ``make(variant)``."""
+
+    Bc: jax.Array = param(_D["Bc"])
+    B1: jax.Array = param(_D["B1"])
+    B2: jax.Array = param(_D["B2"])
+    g: jax.Array = param(_D["g"])
+    I1: jax.Array = param(_D["I1"])
+    I2: jax.Array = param(_D["I2"])
+    Jm: jax.Array = param(_D["Jm"])
+    Kg: jax.Array = param(_D["Kg"])
+    Km: jax.Array = param(_D["Km"])
+    Kt: jax.Array = param(_D["Kt"])
+    l1: jax.Array = param(_D["l1"])
+    l2: jax.Array = param(_D["l2"])
+    L1: jax.Array = param(_D["L1"])
+    L2: jax.Array = param(_D["L2"])
+    Mc: jax.Array = param(_D["Mc"])
+    Mh: jax.Array = param(_D["Mh"])
+    Mw: jax.Array = param(_D["Mw"])
+    M1: jax.Array = param(_D["M1"])
+    M2: jax.Array = param(_D["M2"])
+    Rm: jax.Array = param(_D["Rm"])
+    rmp: jax.Array = param(_D["rmp"])
+    variant: str = eqx.field(default="printed", static=True)
+
+    state_names = STATE_NAMES
+    input_names = ("V",)
+
+    def __check_init__(self):
+        if self.variant not in ("printed", "lagrangian"):
+            raise ValueError(f"unknown DIP variant {self.variant!r}; choose 'printed' or 'lagrangian'")
+
+    def vector_field(self, x, u):
+        # the module has DIPParams' field names, so the equations take it in place of a DIPParams
+        return (f_printed if self.variant == "printed" else f_lagrangian)(self, x, u)
+
+    def energy(self, x):
+        return energy(self, x)

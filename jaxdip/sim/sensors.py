@@ -16,6 +16,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.roles import Sensor, param
 from jaxdip.sim.component import Component
 
 
@@ -75,3 +76,16 @@ def linear_sensor(dt: float, stationary_start: bool = True) -> Component:
         return bias, y
 
     return Component(init, step)
+
+
+class WhiteNoise(Sensor):
+    """Full-state measurement with white Gaussian noise, y = x + std * xi (``std`` scalar or per state).
+
+    The noise is drawn from the first half of ``split(key)``, as ``linear_sensor`` draws its white noise, so
+    the two give identical measurements for the same key."""
+
+    std: jax.Array = param()
+
+    def step(self, state, x, key, k):
+        k_white, _ = jax.random.split(key)
+        return state, x + self.std * jax.random.normal(k_white, jnp.shape(x)), None

@@ -1,7 +1,7 @@
 """Analytic results of Aranovskiy et al. (reaction-wheel pendulum, biased angle sensor) as functions.
 
 Reduced state x = [theta, theta', theta_r'], linearised model (4) with the input column from (2)-(3)
-(B = [0, -k/J, k/J + k/Jr]; DESIGN.md), law u = -K x, K = [k1, k2, k3] (Table 2: [-582, -83, -1.2]).
+(B = [0, -k/J, k/J + k/Jr]; docs/models.md), law u = -K x, K = [k1, k2, k3] (Table 2: [-582, -83, -1.2]).
 
 Equilibria under a sensor bias d (y = theta + d):
 
@@ -19,7 +19,7 @@ Proposition 2 (low-pass bias observer (17) with law (18)): with d~ = d - d̂, d~
 
     [x; d~]' = F [x; d~],   F = [[A - BK, -k1 B], [-γ_d e1^T, -γ_d]]
 
-(the printed F has 0 where -γ_d belongs; the printed polynomial keeps it; DESIGN.md). det(sI - F) = (s + γ_d)
+(the printed F has 0 where -γ_d belongs; the printed polynomial keeps it; docs/models.md). det(sI - F) = (s + γ_d)
 (s^3 + m1 s^2 + m2 s + m3) + (k k1/J) γ_d s = s^4 + b1 s^3 + b2 s^2 + b3 s + b4 with m1, m2, m3 and b1..b4 as
 printed. b3 > 0 <=> γ_d < -k k3/Jr = γ̄_d,1; the last Routh condition (b1 b2 - b3) b3 - b1^2 b4 > 0 is a cubic in
 γ_d whose smallest positive root is γ̄_d,2; γ̄_d = min(γ̄_d,1, γ̄_d,2). ``gamma_bar_routh`` follows that route,

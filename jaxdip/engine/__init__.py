@@ -1,0 +1,19 @@
+"""The closed-loop engine: roles as equinox Modules, ``simulate`` (one trajectory, pure), metric reducers, and
+the ``monte_carlo`` driver. See docs/engine.md. Everything here is re-exported flat from ``jaxdip``."""
+
+from jaxdip.engine import metrics
+from jaxdip.engine.roles import (
+    Actuator, Controller, DiscretePlant, Estimator, FanOut, FanOutAux, Identity, Legacy, LegacyPlant, Passthrough,
+    Plant, Sensor, linearize, param,
+)
+from jaxdip.engine.simulate import (
+    RESULTS, Aux, KeySchedule, Loop, Sample, Solution, State, init_state, simulate,
+)
+from jaxdip.engine.driver import Ball, Rollout, device_mesh, monte_carlo
+
+__all__ = [
+    "metrics", "Actuator", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux", "Identity",
+    "Legacy", "LegacyPlant", "Passthrough", "Plant", "Sensor", "linearize", "param", "RESULTS", "Aux",
+    "KeySchedule", "Loop",
+    "Sample", "Solution", "State", "init_state", "simulate", "Ball", "Rollout", "device_mesh", "monte_carlo",
+]

@@ -1,0 +1,278 @@
+"""The roles of a closed loop as ``equinox.Module``s: plant, sensor, estimator, controller, actuator.
+
+A component *is* its hyperparameters: numbers are array fields (traced, differentiable, vmappable, changed with
+``eqx.tree_at``), structure is ``eqx.field(static=True)`` (dimensions, variants, flags). One protocol per role,
+each an ``init``/``step`` pair over an explicit state pytree; ``step`` returns ``(state, output, aux)``, where
+``aux`` is anything the component wants a caller to be able to record (a covariance, adapted weights, a bias
+estimate) or ``None``:
+
+    Sensor      init(key, x0) -> s     step(s, x, key, k)            -> (s, y, aux)
+    Estimator   init(key, x0) -> s     step(s, y, u_prev, key, k)    -> (s, xhat, aux)
+    Controller  init(key, x0) -> s     step(s, xhat, key, k)         -> (s, u, aux)
+    Actuator    init(key, x0) -> s     step(s, u, key, k)            -> (s, u_applied, aux)
+
+``x0`` is the true initial plant state (an estimator may start from it or ignore it); ``k`` is the period
+index. A plant is continuous (``vector_field(x, u)``, integrated by RK4 sub-steps under a zero-order hold) or
+discrete (``step(x, u)``); it names its states and inputs (``state_names``, ``input_names``) and may override
+``equilibrium()``, the point the loop's state bound is measured from.
+
+This module imports nothing else from jaxdip at import time, so plants and sensors can subclass these roles
+without import cycles.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from typing import Any, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+
+def _as_float_array(v):
+    return jnp.asarray(v, dtype=jnp.result_type(float))
+
+
+def param(default: Any = dataclasses.MISSING, **kw):
+    """A hyperparameter field: stored as a float array (float64 under jaxdip), so it is traced, not static.
+
+    ``eqx.field(converter=...)`` runs on construction only; ``eqx.tree_at`` and ``vmap`` may put tracers or
+    batched arrays in the field unchanged.
+    """
+    return eqx.field(default=default, converter=_as_float_array, **kw)
+
+
+# ---- plants -------------------------------------------------------------------------------------------------
+
+
+def _vector_field(plant, x, u):
+    # module-level, so integrators and jit see one function object for every plant instance
+    return plant.vector_field(x, u)
+
+
+class Plant(eqx.Module):
+    """A continuous plant: subclasses define ``vector_field(x, u) -> xdot`` and the class attributes
+    ``state_names`` and ``input_names``."""
+
+    state_names = ()
+    input_names = ("u",)
+    continuous = True
+
+    @property
+    def n(self) -> int:
+        return len(self.state_names)
+
+    @property
+    def m(self) -> int:
+        return len(self.input_names)
+
+    def index(self, name: str) -> int:
+        """Position of a state by name: weights and noise levels are mapped by name, never by position."""
+        try:
+            return tuple(self.state_names).index(name)
+        except ValueError:
+            raise KeyError(f"{type(self).__name__} has no state {name!r}; states are {self.state_names}") from None
+
+    def equilibrium(self) -> jax.Array:
+        """The operating point the loop's state bound is measured from (the origin unless overridden)."""
+        return jnp.zeros(self.n)
+
+    @abc.abstractmethod
+    def vector_field(self, x, u) -> jax.Array:
+        ...
+
+    def period(self, x, u, dt: float, substeps: int) -> jax.Array:
+        """x after one sample period ``dt`` with ``u`` held: ``substeps`` RK4 steps."""
+        from jaxdip.sim.integrate import rk4_zoh
+
+        return rk4_zoh(_vector_field, self, x, u, dt, substeps)
+
+
+class DiscretePlant(Plant):
+    """A discrete-time plant: subclasses define ``step(x, u) -> x_next`` (one sample period)."""
+
+    continuous = False
+
+    def vector_field(self, x, u):
+        raise TypeError(f"{type(self).__name__} is a discrete plant: it has step(x, u), not a vector field")
+
+    @abc.abstractmethod
+    def step(self, x, u) -> jax.Array:
+        ...
+
+    def period(self, x, u, dt: float, substeps: int) -> jax.Array:
+        return self.step(x, jnp.asarray(u))
+
+
+def linearize(plant: Plant, x=None, u=None) -> tuple[jax.Array, jax.Array]:
+    """(A, B): Jacobians of the vector field (or of the discrete map) at (x, u) by forward-mode autodiff.
+
+    Defaults: the plant's equilibrium and a zero input. Compiled per plant structure, so repeated calls (a
+    sweep over plant parameters) reuse one program.
+    """
+    x = plant.equilibrium() if x is None else jnp.asarray(x, dtype=jnp.result_type(float))
+    u = jnp.zeros(plant.m) if u is None else jnp.atleast_1d(jnp.asarray(u, dtype=jnp.result_type(float)))
+    return _jacobians(plant, x, u)
+
+
+def _discrete_map(plant, x, u):
+    return plant.step(x, u)
+
+
+@eqx.filter_jit
+def _jacobians(plant, x, u):
+    # x and u are arguments, not constants made inside: XLA would fold them and round differently
+    f = _vector_field if plant.continuous else _discrete_map
+    A = jax.jacfwd(f, argnums=1)(plant, x, u)
+    B = jax.jacfwd(f, argnums=2)(plant, x, u)
+    return A, B.reshape(x.shape[0], u.shape[0])
+
+
+# ---- sensors, estimators, controllers, actuators ------------------------------------------------------------
+
+
+class Sensor(eqx.Module):
+    def init(self, key, x0):
+        return ()
+
+    @abc.abstractmethod
+    def step(self, state, x, key, k):
+        """-> (state, y, aux)"""
+
+
+class Estimator(eqx.Module):
+    def init(self, key, x0):
+        return ()
+
+    @abc.abstractmethod
+    def step(self, state, y, u_prev, key, k):
+        """-> (state, xhat, aux)"""
+
+
+class Controller(eqx.Module):
+    def init(self, key, x0):
+        return ()
+
+    @abc.abstractmethod
+    def step(self, state, xhat, key, k):
+        """-> (state, u, aux)"""
+
+
+class Actuator(eqx.Module):
+    def init(self, key, x0):
+        return ()
+
+    @abc.abstractmethod
+    def step(self, state, u, key, k):
+        """-> (state, u_applied, aux)"""
+
+
+class Identity(Actuator):
+    """The ideal actuator (and a do-nothing stage of any role with one input): output = input."""
+
+    def step(self, state, u, key, k):
+        return state, u, None
+
+
+class Passthrough(Estimator):
+    """The measurement is the estimate (full-state measurement)."""
+
+    def step(self, state, y, u_prev, key, k):
+        return state, y, None
+
+
+class FanOutAux(NamedTuple):
+    xhat: dict  # name -> that estimator's output
+    aux: dict  # name -> that estimator's aux
+
+
+class FanOut(Estimator):
+    """Several estimators fed the same measurements and inputs; the controller gets ``estimators[drive]``.
+
+    Every estimator receives the same keys (at init and at every step) as a single estimator in this place
+    would, so the driving estimator's trajectory is exactly the one of a loop without the others, and the
+    others are compared on identical noise. ``aux`` is a ``FanOutAux`` with every estimator's output and aux.
+    """
+
+    estimators: dict
+    drive: str = eqx.field(static=True)
+
+    def __check_init__(self):
+        if self.drive not in self.estimators:
+            raise ValueError(f"drive={self.drive!r} is not one of the estimators {sorted(self.estimators)}")
+
+    def init(self, key, x0):
+        return {name: e.init(key, x0) for name, e in self.estimators.items()}
+
+    def step(self, state, y, u_prev, key, k):
+        new, outs, auxes = {}, {}, {}
+        for name, e in self.estimators.items():
+            new[name], outs[name], auxes[name] = e.step(state[name], y, u_prev, key, k)
+        return new, outs[self.drive], FanOutAux(outs, auxes)
+
+
+# ---- adapters for the init/step components of jaxdip.sim.component ---------------------------------------
+
+
+def _dynamic(params):
+    # The old Monte Carlo driver passed params through jax.jit, which traces Python numbers; do the same here so
+    # filter_jit does not bake them in as constants (no recompile per value, and grad reaches them).
+    return jax.tree_util.tree_map(
+        lambda a: jnp.asarray(a) if isinstance(a, (bool, int, float, complex)) else a, params)
+
+
+class Legacy(eqx.Module):
+    """Any ``Component(init, step)`` with its params pytree, in any non-plant role, running unchanged.
+
+    ``aux`` is the component's new state, so anything it keeps can be recorded. The component (a pair of
+    closures) is static: two ``Legacy`` objects built from separately constructed components compile
+    separately.
+    """
+
+    component: Any = eqx.field(static=True)
+    params: Any = eqx.field(converter=_dynamic)
+
+    def init(self, key, x0):
+        return self.component.init(self.params, key, x0)
+
+    def step(self, state, *args):
+        *inp, key, k = args
+        # the old interface passes one input; an estimator's (y, u_prev) travel as a tuple
+        inp = inp[0] if len(inp) == 1 else tuple(inp)
+        state, out = self.component.step(self.params, state, inp, key, k)
+        return state, out, state
+
+
+class LegacyPlant(Plant):
+    """A ``jaxdip.plants.base.Plant`` bundle with its params pytree as a plant of the engine."""
+
+    plant: Any = eqx.field(static=True)
+    params: Any = eqx.field(converter=_dynamic)
+
+    @property
+    def state_names(self):
+        return self.plant.state_names
+
+    @property
+    def input_names(self):
+        return self.plant.input_names
+
+    @property
+    def continuous(self):
+        return self.plant.continuous
+
+    def equilibrium(self):
+        return self.plant.x_eq(self.params)
+
+    def vector_field(self, x, u):
+        return self.plant.f(self.params, x, u)
+
+    def step(self, x, u):
+        return self.plant.step(self.params, x, u)
+
+    def period(self, x, u, dt, substeps):
+        from jaxdip.sim.integrate import make_period_map
+
+        return make_period_map(self.plant, dt, substeps)(self.params, x, u)

@@ -1,0 +1,227 @@
+"""``simulate``: the only place a closed loop is scanned over time.
+
+One sample period k, in the order the laboratory loops run:
+
+    y_k        = sensor(x_k)
+    xhat_k     = estimator(y_k, u_{k-1})
+    u_k        = controller(xhat_k)
+    ua_k       = actuator(u_k)
+    x_{k+1}    = plant over dt with ua_k held (RK4 sub-steps under ZOH), plus process noise
+
+Randomness, from the trajectory's key ``key`` (seed i of a Monte Carlo run has ``key = fold_in(base, i)``):
+the component states start from ``split(fold_in(key, 1), 4)`` (sensor, estimator, controller, actuator) and
+period k uses ``split(fold_in(fold_in(key, 2), k), 5)`` (sensor, estimator, controller, actuator, process
+noise); ``KeySchedule`` holds this convention. Results therefore do not depend on how a run is chunked in
+time or batched over seeds. (The driver draws a random initial state from ``fold_in(key, 0)``.)
+
+Failure is data: once x_{k+1} is non-finite or leaves the bound ``|x - plant.equilibrium()| <= state_bound``,
+the trajectory's ``result`` code is set (``RESULTS``), the plant state is frozen at the last good x_k, and the
+metrics stop accumulating from period k on (the period that produced the bad state is not counted). The
+components keep stepping on the frozen state, as in the original loop.
+"""
+
+from __future__ import annotations
+
+import enum
+from typing import Any, Callable, NamedTuple, Optional
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from jaxdip.engine import metrics as _metrics
+from jaxdip.engine.roles import Identity, param
+
+
+class RESULTS(enum.IntEnum):
+    """Per-trajectory outcome codes (stored as int32 in ``Solution.result``)."""
+
+    ok = 0
+    nonfinite = 1  # the plant state became NaN or infinite
+    out_of_bounds = 2  # |x - equilibrium| exceeded state_bound in some component
+
+
+class KeySchedule(eqx.Module):
+    """How a trajectory's key is divided among the roles: the library's convention (module docstring).
+
+    Subclass it only to reproduce an older random stream exactly when moving code onto the engine; every
+    trajectory of a new experiment should use this default."""
+
+    def init(self, key):
+        """Keys of the sensor, estimator, controller and actuator ``init``."""
+        return jax.random.split(jax.random.fold_in(key, 1), 4)
+
+    def base(self, key):
+        """The per-trajectory key the period keys are folded from (computed once, outside the scan)."""
+        return jax.random.fold_in(key, 2)
+
+    def period(self, base, k):
+        """Keys of the sensor, estimator, controller, actuator and process noise at period ``k``."""
+        return jax.random.split(jax.random.fold_in(base, k), 5)
+
+
+class Loop(eqx.Module):
+    """A closed loop: its components (each with its own hyperparameters) and the sampling structure.
+
+    ``dt`` and ``substeps`` are static; ``process_noise_std`` (std of Gaussian noise added to the state after
+    every period, scalar or per state) and ``state_bound`` (per state or scalar) are traced leaves. ``keys``
+    divides the trajectory's key among the roles (leave the default).
+    """
+
+    plant: Any
+    sensor: Any
+    estimator: Any
+    controller: Any
+    dt: float = eqx.field(static=True)
+    actuator: Any = eqx.field(default_factory=Identity)
+    substeps: int = eqx.field(default=10, static=True)
+    process_noise_std: jax.Array = param(0.0)
+    state_bound: jax.Array = param(jnp.inf)
+    keys: KeySchedule = eqx.field(default_factory=KeySchedule)
+
+
+class Aux(NamedTuple):
+    sensor: Any
+    estimator: Any
+    controller: Any
+    actuator: Any
+
+
+class Sample(NamedTuple):
+    """What one period exposes to ``save`` and to the metrics."""
+
+    k: jax.Array  # period index
+    t: jax.Array  # k * dt
+    x: jax.Array  # true state at the start of the period
+    y: Any  # measurement
+    xhat: jax.Array  # estimate handed to the controller
+    u: jax.Array  # controller output, shape (m,)
+    u_applied: jax.Array  # actuator output, what the plant receives
+    aux: Aux  # the components' auxiliary outputs
+
+
+class State(NamedTuple):
+    """Everything a trajectory carries from one period to the next; resume a run from it."""
+
+    k: jax.Array
+    x: jax.Array
+    sensor: Any
+    estimator: Any
+    controller: Any
+    actuator: Any
+    u_prev: jax.Array
+    result: jax.Array  # RESULTS code
+    failed_at: jax.Array  # index of the first bad state (-1 while ok)
+    failed_x: jax.Array  # the first bad state itself (what crossed which bound); zeros while ok
+    metrics: Any  # reducer states
+
+
+class Solution(NamedTuple):
+    final: State
+    saved: Any  # save(sample) at periods start.k, start.k + save_every, ...; None without save
+    metrics: Any  # finalized metrics (same structure as the ``metrics`` argument)
+    result: jax.Array  # RESULTS code
+
+
+def _period(loop: Loop, st: State, base):
+    """One period without failure handling: (new component states, x_{k+1}, u_k, sample)."""
+    k_sens, k_est, k_ctrl, k_act, k_proc = loop.keys.period(base, st.k)
+    s_sens, y, a_sens = loop.sensor.step(st.sensor, st.x, k_sens, st.k)
+    s_est, xhat, a_est = loop.estimator.step(st.estimator, y, st.u_prev, k_est, st.k)
+    s_ctrl, u, a_ctrl = loop.controller.step(st.controller, xhat, k_ctrl, st.k)
+    u = jnp.reshape(u, (loop.plant.m,))
+    s_act, u_applied, a_act = loop.actuator.step(st.actuator, u, k_act, st.k)
+    x_next = loop.plant.period(st.x, u_applied, loop.dt, loop.substeps)
+    x_next = x_next + loop.process_noise_std * jax.random.normal(k_proc, st.x.shape)
+    sample = Sample(st.k, st.k * loop.dt, st.x, y, xhat, u, u_applied, Aux(a_sens, a_est, a_ctrl, a_act))
+    return (s_sens, s_est, s_ctrl, s_act), x_next, u, sample
+
+
+def _step(loop: Loop, metrics, base, st: State):
+    comps, x_next, u, sample = _period(loop, st, base)
+    dev = jnp.abs(x_next - loop.plant.equilibrium())
+    code = jnp.where(~jnp.all(jnp.isfinite(x_next)), RESULTS.nonfinite,
+                     jnp.where(jnp.any(dev > loop.state_bound), RESULTS.out_of_bounds, RESULTS.ok))
+    was_ok = st.result == RESULTS.ok
+    result = jnp.where(was_ok, code, st.result).astype(jnp.int32)
+    fails_now = was_ok & (code != RESULTS.ok)
+    failed_at = jnp.where(fails_now, st.k + 1, st.failed_at)
+    failed_x = jnp.where(fails_now, x_next, st.failed_x)
+    live = result == RESULTS.ok  # this period counts only if the trajectory is still alive after it
+    new = State(
+        k=st.k + 1,
+        x=jnp.where(live, x_next, st.x),
+        sensor=comps[0],
+        estimator=comps[1],
+        controller=comps[2],
+        actuator=comps[3],
+        u_prev=u,
+        result=result,
+        failed_at=failed_at,
+        failed_x=failed_x,
+        metrics=_metrics.update(metrics, st.metrics, sample, live),
+    )
+    return new, sample
+
+
+def init_state(loop: Loop, x0, key, metrics=None) -> State:
+    """The state before period 0 of the trajectory with key ``key`` starting at ``x0``."""
+    x0 = jnp.asarray(x0, dtype=jnp.result_type(float))
+    k_sens, k_est, k_ctrl, k_act = loop.keys.init(key)
+    st = State(
+        k=jnp.zeros((), jnp.int32),
+        x=x0,
+        sensor=loop.sensor.init(k_sens, x0),
+        estimator=loop.estimator.init(k_est, x0),
+        controller=loop.controller.init(k_ctrl, x0),
+        actuator=loop.actuator.init(k_act, x0),
+        u_prev=jnp.zeros(loop.plant.m, x0.dtype),
+        result=jnp.asarray(RESULTS.ok, jnp.int32),
+        failed_at=jnp.full((), -1, jnp.int32),
+        failed_x=jnp.zeros_like(x0),
+        metrics=None,
+    )
+    if metrics is None:
+        return st
+    # the reducers size their states from the shapes of one period's sample (traced abstractly, not run)
+    template = jax.eval_shape(lambda s, b: _period(loop, s, b)[3], st, loop.keys.base(key))
+    return st._replace(metrics=_metrics.init(metrics, template))
+
+
+def simulate(loop: Loop, x0, key, steps: int, *, save: Optional[Callable] = None, save_every: int = 1,
+             metrics: Any = None, start: Optional[State] = None) -> Solution:
+    """Run ``steps`` periods of ``loop`` for one trajectory. Pure: no jit, no host callbacks inside.
+
+    x0: initial true state (ignored when ``start`` is given). key: the trajectory's PRNG key.
+    save: ``save(sample) -> pytree`` recorded at the first period of every block of ``save_every`` periods
+    (``steps`` must be a multiple of ``save_every``); ``None`` records nothing.
+    metrics: a reducer (``jaxdip.engine.metrics``) or a dict/tuple of them; their finalized values come back
+    in ``Solution.metrics``.
+    start: a ``State`` (``Solution.final`` of an earlier call with the same loop, key and metrics) to continue
+    from; periods are counted from ``start.k``, so a run split into calls equals one uninterrupted call.
+
+    ``vmap`` over keys, x0, or any array leaf of ``loop``; ``jax.grad`` through it.
+    """
+    if steps < 0:
+        raise ValueError(f"steps must be >= 0, got {steps}")
+    if save_every < 1:
+        raise ValueError(f"save_every must be >= 1, got {save_every}")
+    st = init_state(loop, x0, key, metrics) if start is None else start
+    base = loop.keys.base(key)
+
+    def step(c):
+        return _step(loop, metrics, base, c)
+
+    if save is None:
+        st, saved = jax.lax.scan(lambda c, _: (step(c)[0], None), st, None, length=steps)
+    else:
+        if steps % save_every:
+            raise ValueError(f"steps={steps} is not a multiple of save_every={save_every}")
+
+        def block(c, _):
+            c, sample = step(c)
+            c = jax.lax.fori_loop(0, save_every - 1, lambda _, ci: step(ci)[0], c)
+            return c, save(sample)
+
+        st, saved = jax.lax.scan(block, st, None, length=steps // save_every)
+    return Solution(st, saved, _metrics.finalize(metrics, st.metrics), st.result)
