@@ -14,7 +14,7 @@ from jaxdip.immune.costs import Uniform
 from jaxdip.immune.model import (Infection, extinction_iterates, extinction_probability, lower_gamma_series,
                                  mass_fraction, offspring_pgf)
 from jaxdip.immune.quadrature import masses
-from jaxdip.immune.sampling import CellSampler, monte_carlo, sample_virion, simulate_cells
+from jaxdip.immune.sampling import CellSampler, sample_virion, simulate_cells
 
 MODEL = Infection()
 
@@ -142,17 +142,18 @@ def test_offspring_law_and_extinction():
     assert float(offspring_pgf(s, R)) == pytest.approx(sum(geo.pmf(k) * s**k for k in range(200)), rel=1e-12)
 
 
-def _draw(key):
-    return jax.random.normal(key, (2,))
-
-
-def test_monte_carlo_driver_seed_convention():
+def test_cells_follow_the_driver_seed_convention():
+    """Cell i is ``sampler(fold_in(key, i))`` whatever the chunk, the run's length, and when run alone."""
+    sampler = CellSampler(MODEL, (Ct.BallWindow(5.0, 0.0, 2.0),))
     key = jax.random.PRNGKey(7)
-    a = monte_carlo(_draw, key, 37, chunk=8, shard=False)
-    b = monte_carlo(_draw, key, 37, chunk=64, shard=False)
-    np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(a[5], np.asarray(_draw(jax.random.fold_in(key, 5))))
-    assert a.shape == (37, 2)
+    a = simulate_cells(sampler, key, 37, chunk=8)
+    b = simulate_cells(sampler, key, 37, chunk=64)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k])
+        assert a[k].shape[0] == 37
+    one = sampler(jax.random.fold_in(key, 5))
+    for k in a:
+        np.testing.assert_array_equal(a[k][5], np.asarray(one[k]))
 
 
 def test_thinned_sampler_has_the_same_law():

@@ -21,6 +21,7 @@ Units: time in hours, length in cell diameters (defaults: see the config's docs 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import equinox as eqx
@@ -31,7 +32,7 @@ import numpy as np
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.experiments import register
-from jaxdip.experiments.base import Experiment, Outcome
+from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import fmt_ci
 from jaxdip.immune import alternatives as Al
 from jaxdip.immune import quadrature as Q
@@ -42,6 +43,7 @@ from jaxdip.immune.controls import BallWindow, Indicator, LevelSet, NoControl, O
 from jaxdip.immune.costs import Distance, Flat, RadialCost, Shell, Uniform
 from jaxdip.immune.model import Infection, extinction_iterates, extinction_probability
 from jaxdip.immune.sampling import CellSampler, simulate_cells
+from jaxdip.resources import Load
 
 
 @dataclass
@@ -86,6 +88,21 @@ class IfnProtectionConfig:
     generations: int = C.field(10, C.positive, doc="generations simulated")
     cap: int = C.field(200, C.positive, doc="a lineage reaching this many cells counts as surviving")
 
+    def loads(self) -> list[Load]:
+        """The big allocations: every cell's outputs (tau, Z, entries and one count per control; about
+        13 + len(cell_sizes) controls) are kept, a chunk of cells holds its virion blocks, a generation holds up
+        to lineages x cap cells, and a quadrature or a tuning batch evaluates a 129-point ray per node."""
+        controls = 13 + len(self.cell_sizes)
+        ray = 4 * 129
+        return [
+            Load("the Monte Carlo of infected cells", ("seeds",), self.seeds, 1, saved=3 + controls, state=0),
+            Load("one chunk of infected cells", ("chunk",), self.chunk, 1, state=16 * (self.dim + 4) * controls),
+            Load("a generation of the branching Monte Carlo", ("lineages", "cap"), self.lineages * self.cap, 1,
+                 saved=4, state=0),
+            Load("a quadrature", ("quad_panels",), 4 * (self.quad_panels + 1), 1, state=ray),
+            Load("a Monte Carlo tuning batch", ("tune_batch",), self.tune_batch, 1, state=ray),
+        ]
+
     def validate(self):
         if self.target_R >= self.beta * self.gamma / (self.eta * (self.gamma + self.delta)):
             raise C.ConfigError("target_R", "must be below R0 = beta gamma / (eta (gamma + delta))")
@@ -97,6 +114,11 @@ class IfnProtectionConfig:
             raise C.ConfigError("half_ball", "need t0 < t1")
         if self.flat_excess >= 1.0:
             raise C.ConfigError("flat_excess", "must be below 1 (the flat set's g-mass must stay below R0)")
+
+
+def half_ball(t, x, p):
+    """The indicator control {x_1 >= 0, |x| <= radius, t0 <= t < t1}, p = (radius, t0, t1)."""
+    return (x[0] >= 0) & (jnp.sum(x * x) <= p[0] ** 2) & (t >= p[1]) & (t < p[2])
 
 
 def make_model(cfg) -> Infection:
@@ -216,7 +238,7 @@ def f_properties(curves) -> dict:
     return res
 
 
-def run(cfg: IfnProtectionConfig) -> Outcome:
+def run(cfg: IfnProtectionConfig, ctx: RunContext | None = None) -> Outcome:
     model = make_model(cfg)
     R0, EZ = _f(model.R0), _f(model.mean_burst)
     V = R0 - cfg.target_R
@@ -224,19 +246,25 @@ def run(cfg: IfnProtectionConfig) -> Outcome:
     costs = {"uniform": Uniform(), "distance": Distance(cfg.distance_scale),
              "shell": Shell(*[float(v) for v in cfg.shell])}
 
+    timing, t_last = {}, [time.perf_counter()]
+
+    def lap(name):  # wall time of each stage: Outcome.timing, never results
+        now = time.perf_counter()
+        timing[f"{name}_s"] = round(now - t_last[0], 3)
+        t_last[0] = now
+
     # ---- problem (P): thresholds, Theorem 4.4.1 against alternatives --------------------------------------
     checks = {name: theorem_check(model, cost, V, cfg, jax.random.fold_in(key, 100 + i))
               for i, (name, cost) in enumerate(costs.items())}
+    lap("theorem")
     flat = flat_case(model, V, cfg, checks["uniform"])
+    lap("flat_case")
 
     # ---- Monte Carlo of the infection under many controls (one pass, common random numbers) ---------------
     ob = cfg.offset_ball
     centre = jnp.zeros(cfg.dim).at[0].set(ob[0])
     offset = OffsetBallWindow(centre, ob[1], ob[2], ob[3])
     hb_r, hb_t0, hb_t1 = cfg.half_ball
-
-    def half_ball(t, x):
-        return (x[0] >= 0) & (jnp.sum(x * x) <= hb_r**2) & (t >= hb_t0) & (t < hb_t1)
 
     log_r_u = checks["uniform"]["threshold"].log_r
     controls = {
@@ -253,7 +281,7 @@ def run(cfg: IfnProtectionConfig) -> Outcome:
             _f(flat["F_at"].g_hi - flat["F_at"].g_lo) / 2)),
         "flat h: flat set after t_c": (flat["late"], None),
         "off-centre ball window": (offset, None),
-        "half ball (indicator)": (Indicator(half_ball), BallWindow(hb_r, hb_t0, hb_t1)),
+        "half ball (indicator)": (Indicator(half_ball, jnp.asarray(cfg.half_ball)), BallWindow(hb_r, hb_t0, hb_t1)),
     }
     for a in cfg.cell_sizes:
         controls[f"cells of {a:g}: uniform h"] = (
@@ -303,10 +331,14 @@ def run(cfg: IfnProtectionConfig) -> Outcome:
                       "R0_in_ci": bool(mc_r0["E_I_ci95"][0] <= R0 <= mc_r0["E_I_ci95"][1])})
     offset_lambda = _f(offset.max_lambda(model))
 
+    lap("cells_monte_carlo")
+
     # ---- F(r): curves, monotone and upper semi-continuous numerically ---------------------------------------
     all_costs = {**costs, "flat": flat["cost"]}
     all_th = {**{k: v["threshold"] for k, v in checks.items()}, "flat": flat["threshold"]}
     curves = f_curves(model, all_costs, all_th, cfg.bisect_panels)
+
+    lap("F_curves")
 
     # ---- differentiable E[I](r) and optax ---------------------------------------------------------------------
     unif = Uniform()
@@ -335,6 +367,8 @@ def run(cfg: IfnProtectionConfig) -> Outcome:
         "within_1_percent": bool(abs(math.exp(tm.log_r - x) - 1.0) < 0.01
                                  and abs(math.exp(tq.log_r - x) - 1.0) < 0.01),
     }
+
+    lap("tuning")
 
     # ---- generations ------------------------------------------------------------------------------------------
     gen_res, gen_plot = {}, {}
@@ -365,6 +399,7 @@ def run(cfg: IfnProtectionConfig) -> Outcome:
         }
         gen_plot[label] = (ext, iters)
 
+    lap("generations")
     results = {
         "parameters": {"eta": cfg.eta, "beta": cfg.beta, "gamma": cfg.gamma, "delta": cfg.delta,
                        "diffusion": cfg.diffusion, "dim": cfg.dim, "target_R": cfg.target_R, "V": V},
@@ -385,7 +420,8 @@ def run(cfg: IfnProtectionConfig) -> Outcome:
         "extinction": fig_extinction(gen_plot),
         "tuning": fig_tuning(tq, tm, x),
     }
-    return Outcome(results=results, report=report(cfg, results), figures=figures)
+    lap("figures")
+    return Outcome(results=results, report=report(cfg, results), figures=figures, timing=timing)
 
 
 # ---- figures ------------------------------------------------------------------------------------------------
@@ -643,7 +679,7 @@ EXPERIMENT = register(Experiment(
     config_cls=IfnProtectionConfig,
     run=run,
     quick={"seeds": 4096, "quad_panels": 1024, "bisect_panels": 1024, "ball_grid": 14, "ball_refine": 1,
-           "perturbations": 2, "lineages": 512, "generations": 6, "tune_steps": 150,
+           "perturbations": 2, "lineages": 512, "generations": 6, "tune_steps": 100, "tune_batch": 2048,
            "generation_targets": [1.5, 1.0]},
     source="thesis ch. 4 (§4.3–4.5: (A1)–(A6), (4.1)–(4.8), Theorem 4.4.1, Corollary 4.4.2)",
 ))

@@ -15,7 +15,7 @@ probability q), from which ``profile`` follows.
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import Any, Callable
 
 import equinox as eqx
 import jax
@@ -189,12 +189,16 @@ class OffsetBallWindow(eqx.Module):
 
 
 class Indicator(eqx.Module):
-    """Any measurable set, given by its indicator fn(t, x) -> bool (Monte Carlo only: no profile)."""
+    """Any measurable set, given by its indicator ``fn(t, x, params) -> bool`` (Monte Carlo only: no profile).
+
+    ``params`` (any pytree of arrays) holds the set's numbers, so they are traced and one compiled program serves
+    every value; ``fn`` is part of the compiled program's identity, so pass a module-level function."""
 
     fn: Callable = eqx.field(static=True)
+    params: Any = None
 
     def protected(self, model, t, x, key_cell, key_virion):
-        return jnp.asarray(self.fn(t, x), bool)
+        return jnp.asarray(self.fn(t, x, self.params), bool)
 
 
 class Window(Radial):

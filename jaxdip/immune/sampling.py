@@ -1,4 +1,4 @@
-"""Exact sampling of (A1)–(A6) and the package's one Monte Carlo driver.
+"""Exact sampling of (A1)–(A6); many infected cells run through the library's driver ``jd.monte_carlo``.
 
 One infected cell, from its key (seed convention: cell i of a run uses ``fold_in(base_key, i)``):
 tau_eta ~ Exp(eta) (A1), Z | tau_eta ~ Poisson(beta tau_eta) (A2); virion j of the cell uses
@@ -17,15 +17,14 @@ the entering virions are drawn.
 from __future__ import annotations
 
 import math
-from typing import Callable
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.engine.driver import monte_carlo
 from jaxdip.immune.model import Infection
-from jaxdip.progress import Progress
 
 
 def sample_virion(model: Infection, key):
@@ -86,49 +85,16 @@ class CellSampler(eqx.Module):
         return {"tau": tau, "Z": Z, "entered": entered, "I": counts}
 
 
-_BATCHED: dict = {}
+def simulate_cells(sampler: CellSampler, key, n: int, *, chunk: int = 2048, shard: bool | None = None,
+                   progress: bool = False, desc: str = "cells") -> dict:
+    """``sampler`` over n infected cells, cell i from ``fold_in(key, i)`` (the seed convention of
+    ``jd.monte_carlo``, which runs it); NumPy arrays with a leading axis of n.
 
-
-def monte_carlo(fn: Callable, key, n: int, *, args: tuple = (), chunk: int = 4096, shard: bool | None = None,
-                progress: bool = False, desc: str = "monte carlo"):
-    """Stack ``fn(fold_in(key, i), *args)`` over i = 0 .. n - 1 (NumPy pytree with leading axis n).
-
-    Chunks of ``chunk`` samples run as one jitted vmap (the last chunk is padded, so one compile serves any n;
-    ``fn`` is cached by identity, so pass a module-level function and put everything else in ``args``); with
-    ``shard`` (default: when there are several devices) each chunk is split over all local devices. Sample i
-    gets the same numbers whatever the chunk size or device count.
+    The run is rounded up to whole chunks of ``chunk`` cells and cut back to n: cell i's numbers do not depend on
+    how many cells run, and one compiled program then serves every n (the generations ask for a new n each time).
     """
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")
-    ndev = jax.local_device_count()
-    shard = (ndev > 1 and chunk >= 256) if shard is None else shard
-    if shard:
-        chunk = max(ndev, chunk // ndev * ndev)
-    if fn not in _BATCHED:
-        _BATCHED[fn] = jax.jit(jax.vmap(lambda i, k, a: fn(jax.random.fold_in(k, i), *a), in_axes=(0, None, None)))
-    batched = _BATCHED[fn]
-    sharding = None
-    if shard:
-        from jax.sharding import Mesh, NamedSharding, PartitionSpec
-
-        sharding = NamedSharding(Mesh(np.array(jax.local_devices()), ("i",)), PartitionSpec("i"))
-    n_chunks = math.ceil(n / chunk)
-    bar = Progress(n_chunks, desc, enabled=progress)
-    outs = []
-    for c in range(n_chunks):
-        idx = np.arange(c * chunk, (c + 1) * chunk, dtype=np.uint32)
-        idx = jax.device_put(idx, sharding) if sharding is not None else jnp.asarray(idx)
-        outs.append(jax.tree_util.tree_map(np.asarray, batched(idx, key, args)))
-        bar.update(1)
-    bar.close()
-    return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs)[:n], *outs)
-
-
-def _call(key, sampler):
-    return sampler(key)
-
-
-def simulate_cells(sampler: CellSampler, key, n: int, *, chunk: int = 2048, progress: bool = False,
-                   desc: str = "cells") -> dict:
-    """``sampler`` over n infected cells (cell i from ``fold_in(key, i)``)."""
-    return monte_carlo(_call, key, n, args=(sampler,), chunk=chunk, progress=progress, desc=desc)
+    whole = math.ceil(n / chunk) * chunk
+    out = monte_carlo(sampler, key, whole, chunk=chunk, shard=shard, progress=progress, desc=desc)
+    return jax.tree_util.tree_map(lambda a: np.asarray(a)[:n], out)

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from jaxdip.engine.driver import monte_carlo
 from jaxdip.immune import quadrature as Q
 from jaxdip.immune.controls import LevelSet
 from jaxdip.immune.model import Infection
@@ -33,15 +34,27 @@ def expected_progeny_quadrature(model: Infection, cost, log_r, n: int = 4096):
     return model.R0 - Q.F(model, cost, log_r, n).g
 
 
+class EnteringVirion(eqx.Module):
+    """One Rao–Blackwellised sample: 1 - m(T), T ~ Exp(gamma + delta) the entry time of an entering virion and
+    m(T) the heat kernel's mass in A(T) (P(infects | T), the position integrated out). A pure function of a key,
+    so ``jd.monte_carlo`` runs it with the library's seed convention; smooth in every leaf of ``control``."""
+
+    model: Infection
+    control: LevelSet
+
+    def __call__(self, key):
+        t = jax.random.exponential(key) / self.model.k
+        return 1.0 - self.control.profile(self.model, jnp.maximum(t, Q.T_MIN), self.control.cost)[0]
+
+
 def _progeny_mc(model, cost, log_r, key, n):
-    t = jax.random.exponential(key, (n,)) / model.k
-    ctrl = LevelSet(cost=cost, log_r=log_r)
-    m = jax.vmap(lambda tt: ctrl.profile(model, jnp.maximum(tt, Q.T_MIN), cost)[0])(t)
-    return model.R0 * jnp.mean(1.0 - m)
+    draws = monte_carlo(EnteringVirion(model, LevelSet(cost=cost, log_r=log_r)), key, n)
+    return model.R0 * jnp.mean(draws)
 
 
 def expected_progeny_mc(model: Infection, cost, log_r, key, n: int):
-    """Rao–Blackwellised Monte Carlo estimate of E[I] under L_r from n entering virions (differentiable)."""
+    """Rao–Blackwellised Monte Carlo estimate of E[I] under L_r from n entering virions (differentiable; virion
+    i from ``fold_in(key, i)``)."""
     return _progeny_mc(model, cost, log_r, key, n)
 
 
