@@ -54,7 +54,8 @@ def test_continuum_rule_is_the_level_set(cost):
     np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
-def test_lattice_rule_approaches_the_level_set_and_stochastic_band_meets_V():
+@pytest.mark.parametrize("cells", [8192, pytest.param(65536, marks=pytest.mark.slow)])
+def test_lattice_rule_approaches_the_level_set_and_stochastic_band_meets_V(cells):
     ctrls = (LevelSet(cost=Uniform(), log_r=jnp.asarray(LOG_R)),
              CellAutonomous(Uniform(), theta_of_r(MODEL, LOG_R), cell_size=1.0))
     rf = LOG_R - 1.0
@@ -62,7 +63,7 @@ def test_lattice_rule_approaches_the_level_set_and_stochastic_band_meets_V():
     V = float(Q.F(MODEL, Uniform(), jnp.asarray(LOG_R), 1024).g)
     q = V / F_flat
     ctrls += (CellAutonomous(Flat(rf), theta_of_r(MODEL, rf), 1e-9, q, cell_size=0.0, stochastic=True),)
-    out = simulate_cells(CellSampler(MODEL, ctrls), jax.random.PRNGKey(9), 16384, chunk=4096)
+    out = simulate_cells(CellSampler(MODEL, ctrls), jax.random.PRNGKey(9), cells, chunk=4096)
     I = out["I"].astype(float)
     # lattice of unit cells against the continuum: paired (same virions), so the difference is tight
     d, dci = stats.mean_ci(I[:, 1] - I[:, 0])
