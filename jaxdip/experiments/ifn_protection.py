@@ -504,22 +504,40 @@ def fig_F(curves, V, th):
 
 
 def fig_mc(mc, R0):
+    """Left: E[I] by Monte Carlo and by (4.4). Right: the Monte Carlo's relative deviation from the formula (95%),
+    for E[I] and per entering virion (which removes the noise all controls share)."""
     import matplotlib.pyplot as plt
 
     names = list(mc)
-    fig, ax = plt.subplots(figsize=(7.5, 0.32 * len(names) + 1.2))
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 0.32 * len(names) + 1.2), sharey=True,
+                                  gridspec_kw={"width_ratios": [1, 1.2]})
     y = np.arange(len(names))[::-1]
     for yi, n in zip(y, names):
         r = mc[n]
+        first = yi == y[0]
         ax.errorbar(r["E_I_mc"], yi, xerr=[[r["E_I_mc"] - r["E_I_ci95"][0]], [r["E_I_ci95"][1] - r["E_I_mc"]]],
-                    fmt="o", color="C0", ms=3, capsize=2, label="Monte Carlo, 95%" if yi == y[0] else None)
-        if "E_I_quadrature" in r:
-            ax.plot(r["E_I_quadrature"], yi, "x", color="C3", ms=7, label="(4.4) by quadrature" if yi == y[0] else None)
+                    fmt="o", color="C0", ms=3, capsize=2, label="Monte Carlo, 95%" if first else None)
+        if "E_I_quadrature" not in r:
+            continue
+        ax.plot(r["E_I_quadrature"], yi, "x", color="C3", ms=7, label="(4.4) by quadrature" if first else None)
+        for key, ref, dy, col, lab in (("E_I", "E_I_quadrature", 0.15, "C0", "E[I]"),
+                                       ("P_infect_given_entry", "P_infect_given_entry_quadrature", -0.15, "C2",
+                                        "per entering virion")):
+            q = r[ref]
+            if q <= 0:
+                continue
+            m, (lo, hi) = r[key + "_mc"], r[key + "_ci95"]
+            ax2.errorbar(100 * (m / q - 1), yi + dy, xerr=[[100 * (m - lo) / q], [100 * (hi - m) / q]], fmt="o",
+                         color=col, ms=3, capsize=2, label=lab if first else None)
     ax.set_yticks(y, names, fontsize=7)
     ax.axvline(R0, color="k", lw=0.6)
     ax.set_xlabel("E[I]")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
+    ax2.axvline(0.0, color="C3", lw=1)
+    ax2.set_xlabel("Monte Carlo / formula - 1 (%), 95%")
+    ax2.legend(fontsize=8)
+    ax2.grid(alpha=0.3)
     fig.tight_layout()
     return fig
 
