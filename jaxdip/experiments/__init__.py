@@ -25,6 +25,7 @@ def _load_builtin():
     from jaxdip.experiments import twip_extra_control  # noqa: F401
     from jaxdip.experiments import dip_cpx_ldf  # noqa: F401
     from jaxdip.experiments import tune  # noqa: F401
+    from jaxdip.experiments import ifn_protection  # noqa: F401
 
 
 def registry() -> dict[str, Experiment]:
