@@ -4,35 +4,25 @@ from __future__ import annotations
 
 from jaxdip.experiments.base import Experiment, Outcome, run_experiment
 
-_REGISTRY: dict[str, Experiment] = {}
-
-
-def register(exp: Experiment) -> Experiment:
-    if exp.id in _REGISTRY:
-        raise ValueError(f"experiment id {exp.id!r} registered twice")
-    _REGISTRY[exp.id] = exp
-    return exp
-
-
-def _load_builtin():
-    from jaxdip.experiments import dip_controllers  # noqa: F401
-    from jaxdip.experiments import dip_lqr  # noqa: F401
-    from jaxdip.experiments import eki_dip  # noqa: F401
-    from jaxdip.experiments import eki_examples  # noqa: F401
-    from jaxdip.experiments import lorenz_mhe  # noqa: F401
-    from jaxdip.experiments import twip_dmso  # noqa: F401
-    from jaxdip.experiments import rwp_bias  # noqa: F401
-    from jaxdip.experiments import twip_extra_control  # noqa: F401
-    from jaxdip.experiments import dip_cpx_ldf  # noqa: F401
-    from jaxdip.experiments import tune  # noqa: F401
-    from jaxdip.experiments import ifn_protection  # noqa: F401
+# the built-in experiments, by module; each module defines EXPERIMENT (or EXPERIMENTS) and registers nothing
+# on import, so importing one experiment module has no effect on the registry
+BUILTIN = ("dip_controllers", "dip_cpx_ldf", "dip_lqr", "eki_dip", "eki_examples", "ifn_protection", "lorenz_mhe",
+           "rwp_bias", "tune", "twip_dmso", "twip_extra_control")
 
 
 def registry() -> dict[str, Experiment]:
-    # always: importing one experiment module directly registers only that one (module imports are cached,
-    # so this is cheap and registers each experiment once)
-    _load_builtin()
-    return dict(_REGISTRY)
+    """id -> Experiment for every built-in experiment (modules are imported here, on first use)."""
+    import importlib
+
+    out: dict[str, Experiment] = {}
+    for name in BUILTIN:
+        mod = importlib.import_module(f"jaxdip.experiments.{name}")
+        exps = getattr(mod, "EXPERIMENTS", None) or (mod.EXPERIMENT,)
+        for exp in exps:
+            if exp.id in out:
+                raise ValueError(f"experiment id {exp.id!r} defined twice")
+            out[exp.id] = exp
+    return out
 
 
 def get(exp_id: str) -> Experiment:
@@ -46,4 +36,4 @@ def get(exp_id: str) -> Experiment:
     return reg[exp_id]
 
 
-__all__ = ["Experiment", "Outcome", "run_experiment", "register", "registry", "get"]
+__all__ = ["Experiment", "Outcome", "run_experiment", "registry", "get", "BUILTIN"]

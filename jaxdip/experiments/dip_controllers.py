@@ -20,7 +20,6 @@ import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip.control.spd import P_v, P_Vs, surface_normal
-from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import failure_lines, fmt_ci, loop_summary, weight_matrix
 from jaxdip.plants import dip
@@ -243,11 +242,11 @@ def report(cfg, r) -> str:
     return "\n".join(lines)
 
 
-EXPERIMENT = register(Experiment(
+EXPERIMENT = Experiment(
     id="dip-controllers",
     title="DIP: LQR vs power-series vs relaxed projection control",
     config_cls=DipControllersConfig,
     run=run,
     quick={"seeds": 32, "duration": 2.0},
     source="thesis §3.2.2, Table 3.1, Fig. 3.3, P of (3.6)",
-))
+)

@@ -28,7 +28,6 @@ import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
-from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import fmt_ci, weight_matrix
 from jaxdip.plants import dip
@@ -343,11 +342,11 @@ def _less_var(c, l):
     return all(c[f"{n}_var"] < l[f"{n}_var"] for n in ("xc", "alpha", "theta"))
 
 
-EXPERIMENT = register(Experiment(
+EXPERIMENT = Experiment(
     id="dip-cpx-ldf",
     title="DIP: power-series control fed by CPX vs the low-pass derivative filter",
     config_cls=DipCpxLdfConfig,
     run=run,
     quick={"seeds": 16, "duration": 1.0, "sweep_points": 5, "sweep_seeds": 8},
     source="paper §5 Table 1 / thesis §3.3 Table 3.2, Fig. 3.5, the Prop. 1.4.3 gamma criterion",
-))
+)

@@ -16,7 +16,6 @@ import numpy as np
 import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
-from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import band_figure, failure_lines, fmt_ci, loop_summary, weight_matrix
 from jaxdip.plants import dip
@@ -120,11 +119,11 @@ def run(cfg: DipLqrConfig, ctx: RunContext | None = None) -> Outcome:
     return Outcome(results=results, report=report(cfg, results), figures={"band_alpha_theta": fig})
 
 
-EXPERIMENT = register(Experiment(
+EXPERIMENT = Experiment(
     id="dip-lqr",
     title="DIP under continuous LQR (Monte Carlo)",
     config_cls=DipLqrConfig,
     run=run,
     quick={"seeds": 64, "duration": 2.0},
     source="thesis §3.2 (LQR, eq. 3.4) with the Table 3.1 weights, on the Table 3.3 model",
-))
+)

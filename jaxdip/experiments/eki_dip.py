@@ -41,7 +41,6 @@ import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import checkpoint
 from jaxdip import config as C
-from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import fmt_ci, loop_summary
 from jaxdip.plants import dip
@@ -315,8 +314,8 @@ def report(cfg, r, timing):
     return "\n".join(lines)
 
 
-register(Experiment(
+EXPERIMENT = Experiment(
     id="eki-dip", title="ensemble Kalman synthesis of relaxed projection control for the DIP", config_cls=EkiDipConfig,
     run=run, quick={"seeds": 32, "ensemble": 8, "iterations": 4, "chunk": 2, "T": 1.0, "t_star": 0.5,
                     "grad_steps": 3, "grad_x0": 2, "eval_states": 8, "judge_duration": 2.0},
-    source="thesis §3.2.1, Procedure 1, (2.20), (2.24)"))
+    source="thesis §3.2.1, Procedure 1, (2.20), (2.24)")

@@ -30,7 +30,6 @@ from jaxdip import stats
 from jaxdip.control import StateFeedback, dlqr
 from jaxdip.control.projection import RelaxedProjection, projected_closed_loop
 from jaxdip.control.spd import P_v
-from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import examples2d
 from jaxdip.search import EKI
@@ -309,10 +308,12 @@ class EkiNonlinearConfig(EkiExampleConfig):
     restarts: int = C.field(8, C.positive, doc="independent ensembles per search, best final mean kept (thesis: 1)")
 
 
-register(Experiment(id="eki-linear", title="ensemble Kalman search for P, linear example of §2.7",
+EXPERIMENTS = (
+    Experiment(id="eki-linear", title="ensemble Kalman search for P, linear example of §2.7",
                     config_cls=EkiExampleConfig, run=run, quick={"seeds": 20, "iterations": 60},
-                    source="thesis §2.7.1, Fig. 2.1-2.2"))
-register(Experiment(id="eki-nonlinear", title="ensemble Kalman search for P, nonlinear example of §2.7",
+                    source="thesis §2.7.1, Fig. 2.1-2.2"),
+    Experiment(id="eki-nonlinear", title="ensemble Kalman search for P, nonlinear example of §2.7",
                     config_cls=EkiNonlinearConfig, run=run,
                     quick={"seeds": 10, "iterations": 80, "judge_states": 100},
-                    source="thesis §2.7.2, Fig. 2.3"))
+                    source="thesis §2.7.2, Fig. 2.3"),
+)

@@ -31,7 +31,6 @@ import numpy as np
 
 from jaxdip import config as C
 from jaxdip import stats
-from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import fmt_ci
 from jaxdip.immune import alternatives as Al
@@ -709,7 +708,7 @@ def report(cfg, r) -> str:
     return "\n".join(L)
 
 
-EXPERIMENT = register(Experiment(
+EXPERIMENT = Experiment(
     id="ifn-protection",
     title="Optimal antiviral protection (Interferon-β): (P), Theorem 4.4.1 and §4.5 by Monte Carlo",
     config_cls=IfnProtectionConfig,
@@ -718,4 +717,4 @@ EXPERIMENT = register(Experiment(
            "perturbations": 2, "lineages": 512, "generations": 6, "tune_steps": 100, "tune_batch": 2048,
            "generation_targets": [1.5, 1.0]},
     source="thesis ch. 4 (§4.3–4.5: (A1)–(A6), (4.1)–(4.8), Theorem 4.4.1, Corollary 4.4.2)",
-))
+)

@@ -33,7 +33,6 @@ import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
-from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import lorenz
 from jaxdip.scenarios import lorenz_mhe as scenario
@@ -306,11 +305,11 @@ def run(cfg: LorenzMheConfig, ctx: RunContext | None = None) -> Outcome:
     return Outcome(results=results, report=report(cfg, results), figures=figures(cfg, per_trial, rec))
 
 
-EXPERIMENT = register(Experiment(
+EXPERIMENT = Experiment(
     id="lorenz-mhe",
     title="Linearised proximal point MHE (CPX, SCPX) vs EKF on the Lorenz system",
     config_cls=LorenzMheConfig,
     run=run,
     quick={"seeds": 16, "duration": 2.0},
     source="thesis §1.6 (Fig. 1.1-1.2): CPX gamma 0.5, SCPX gamma 50 p 2, EKF and EKF2",
-))
+)

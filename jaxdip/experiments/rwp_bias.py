@@ -30,7 +30,6 @@ from jaxdip import stats
 from jaxdip.estimators import bias_observers as bo
 from jaxdip.estimators import homd
 from jaxdip.estimators import luenberger as lu
-from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import rwp
 from jaxdip.scenarios import rwp as scenario
@@ -620,7 +619,7 @@ def run(cfg: RwpBiasConfig, ctx: RunContext | None = None) -> Outcome:
     return Outcome(results=results, report=report(cfg, results), figures=figures)
 
 
-EXPERIMENT = register(Experiment(
+EXPERIMENT = Experiment(
     id="rwp-bias",
     title="Reaction-wheel pendulum: homogeneous differentiators, bias propagation, bias observers",
     config_cls=RwpBiasConfig,
@@ -628,4 +627,4 @@ EXPERIMENT = register(Experiment(
     quick={"seeds": 16, "no_bias_duration": 2.0, "bias_seeds": 2, "bias_duration": 6.0, "lowpass_duration": 20.0,
            "reduced_duration": 10.0, "gamma_check_duration": 40.0},
     source="Aranovskiy et al., IEEE Access 2020: (7), (9)-(28), Tables 1-2, Figs. 3-6",
-))
+)

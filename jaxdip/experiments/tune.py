@@ -33,7 +33,6 @@ from jaxdip.resources import Load, steps_of
 from jaxdip import checkpoint as ckpt
 from jaxdip import config as C
 from jaxdip import stats
-from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import fmt_ci
 from jaxdip.tune import Bounded, Log, Objective, random_search, tune
@@ -540,11 +539,11 @@ def report(cfg, r, timing) -> str:
     return "\n".join(lines)
 
 
-EXPERIMENT = register(Experiment(
+EXPERIMENT = Experiment(
     id="tune",
     title="Gradient-based tuning of estimator and controller hyperparameters",
     config_cls=TuneConfig,
     run=run,
     quick={"seeds": 4, "heldout_seeds": 16, "duration": 0.5, "steps": 6, "landscape_points": 5},
     source="the documents' hyperparameter values (CPX gamma = 150, paper §5) against gradient tuning",
-))
+)

@@ -60,7 +60,6 @@ import jaxdip as jd
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.control.twip_lqr import TwipDesign
-from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import twip
 from jaxdip.resources import Load, steps_of
@@ -612,7 +611,7 @@ def findings_text(r: dict) -> list[str]:
     return out
 
 
-EXPERIMENT = register(Experiment(
+EXPERIMENT = Experiment(
     id="twip-dmso",
     title="TWIP: discrete modified state observer vs Kalman filter",
     config_cls=TwipDmsoConfig,
@@ -620,4 +619,4 @@ EXPERIMENT = register(Experiment(
     quick={"seeds": 32, "det_seeds": 4, "duration": 5.0, "duration_fine": 2.0, "tail_s": 2.0,
            "kf_readings": False},
     source="Stumfoll MS thesis §8.1 (Figs. 8.1-8.14), DMSO eqs. (3)-(6), (172)-(178), sensors §7.4",
-))
+)

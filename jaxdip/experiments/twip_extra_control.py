@@ -56,7 +56,6 @@ import jaxdip as jd
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.control.extra_control import ExtraControl, desired_state
-from jaxdip.experiments import register
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import twip
 from jaxdip.resources import Load, steps_of
@@ -395,11 +394,11 @@ def report(cfg: TwipExtraControlConfig, r: dict) -> str:
     return "\n".join(out)
 
 
-EXPERIMENT = register(Experiment(
+EXPERIMENT = Experiment(
     id="twip-extra-control",
     title="TWIP: two-layer-network extra control for unmatched uncertainty vs LQR",
     config_cls=TwipExtraControlConfig,
     run=run,
     quick={"seeds": 8, "duration": 10.0, "chunk_seeds": 8},
     source="Stumfoll MS thesis §6.2 (eqs. 86-114) and §8.2 (eqs. 179-185, Table 8.3, Figs. 8.15-8.23)",
-))
+)
