@@ -11,7 +11,7 @@ Observer, network and weight update, as decided from the (partly mangled) text:
     (6)  W_{k+1}    = W_k + Gamma phi(y_k) e_{k+1}^T B,   e_{k+1} = y_{k+1} - xhat_{k+1}
 
 * phi is evaluated at the *measurement* y_k. The thesis writes phi(x_k) with y_k = x_k (2); with sensor errors
-  the observer has only y_k (DESIGN.md: full-state measurements, e_{k+1} = y_{k+1} - xhat_{k+1}).
+  the observer has only y_k (docs/models.md: full-state measurements, e_{k+1} = y_{k+1} - xhat_{k+1}).
 * (6) as printed, phi(x_k) e_{k+1}^T B_MSO, is l x 1 times 1 x n times n x p = l x p, the shape of W: no
   transpose is missing. Gamma is a scalar in the thesis; an l x l matrix is accepted too (Gamma @ phi).
 * The basis (§8.1.1) is phi(x) = [1, tansig(x_1), ..., tansig(x_n)] with tansig = tanh. Its "differentiable

@@ -15,7 +15,7 @@ Plant state ``[theta, theta_dot, theta_r, theta_r_dot]``; input ``I`` (A). The u
 
 The controllers and observers of the paper use the reduced state x = [theta, theta_dot, theta_r_dot] of (4).
 The B printed in (4) is [0, k/J, k/J + k/Jr]; its second entry has the wrong sign: (2), (3) and the observer
-(9) all give -k/J, and only with -k/J do the Table 2 gains make A - BK Hurwitz (DESIGN.md settles this; the
+(9) all give -k/J, and only with -k/J do the Table 2 gains make A - BK Hurwitz (docs/models.md records this; the
 tests show both). ``reduced_linear_model`` takes the column from (2)-(3).
 """
 

@@ -6,7 +6,7 @@ The thesis writes the nonlinear equations of motion in the pendulum angle theta,
     (73)  2 km/(R r) V = beta x'' + 2 km ke/(R r^2) x' + Mp l theta'' cos(theta) - Mp l theta'^2 sin(theta)
 
 with beta = 2 Mw + 2 Iw/r^2 + Mp (80). The linear model, the filters and the controllers work with the tilt
-phi = theta - pi (DESIGN.md), so the plant's state is ``[x, x_dot, phi, phi_dot]`` and its upright equilibrium
+phi = theta - pi (docs/models.md), so the plant's state is ``[x, x_dot, phi, phi_dot]`` and its upright equilibrium
 is the origin. Input: the motor voltage ``V`` (the same voltage on both wheels).
 
 (72)-(73) are linear in (x'', theta''); ``f`` solves the 2x2 system in closed form (its determinant

@@ -1,6 +1,6 @@
 """The TWIP robot's sensors as simulated in Stumfoll §7.4 (Table 7.1).
 
-Outputs one measurement per state of ``[x, x_dot, phi, phi_dot]`` (full state, DESIGN.md), from three sensors:
+Outputs one measurement per state of ``[x, x_dot, phi, phi_dot]`` (full state, docs/models.md), from three sensors:
 
 * wheel encoders: the position quantised to ``encoder_quantum`` (0.000147 m: 64 counts x 30:1 gearbox, 90 mm
   wheels); the velocity is the backward difference of two quantised positions, (p_k - p_{k-1}) / dt, so its
