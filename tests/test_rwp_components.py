@@ -15,9 +15,10 @@ from jaxdip.estimators import luenberger as lu
 from jaxdip.plants import rwp
 from jaxdip.plants.rwp import RWP
 from jaxdip.scenarios import rwp as scenario
-from jaxdip.sim import Loop, LoopParams, actuators, sensors
+from jaxdip.sim import actuators, sensors
 from jaxdip.sim.actuators import Saturation
-from jaxdip.sim.loop import rollout as old_rollout
+from reference_loop import Loop, LoopParams
+from reference_loop import rollout as old_rollout
 from jaxdip.sim.sensors import LinearSensor, sensor_params
 from jaxdip.tune import straight_through_sensor
 
@@ -104,7 +105,7 @@ def _rec_fn(r):
 
 def test_scenario_loop_equals_old_loop():
     """The rwp-bias loop with the joint observer (d = -0.08, quantised encoders): the engine loop of
-    ``jaxdip.scenarios.rwp`` against the original ``jaxdip.sim.loop``, every recorded period, bit for bit."""
+    ``jaxdip.scenarios.rwp`` against the original loop (``tests/reference_loop.py``), every recorded period, bit for bit."""
     K, n, d = rwp.K_TABLE2, 400, -0.08
     jp = bo.joint_params(homd.homd_params(), 0.01)
     plant = rwp.make()

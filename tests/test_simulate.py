@@ -1,5 +1,5 @@
 """``jaxdip.simulate`` against a plain Python loop, on failure, under grad, resumed, fanned out, and against the
-original ``jaxdip.sim.loop`` for the components it replaces."""
+original loop (``tests/reference_loop.py``) for the components it replaces."""
 
 import math
 
@@ -255,13 +255,14 @@ def test_fan_out_drives_with_one_and_compares_all_on_the_same_data():
 
 
 def test_native_and_legacy_components_reproduce_the_original_loop():
-    """dip-lqr's loop three ways: the original sim.loop, the engine with adapted old components, and the engine
+    """dip-lqr's loop three ways: the original loop (tests/reference_loop.py), the engine with adapted old components, and the engine
     with the native Modules; same key, same records."""
     from jaxdip.control import feedback_params, state_feedback
     from jaxdip.estimators import passthrough
     from jaxdip.plants import dip
-    from jaxdip.sim import Loop as OldLoop
-    from jaxdip.sim import LoopParams, linearize, rollout
+    from jaxdip.sim import linearize
+    from reference_loop import Loop as OldLoop
+    from reference_loop import LoopParams, rollout
 
     old_plant, p = dip.make(), dip.default_params()
     A, B = linearize(old_plant.f, p, jnp.zeros(6), 0.0)

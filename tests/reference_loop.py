@@ -1,4 +1,7 @@
-"""The generic closed loop: plant, sensor, estimator, controller and actuator in one ``lax.scan``.
+"""The closed loop jaxdip ran before the engine (``jaxdip.engine``), kept frozen as a reference: tests check that
+the engine and its native components reproduce it. Not part of the library.
+
+The generic closed loop: plant, sensor, estimator, controller and actuator in one ``lax.scan``.
 
 One sample period k, in the order the laboratory loops run:
 
