@@ -297,13 +297,17 @@ class RPTarget(Target):
     def objective(self, seeds, smooth: bool):
         from jaxdip.search.p_search import BasisMember, continuous_performance
 
-        seeds = jnp.asarray(seeds, dtype=jnp.uint32)
+        seeds = np.asarray(seeds)
+        if seeds.size == 0 or np.any(np.diff(seeds) != 1):
+            raise ValueError("the rp target takes consecutive seeds")
+        offset, n = int(seeds[0]), int(seeds.size)
         # a one-vector member whose P_{V,s} is self.P (member_P re-derives it from V and log s)
         member = BasisMember(self.v1[None, :], jnp.log(jnp.asarray([1e6])))
 
         def per_seed(theta, key):
             G = continuous_performance(self.plant, self.scfg._replace(gamma=theta["gamma"]))
-            return jax.vmap(lambda i: jnp.log(G(member, jax.random.fold_in(key, i))[0]))(seeds)
+            # seed i's key is fold_in(key, i), the driver's convention
+            return jd.monte_carlo(lambda k: jnp.log(G(member, k)[0]), key, n, offset=offset, shard=False)
 
         return Objective(per_seed)
 
