@@ -12,6 +12,7 @@ from jaxdip.estimators.run import filter_sequence
 from jaxdip.estimators.proximal import LSMHEParams, ls_mhe, ls_mhe_filter, prox_ls, prox_ls_svd
 from jaxdip.estimators.scpx import scpx_linearized, scpx_lti
 from jaxdip.estimators import bias_observers, continuous, homd, luenberger  # reaction-wheel pendulum
+from jaxdip.estimators import lgssm  # batch filter, smoother and likelihood over whole sequences
 
 __all__ = [
     "passthrough", "cpx", "kalman", "linearized", "proximal", "scpx", "CPXParams", "cpx_linearized", "cpx_qr",
@@ -20,3 +21,4 @@ __all__ = [
 ]
 __all__ += ["CPX", "KalmanFilter", "Passthrough", "FanOut"]  # engine estimators (equinox Modules)
 __all__ += ["bias_observers", "continuous", "homd", "luenberger"]
+__all__ += ["lgssm"]
