@@ -178,3 +178,25 @@ def test_likelihood_gradient_matches_finite_differences():
     eps = 1e-5
     fd = (float(ll(0.3 + eps)) - float(ll(0.3 - eps))) / (2 * eps)
     assert abs(g - fd) < 1e-6 * max(1.0, abs(fd))
+
+
+def test_online_ekf_equals_the_batch_filter():
+    from jaxdip.estimators.ekf_online import ExtendedKalmanFilter
+
+    rng = np.random.default_rng(1)
+    ys = rng.normal(size=(8, 2))
+    us = rng.normal(size=(8, 1))
+    m0, P0 = np.array([0.2, -0.1, 0.4]), 0.5 * np.eye(3)
+    Q, R = 0.01 * np.eye(3), np.diag([0.1, 0.2])
+    ref = lgssm.kalman_filter(ys, m0, P0, Q, R, us=us, f=_f, h=_h)
+    ekf = ExtendedKalmanFilter(_h, Q, R, P0, m0, f=_f)
+
+    def body(st, inp):
+        y, u_prev, k = inp
+        st, x, P = ekf.step(st, y, u_prev, None, k)
+        return st, (x, P)
+
+    u_prev = np.concatenate([np.zeros((1, 1)), us[:-1]])  # sample k brings u_{k-1}
+    _, (xs, Ps) = jax.jit(lambda: jax.lax.scan(body, ekf.init(None, None), (ys, u_prev, jnp.arange(8))))()
+    np.testing.assert_allclose(xs, ref.mean, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(Ps, ref.cov, rtol=0, atol=1e-12)

@@ -14,6 +14,7 @@ from jaxdip.estimators.scpx import scpx_linearized, scpx_lti
 from jaxdip.estimators import bias_observers, continuous, homd, luenberger  # reaction-wheel pendulum
 from jaxdip.estimators import lgssm  # batch filter, smoother and likelihood over whole sequences
 from jaxdip.estimators.weighted_mhe import WeightedMHE
+from jaxdip.estimators.ekf_online import ExtendedKalmanFilter
 
 __all__ = [
     "passthrough", "cpx", "kalman", "linearized", "proximal", "scpx", "CPXParams", "cpx_linearized", "cpx_qr",
@@ -22,4 +23,4 @@ __all__ = [
 ]
 __all__ += ["CPX", "KalmanFilter", "Passthrough", "FanOut"]  # engine estimators (equinox Modules)
 __all__ += ["bias_observers", "continuous", "homd", "luenberger"]
-__all__ += ["lgssm", "WeightedMHE"]
+__all__ += ["lgssm", "WeightedMHE", "ExtendedKalmanFilter"]
