@@ -80,9 +80,11 @@ def test_fit_recovers_scales_and_damping_256_sequences():
     # the scale: 256 sequences; the curvature error is checked against the spread over seed sets
     fits = [_fit(simulate(seed, 256, 200), 600) for seed in (1, 2, 3, 4)]
     for fit in fits:
+        print({k: f"{float(fit.theta[k]):.4f} +- {float(fit.stderr[k]):.4f}" for k in TRUE})
         _check_recovered(fit)
     for k in TRUE:
         spread = np.std([float(f.theta[k]) for f in fits], ddof=1)
         se = np.mean([float(f.stderr[k]) for f in fits])
+        print(f"{k}: true {TRUE[k]}, spread over seed sets {spread:.4f}, curvature error {se:.4f}")
         # with 4 sets the sample std is within a factor ~3 of the true one with high probability
         assert se / 3.5 < spread < 3.5 * se, (k, spread, se)

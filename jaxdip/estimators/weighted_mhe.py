@@ -37,6 +37,11 @@ two kinds (static ``prior``):
 Before the first full window (j < N) the estimate is the model's propagation of xhat_0, and the smoothed prior
 waits at xhat_0 until its time index reaches 0.
 
+Nonlinear output map ``h(x)`` (instead of C): linearised along the prior propagated through the window by the
+model, zb_a = xbar, zb_{i+1} = Phi zb_i + W u_i, so y_i - h(zb_i) + H_i zb_i ~ H_i z_i with H_i = dh/dx(zb_i)
+(forward-mode autodiff): one Gauss-Newton step from the prior, the MHE analogue of the EKF's linearisation at
+the predicted mean. The stacked matrix then changes every step and is factorised every step.
+
 Box constraints (``lower``/``upper`` on every z_i; full form only) turn the proximal step into a small strictly
 convex QP, min 1/2 X^T H X - g^T X on a box, H = A^T A = R^T R. It is solved by the primal-dual active-set
 method (Hintermueller, Ito and Kunisch 2003; a semismooth Newton method): guess the active bounds from the
@@ -59,7 +64,7 @@ unconstrained (KF-equivalent) estimator uses.
 
 from __future__ import annotations
 
-from typing import NamedTuple, Optional
+from typing import Callable, NamedTuple, Optional
 
 import equinox as eqx
 import jax
@@ -111,7 +116,7 @@ class WeightedMHE(Estimator):
     """
 
     model: Discrete = eqx.field(converter=lambda m: Discrete(*(jnp.asarray(a, jnp.result_type(float)) for a in m)))
-    C: jax.Array = param()
+    C: Optional[jax.Array]
     meas_weight: jax.Array = param()
     arrival_weight: jax.Array = param()
     proc_weight: Optional[jax.Array]
@@ -126,10 +131,11 @@ class WeightedMHE(Estimator):
     box: bool = eqx.field(static=True)
     box_iters: int = eqx.field(static=True)
     prior: str = eqx.field(static=True)
+    h: Optional[Callable] = eqx.field(static=True)
 
     def __init__(self, model, C, meas_weight, arrival_weight, gamma=1.0, proc_weight=None, N: int = 2,
                  anchor: int = 0, xhat0=None, lower=None, upper=None, output: str = "current",
-                 from_truth: bool = False, box_iters: int = 20, prior: str = "smoothed"):
+                 from_truth: bool = False, box_iters: int = 20, prior: str = "smoothed", h: Optional[Callable] = None):
         d = jnp.shape(model[0])[0]
         if not 0 <= anchor < N:
             raise ValueError(f"the anchor must satisfy 0 <= anchor < N = {N}, got {anchor}")
@@ -138,7 +144,11 @@ class WeightedMHE(Estimator):
         if prior not in ("smoothed", "filtered"):
             raise ValueError(f"prior must be 'smoothed' or 'filtered', got {prior!r}")
         self.prior = prior
-        self.model, self.C, self.meas_weight, self.arrival_weight = model, C, meas_weight, arrival_weight
+        if (C is None) == (h is None):
+            raise ValueError("give exactly one of C (linear output map) and h (nonlinear output map)")
+        self.C = None if C is None else jnp.asarray(C, jnp.result_type(float))
+        self.h = h
+        self.model, self.meas_weight, self.arrival_weight = model, meas_weight, arrival_weight
         self.proc_weight = None if proc_weight is None else jnp.asarray(proc_weight, jnp.result_type(float))
         self.gamma = gamma
         self.xhat0 = jnp.zeros(d) if xhat0 is None else xhat0
@@ -153,7 +163,8 @@ class WeightedMHE(Estimator):
     @classmethod
     def from_noise(cls, model: Discrete, C, Q, R, N: int, arrival_cov=None, **kw) -> "WeightedMHE":
         """The MHE of the Gaussian model: Wv = R^{-1}, Ww = Q^{-1}, Wa = P^{-1} with P = ``arrival_cov`` or the
-        stationary a-priori covariance of the Kalman filter (the filtering DARE), gamma = 1."""
+        stationary a-priori covariance of the Kalman filter (the filtering DARE), gamma = 1. With ``h=...`` in
+        ``kw``, C is the output Jacobian at the operating point, used for that DARE only."""
         from jaxdip.control.riccati import dare
 
         Phi = jnp.asarray(model[0])
@@ -162,39 +173,46 @@ class WeightedMHE(Estimator):
             arrival_cov = dare(Phi.T, C.T, jnp.asarray(Q, Phi.dtype), jnp.asarray(R, Phi.dtype))
         inv = lambda M: jnp.linalg.inv(jnp.asarray(M, Phi.dtype))
         kw.setdefault("prior", "filtered")
-        return cls(model, C, inv(R), inv(arrival_cov), 1.0, proc_weight=inv(Q), N=N, **kw)
+        C_map = None if kw.get("h") is not None else C
+        return cls(model, C_map, inv(R), inv(arrival_cov), 1.0, proc_weight=inv(Q), N=N, **kw)
 
     # ---- the stacked problem --------------------------------------------------------------------------------
 
     @property
     def _dims(self):
-        d, p, m = self.model.Phi.shape[0], self.C.shape[0], self.model.W.shape[1]
+        d, p, m = self.model.Phi.shape[0], self.meas_weight.shape[0], self.model.W.shape[1]
         return d, p, m
 
-    def stacked_matrix(self) -> jax.Array:
-        """A of min ||A X - b||: rows (arrival, measurements i = 0..N, process i = 0..N-1)."""
+    def _output_matrices(self, Cs):
+        return [self.C] * (self.N + 1) if Cs is None else [Cs[i] for i in range(self.N + 1)]
+
+    def stacked_matrix(self, Cs=None) -> jax.Array:
+        """A of min ||A X - b||: rows (arrival, measurements i = 0..N, process i = 0..N-1). ``Cs`` (N + 1, p, d):
+        per-sample output matrices (the linearised h), else C."""
         d, p, _ = self._dims
+        Cs = self._output_matrices(Cs)
         N, a = self.N, self.anchor
         Phi = self.model.Phi
         Sa = _sqrt_weight(self.arrival_weight) * (1.0 / jnp.sqrt(jnp.asarray(self.gamma, Phi.dtype)))
         Sv = _sqrt_weight(self.meas_weight)
         if self.proc_weight is None:
             Ms = _powers(Phi, self.model.Phi_inv, N, a)
-            return jnp.concatenate([Sa] + [Sv @ (self.C @ M) for M in Ms], axis=0)
+            return jnp.concatenate([Sa] + [Sv @ (Ci @ M) for Ci, M in zip(Cs, Ms)], axis=0)
         Sw = _sqrt_weight(self.proc_weight)
         n = d * (N + 1)
         arr = jnp.zeros((d, n), Phi.dtype).at[:, a * d:(a + 1) * d].set(Sa)
         meas = jnp.zeros(((N + 1) * p, n), Phi.dtype)
         for i in range(N + 1):
-            meas = meas.at[i * p:(i + 1) * p, i * d:(i + 1) * d].set(Sv @ self.C)
+            meas = meas.at[i * p:(i + 1) * p, i * d:(i + 1) * d].set(Sv @ Cs[i])
         proc = jnp.zeros((N * d, n), Phi.dtype)
         for i in range(N):
             proc = proc.at[i * d:(i + 1) * d, i * d:(i + 1) * d].set(-Sw @ Phi)
             proc = proc.at[i * d:(i + 1) * d, (i + 1) * d:(i + 2) * d].set(Sw)
         return jnp.concatenate([arr, meas, proc], axis=0)
 
-    def stacked_vector(self, xbar, ybuf, ubuf) -> jax.Array:
+    def stacked_vector(self, xbar, ybuf, ubuf, Cs=None) -> jax.Array:
         d, p, _ = self._dims
+        Cs = self._output_matrices(Cs)
         N, a = self.N, self.anchor
         Phi, Phi_inv, W = self.model
         Sa = _sqrt_weight(self.arrival_weight) * (1.0 / jnp.sqrt(jnp.asarray(self.gamma, Phi.dtype)))
@@ -206,7 +224,7 @@ class WeightedMHE(Estimator):
                 s[i] = Phi @ s[i - 1] + W @ ubuf[i - 1]
             for i in range(a - 1, -1, -1):
                 s[i] = Phi_inv @ (s[i + 1] - W @ ubuf[i])
-            return jnp.concatenate([Sa @ xbar] + [Sv @ (ybuf[i] - self.C @ s[i]) for i in range(N + 1)])
+            return jnp.concatenate([Sa @ xbar] + [Sv @ (ybuf[i] - Cs[i] @ s[i]) for i in range(N + 1)])
         Sw = _sqrt_weight(self.proc_weight)
         return jnp.concatenate([Sa @ xbar, (ybuf @ Sv.T).reshape(-1), (ubuf @ (Sw @ W).T).reshape(-1)])
 
@@ -243,8 +261,12 @@ class WeightedMHE(Estimator):
     def init(self, key, x0):
         d, p, m = self._dims
         x = jnp.asarray(x0 if self.from_truth else self.xhat0, dtype=jnp.result_type(float))
-        Qm, R = jnp.linalg.qr(self.stacked_matrix(), mode="reduced")
-        return WMHEState((Qm.T, R), x, jnp.zeros((self.N + 1, p), x.dtype), jnp.zeros((self.N, m), x.dtype), x,
+        if self.h is None:
+            Qm, R = jnp.linalg.qr(self.stacked_matrix(), mode="reduced")
+            factor = (Qm.T, R)
+        else:  # the stacked matrix changes with the linearisation point: factorised at every step
+            factor = ()
+        return WMHEState(factor, x, jnp.zeros((self.N + 1, p), x.dtype), jnp.zeros((self.N, m), x.dtype), x,
                          jnp.zeros((self.N + 1, d), x.dtype), x)
 
     def step(self, state: WMHEState, y, u_prev, key, k):
@@ -258,8 +280,23 @@ class WeightedMHE(Estimator):
         x_chain = jnp.where(k == 0, state.xchain, Phi @ state.xchain + W @ u_prev)
         pbuf = jnp.concatenate([state.pbuf[1:], x_chain[None]])
         xprior = state.xbar if self.prior == "smoothed" else pbuf[a]
-        QT, R = state.factor
-        QTb = QT @ self.stacked_vector(xprior, ybuf, ubuf)
+        if self.h is None:
+            QT, R = state.factor
+            QTb = QT @ self.stacked_vector(xprior, ybuf, ubuf)
+        else:
+            # linearise h along the prior propagated through the window: y_i ~ h(zb_i) + H_i (z_i - zb_i)
+            zb = [None] * (N + 1)
+            zb[a] = xprior
+            for i in range(a + 1, N + 1):
+                zb[i] = Phi @ zb[i - 1] + W @ ubuf[i - 1]
+            for i in range(a - 1, -1, -1):
+                zb[i] = self.model.Phi_inv @ (zb[i + 1] - W @ ubuf[i])
+            zb = jnp.stack(zb)
+            Hs = jax.vmap(jax.jacfwd(self.h))(zb)
+            y_lin = ybuf - jax.vmap(self.h)(zb) + jnp.einsum("ipd,id->ip", Hs, zb)
+            Qm, R = jnp.linalg.qr(self.stacked_matrix(Hs), mode="reduced")
+            QT = Qm.T
+            QTb = QT @ self.stacked_vector(xprior, y_lin, ubuf, Hs)
         X = jsl.solve_triangular(R, QTb, lower=False)
         violation = jnp.zeros((), X.dtype)
         z_free = X[(self.N) * d:] if self.proc_weight is not None else None
