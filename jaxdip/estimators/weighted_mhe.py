@@ -17,7 +17,9 @@ Two forms.
 * ``proc_weight=None``: the model is a hard constraint (no process noise), the unknown is z_a alone, and
   z_i = Phi^{i-a} z_a + s_i (s_i the response to the known inputs, backwards through Phi^{-1}). With Wv = I,
   Wa = I, N = 2, a = 1 the stacked matrix is exactly the [I/sqrt(gamma); C Phi^{-1}; C; C Phi] of CPX
-  (``jaxdip.estimators.cpx``), row for row, and the estimator is CPX (tested to rounding).
+  (``jaxdip.estimators.cpx``), row for row, and the estimator is CPX (tested to rounding). A weight on the
+  whole window's measurement residual, given by its square root ``window_sqrt``, adds SCPX: with the
+  projector onto the p leading left singular vectors of G (``WeightedMHE.scpx``) the estimator is SCPX.
 
 Either way the problem is min ||A X - b||^2 with A fixed (LTI model, static N): A is factorised once by QR in
 ``init`` (a differentiable function of every weight, so gradients and sweeps need no recompilation). Each step
@@ -133,10 +135,12 @@ class WeightedMHE(Estimator):
     box_iters: int = eqx.field(static=True)
     prior: str = eqx.field(static=True)
     h: Optional[Callable] = eqx.field(static=True)
+    window_sqrt: Optional[jax.Array]
 
     def __init__(self, model, C, meas_weight, arrival_weight, gamma=1.0, proc_weight=None, N: int = 2,
                  anchor: int = 0, xhat0=None, lower=None, upper=None, output: str = "current",
-                 from_truth: bool = False, box_iters: int = 20, prior: str = "smoothed", h: Optional[Callable] = None):
+                 from_truth: bool = False, box_iters: int = 20, prior: str = "smoothed", h: Optional[Callable] = None,
+                 window_sqrt=None):
         d = jnp.shape(model[0])[0]
         if not 0 <= anchor < N:
             raise ValueError(f"the anchor must satisfy 0 <= anchor < N = {N}, got {anchor}")
@@ -149,6 +153,9 @@ class WeightedMHE(Estimator):
             raise ValueError("give exactly one of C (linear output map) and h (nonlinear output map)")
         self.C = None if C is None else jnp.asarray(C, jnp.result_type(float))
         self.h = h
+        if window_sqrt is not None and proc_weight is not None:
+            raise ValueError("window_sqrt is for the hard-model form (proc_weight=None)")
+        self.window_sqrt = None if window_sqrt is None else jnp.asarray(window_sqrt, jnp.result_type(float))
         self.model, self.meas_weight, self.arrival_weight = model, meas_weight, arrival_weight
         self.proc_weight = None if proc_weight is None else jnp.asarray(proc_weight, jnp.result_type(float))
         self.gamma = gamma
@@ -177,6 +184,23 @@ class WeightedMHE(Estimator):
         C_map = None if kw.get("h") is not None else C
         return cls(model, C_map, inv(R), inv(arrival_cov), 1.0, proc_weight=inv(Q), N=N, **kw)
 
+    @classmethod
+    def scpx(cls, model: Discrete, C, gamma, keep: int, **kw) -> "WeightedMHE":
+        """SCPX (``jaxdip.estimators.scpx``) as a weighted MHE: the hard-model centred window (N = 2, a = 1) with
+        the window weight P = Ug_p Ug_p^T, the projector onto the ``keep`` leading left singular vectors of
+        G = [C Phi^{-1}; C; C Phi]. Its square root Ug_p^T is ``window_sqrt``: 1/2 ||Ug_p^T (G z - q)||^2 has the
+        proximal point (1.26) of the thesis (the components of z outside V_p keep the prior)."""
+        from jaxdip.estimators.cpx import centered_matrix
+        from jaxdip.estimators.linearized import lti_step
+        from jaxdip.estimators.proximal import svd_factor
+
+        m = Discrete(*(jnp.asarray(a, jnp.result_type(float)) for a in model))
+        C = jnp.asarray(C, m.Phi.dtype)
+        Ug = svd_factor(centered_matrix(lti_step(m.Phi, m.Phi_inv, m.W), C)).Ug
+        d, p = m.Phi.shape[0], C.shape[0]
+        kw.setdefault("output", "prediction")
+        return cls(m, C, jnp.eye(p), jnp.eye(d), gamma, N=2, anchor=1, window_sqrt=Ug[:, :keep].T, **kw)
+
     # ---- the stacked problem --------------------------------------------------------------------------------
 
     @property
@@ -198,7 +222,8 @@ class WeightedMHE(Estimator):
         Sv = _sqrt_weight(self.meas_weight)
         if self.proc_weight is None:
             Ms = _powers(Phi, self.model.Phi_inv, N, a)
-            return jnp.concatenate([Sa] + [Sv @ (Ci @ M) for Ci, M in zip(Cs, Ms)], axis=0)
+            G = jnp.concatenate([Sv @ (Ci @ M) for Ci, M in zip(Cs, Ms)], axis=0)
+            return jnp.concatenate([Sa, G if self.window_sqrt is None else self.window_sqrt @ G], axis=0)
         Sw = _sqrt_weight(self.proc_weight)
         n = d * (N + 1)
         arr = jnp.zeros((d, n), Phi.dtype).at[:, a * d:(a + 1) * d].set(Sa)
@@ -225,7 +250,8 @@ class WeightedMHE(Estimator):
                 s[i] = Phi @ s[i - 1] + W @ ubuf[i - 1]
             for i in range(a - 1, -1, -1):
                 s[i] = Phi_inv @ (s[i + 1] - W @ ubuf[i])
-            return jnp.concatenate([Sa @ xbar] + [Sv @ (ybuf[i] - Cs[i] @ s[i]) for i in range(N + 1)])
+            q = jnp.concatenate([Sv @ (ybuf[i] - Cs[i] @ s[i]) for i in range(N + 1)])
+            return jnp.concatenate([Sa @ xbar, q if self.window_sqrt is None else self.window_sqrt @ q])
         Sw = _sqrt_weight(self.proc_weight)
         return jnp.concatenate([Sa @ xbar, (ybuf @ Sv.T).reshape(-1), (ubuf @ (Sw @ W).T).reshape(-1)])
 
