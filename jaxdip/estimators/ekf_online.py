@@ -2,7 +2,7 @@
 
 Same timing as ``KalmanFilter``: sample j brings y_j and u_{j-1}; from j = 1 on the filter predicts with
 u_{j-1}, then updates with y_j (at j = 0 the prior is (xhat0, P0), or (x0, P0) with ``from_truth``). The
-equations are those of ``jaxdip.estimators.lgssm`` (shared ``gaussian_update``), so a run over a recorded
+equations are those of ``jaxdip.estimators.lgssm`` (the same ``gaussian_update``), so a run over a recorded
 sequence equals ``lgssm.kalman_filter`` with the same maps.
 """
 
