@@ -115,7 +115,10 @@ class WeightedMHE(Estimator):
 
     ``meas_weight`` (p, p), ``arrival_weight`` (d, d), ``proc_weight`` (d, d) or None (hard model), ``gamma``
     the proximal scale; ``lower``/``upper`` (d,) box on every window state (``inf`` for none). ``N`` and the
-    anchor ``a`` are static. Output: "current" (x_j) or "prediction" (Phi x_j + W u_{j-1}, as CPX).
+    anchor ``a`` are static. Output: "current" (x_j) or "prediction" (Phi x_j + W u_{j-1}, as CPX). ``prior``:
+    "smoothed" or "filtered" (see the module docstring); ``h(x)`` replaces ``C`` by a nonlinear output map
+    (static, compared by identity); ``window_sqrt`` weighs the hard-model window residual as a whole (SCPX).
+    Constructors for the usual cases: ``from_noise`` (Gaussian weights) and ``scpx``.
     """
 
     model: Discrete = eqx.field(converter=lambda m: Discrete(*(jnp.asarray(a, jnp.result_type(float)) for a in m)))
