@@ -14,6 +14,9 @@ from jaxdip.estimators.run import filter_sequence
 from jaxdip.estimators.proximal import LSMHEParams, ls_mhe, ls_mhe_filter, prox_ls, prox_ls_svd
 from jaxdip.estimators.scpx import scpx_linearized, scpx_lti
 from jaxdip.estimators import bias_observers, continuous, homd, luenberger  # reaction-wheel pendulum
+from jaxdip.estimators import lgssm  # batch filter, smoother and likelihood over whole sequences
+from jaxdip.estimators.weighted_mhe import WeightedMHE
+from jaxdip.estimators.ekf_online import ExtendedKalmanFilter
 
 __all__ = [
     "passthrough", "cpx", "kalman", "linearized", "proximal", "scpx", "CPXParams", "cpx_linearized", "cpx_qr",
@@ -23,3 +26,4 @@ __all__ = [
 __all__ += ["CPX", "LinearizedCPX", "KalmanFilter", "ExtendedKalmanFilter", "Passthrough", "FanOut", "LDF", "Delayed",
             "InitialError"]  # engine estimators (equinox Modules)
 __all__ += ["bias_observers", "continuous", "homd", "luenberger"]
+__all__ += ["lgssm", "WeightedMHE", "ExtendedKalmanFilter"]
