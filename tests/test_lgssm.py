@@ -181,7 +181,7 @@ def test_likelihood_gradient_matches_finite_differences():
 
 
 def test_online_ekf_equals_the_batch_filter():
-    from jaxdip.estimators.ekf_online import ExtendedKalmanFilter
+    from jaxdip.estimators.ekf_online import NonlinearEKF
 
     rng = np.random.default_rng(1)
     ys = rng.normal(size=(8, 2))
@@ -189,7 +189,7 @@ def test_online_ekf_equals_the_batch_filter():
     m0, P0 = np.array([0.2, -0.1, 0.4]), 0.5 * np.eye(3)
     Q, R = 0.01 * np.eye(3), np.diag([0.1, 0.2])
     ref = lgssm.kalman_filter(ys, m0, P0, Q, R, us=us, f=_f, h=_h)
-    ekf = ExtendedKalmanFilter(_h, Q, R, P0, m0, f=_f)
+    ekf = NonlinearEKF(_h, Q, R, P0, m0, f=_f)
 
     def body(st, inp):
         y, u_prev, k = inp

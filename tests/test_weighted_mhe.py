@@ -235,12 +235,12 @@ def test_output_map_as_a_function_equals_the_matrix():
 
 
 def test_curved_output_map_matches_the_ekf():
-    from jaxdip.estimators.ekf_online import ExtendedKalmanFilter
+    from jaxdip.estimators.ekf_online import NonlinearEKF
 
     model, K = dip_setup()
     Q, R = PROC_STD**2 * np.eye(6), np.diag(SENSOR_STD**2)
     P0 = X0_RADIUS**2 / 8 * np.eye(6)
-    ekf = ExtendedKalmanFilter(h_curved, Q, R, P0, Phi=model.Phi, W=model.W)
+    ekf = NonlinearEKF(h_curved, Q, R, P0, Phi=model.Phi, W=model.W)
     mhe = WeightedMHE.from_noise(model, C3, Q, R, N=10, h=h_curved)
     loop = jd.Loop(plant=LinearPlant(model.Phi, model.W), sensor=CurvedSensor(SENSOR_STD),
                    estimator=jd.FanOut({"kf": ekf, "mhe": mhe}, drive="kf"), controller=jd.control.StateFeedback(K),

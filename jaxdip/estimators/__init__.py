@@ -16,7 +16,7 @@ from jaxdip.estimators.scpx import scpx_linearized, scpx_lti
 from jaxdip.estimators import bias_observers, continuous, homd, luenberger  # reaction-wheel pendulum
 from jaxdip.estimators import lgssm  # batch filter, smoother and likelihood over whole sequences
 from jaxdip.estimators.weighted_mhe import WeightedMHE
-from jaxdip.estimators.ekf_online import ExtendedKalmanFilter
+from jaxdip.estimators.ekf_online import NonlinearEKF
 
 __all__ = [
     "passthrough", "cpx", "kalman", "linearized", "proximal", "scpx", "CPXParams", "cpx_linearized", "cpx_qr",
@@ -26,4 +26,4 @@ __all__ = [
 __all__ += ["CPX", "LinearizedCPX", "KalmanFilter", "ExtendedKalmanFilter", "Passthrough", "FanOut", "LDF", "Delayed",
             "InitialError"]  # engine estimators (equinox Modules)
 __all__ += ["bias_observers", "continuous", "homd", "luenberger"]
-__all__ += ["lgssm", "WeightedMHE", "ExtendedKalmanFilter"]
+__all__ += ["lgssm", "WeightedMHE", "NonlinearEKF"]

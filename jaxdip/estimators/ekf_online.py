@@ -19,12 +19,15 @@ from jaxdip.estimators.kalman import KFState
 from jaxdip.estimators.lgssm import gaussian_update
 
 
-class ExtendedKalmanFilter(Estimator):
+class NonlinearEKF(Estimator):
     """EKF for x_{k+1} = f(x_k, u_k) + w (or Phi x_k + W u_k + w), y_k = h(x_k) + v.
 
     ``h(x)`` and ``f(x, u)`` are static (compared by identity: pass module-level functions); their Jacobians are
     taken by forward-mode autodiff at the predicted (h) and filtered (f) means. Without ``f`` the dynamics are
     linear with the array fields ``Phi``, ``W``. ``aux`` is the posterior covariance.
+
+    For a continuous plant with a linear output (the Lorenz study), ``ExtendedKalmanFilter`` in
+    ``jaxdip.estimators.kf`` discretises the plant's vector field itself; this one takes discrete maps.
     """
 
     Q: jax.Array = param()
