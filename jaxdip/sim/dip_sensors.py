@@ -19,11 +19,8 @@ from __future__ import annotations
 import math
 from typing import Sequence
 
-import equinox as eqx
-import jax
 import jax.numpy as jnp
 
-from jaxdip.engine.roles import Sensor, param
 from jaxdip.sim import sensors
 
 ENCODER_COUNTS_PER_REV = 4096  # 1024 lines x 4 (quadrature)
@@ -60,41 +57,8 @@ def encoder_sensor(dt: float):
     return sensors.linear_sensor(dt)
 
 
-class Encoders(Sensor):
-    """The encoders as an engine sensor: ``SensorParams``' fields as array fields, stepped by ``linear_sensor``.
-
-    ``straight_through=True`` differentiates the quantiser as the identity (forward: the same rounded readings;
-    ``jaxdip.tune.straight_through_sensor``), for tuning through the encoders. ``aux`` is the walking bias.
-    Build it with ``encoders(dt, state_names, quanta, noise_counts)``.
-    """
-
-    C: jax.Array = param()
-    white_std: jax.Array = param()
-    const_bias: jax.Array = param()
-    gm_sigma: jax.Array = param()
-    gm_tau: jax.Array = param()
-    quantum: jax.Array = param()
-    dt: float = eqx.field(static=True)
-    stationary_start: bool = eqx.field(default=True, static=True)
-    straight_through: bool = eqx.field(default=False, static=True)
-
-    def params(self) -> sensors.SensorParams:
-        return sensors.SensorParams(self.C, self.white_std, self.const_bias, self.gm_sigma, self.gm_tau,
-                                    self.quantum)
-
-    def _component(self):
-        if self.straight_through:
-            from jaxdip.tune.objective import straight_through_sensor
-
-            return straight_through_sensor(self.dt, self.stationary_start)
-        return sensors.linear_sensor(self.dt, self.stationary_start)
-
-    def init(self, key, x0):
-        return self._component().init(self.params(), key, x0)
-
-    def step(self, state, x, key, k):
-        bias, y = self._component().step(self.params(), state, x, key, k)
-        return bias, y, bias
+# the encoders are the general linear sensor with encoder numbers (``encoders`` below); the name stays for readers
+Encoders = sensors.LinearSensor
 
 
 def encoders(dt: float, state_names: Sequence[str], quanta=DEFAULT_QUANTA, noise_counts=0.5,
