@@ -116,6 +116,44 @@ def test_sweep_compiles_once_and_equals_separate_runs():
     np.testing.assert_array_equal(np.asarray(both), np.broadcast_to(np.asarray(means)[:, None, None], (4, 9, 2)))
 
 
+class Indexed(eqx.Module):
+    """A trial of (key, seed index): a per-seed value and a 'trajectory' (the detail)."""
+
+    scale: jax.Array = jd.param(2.0)
+
+    def __call__(self, key, i):
+        traj = self.scale * jnp.arange(5.0) + jax.random.normal(key, (5,))
+        return {"i": i, "last": traj[-1]}, traj
+
+
+def detail(out):
+    return out[0], out[1]
+
+
+def test_index_and_detail_equal_the_plain_runs():
+    """``index=True`` hands the seed index; ``detail`` keeps the first seed's part only. Against the plain
+    per-seed outputs of the same function (no index, no detail), chunked, padded and swept."""
+    key = jax.random.PRNGKey(3)
+    f = Indexed()
+    per, traj0 = jd.monte_carlo(f, key, 7, chunk=3, index=True, detail=detail)  # 3 calls, the last padded
+    np.testing.assert_array_equal(np.asarray(per["i"]), np.arange(7))
+    full = jd.monte_carlo(lambda k: f(k, 0), key, 7)  # the same keys, every trajectory kept
+    np.testing.assert_allclose(np.asarray(per["last"]), np.asarray(full[1][:, -1]), rtol=1e-15)
+    np.testing.assert_allclose(np.asarray(traj0), np.asarray(full[1][0]), rtol=1e-15)
+    # with an offset the detail is that of the run's first seed
+    _, traj3 = jd.monte_carlo(f, key, 2, offset=3, index=True, detail=detail)
+    np.testing.assert_allclose(np.asarray(traj3), np.asarray(full[1][3]), rtol=1e-15)
+    # swept: one detail per sweep entry
+    scales = jnp.array([1.0, -4.0])
+    per_s, traj_s = jd.monte_carlo(f, key, 4, index=True, detail=detail, sweep=(lambda g: g.scale, scales))
+    assert traj_s.shape == (2, 5) and per_s["last"].shape == (2, 4)
+    for j, c in enumerate(scales):
+        np.testing.assert_allclose(np.asarray(traj_s[j]), np.asarray(Indexed(c)(jax.random.fold_in(key, 0), 0)[1]),
+                                   rtol=1e-15)
+    with pytest.raises(ValueError, match="Rollout"):
+        jd.monte_carlo(dip_rollout(steps=10), key, 2, index=True)
+
+
 def test_rollout_sweep_over_a_hyperparameter_compiles_once():
     traces = [0]
 

@@ -105,6 +105,10 @@ def _m_call(f, key, _, n):
     return f(key)
 
 
+def _m_call_indexed(f, key, i, n):
+    return f(key, i)
+
+
 def _m_init(f, key, _, n):
     return f.init(key)
 
@@ -118,11 +122,18 @@ def _m_finalize(f, key, state, n):
 
 
 @eqx.filter_jit
-def _batch(method, fn, where, values, base, idx, args, n):
-    """vmap of ``method(fn, fold_in(base, i), arg_i, n)`` over the seed indices ``idx`` (and over the sweep)."""
+def _batch(method, fn, where, values, base, idx, args, n, detail=None):
+    """vmap of ``method(fn, fold_in(base, i), arg_i, n)`` over the seed indices ``idx`` (and over the sweep).
+    ``detail``: split each seed's output into (per seed, detail) and keep the detail of the batch's first seed."""
 
     def seeds(f, a):
-        return jax.vmap(lambda i, ai: method(f, jax.random.fold_in(base, i), ai, n))(idx, a)
+        if method is _m_call_indexed:
+            a = idx
+        out = jax.vmap(lambda i, ai: method(f, jax.random.fold_in(base, i), ai, n))(idx, a)
+        if detail is None:
+            return out
+        per, det = jax.vmap(detail)(out)
+        return per, jax.tree_util.tree_map(lambda v: v[0], det)
 
     if where is None:
         return seeds(fn, args)
@@ -158,7 +169,8 @@ def device_mesh(devices=None):
 
 def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[int] = None,
                 time_chunk: Optional[int] = None, shard: Optional[bool] = None, progress: bool = False,
-                desc: str = "monte carlo", sweep: Optional[tuple[Callable, Any]] = None):
+                desc: str = "monte carlo", sweep: Optional[tuple[Callable, Any]] = None, index: bool = False,
+                detail: Optional[Callable] = None):
     """Evaluate ``fn(fold_in(key, i))`` for seeds i = offset .. offset + n - 1; outputs stacked on axis 0.
 
     fn: any pure function of a PRNG key (a function, an ``equinox.Module``, a ``Rollout``). Its array leaves
@@ -173,6 +185,12 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
     sweep: ``(where, values)``: run every seed for each entry of ``values`` (leading axis) put into
         ``fn`` at ``where(fn)`` (``eqx.tree_at``), in one program. Outputs get a leading sweep axis before
         the seed axis.
+    index: call ``fn(key, i)`` with the seed index i as well (a study that starts seed 0 at a nominal state
+        and the others at random ones runs them in one program).
+    detail: ``detail(out) -> (per_seed, extra)`` on one seed's output; the result is then
+        ``(per_seed stacked over the seeds, extra of the run's first seed only)``, both from the same compiled
+        program: a whole trajectory for a figure without keeping every seed's. (With a ``Rollout`` the
+        horizon then runs in one call.)
 
     Returns JAX arrays (no host conversion), so ``jax.grad`` of a function of the result works when the
     hyperparameters are traced; progress is then off.
@@ -207,6 +225,9 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
     seed_axis = 0 if where is None else 1
 
     rollout = isinstance(fn, Rollout)
+    if rollout and index:
+        raise ValueError("index=True calls fn(key, i); a Rollout is a function of the key alone")
+    call = _m_call_indexed if index else _m_call
     if rollout:
         every = fn.save_every if fn.save is not None else 1
         tc = time_chunk or (max(1, fn.steps // 20) if progress else fn.steps)
@@ -219,15 +240,21 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
             jax.block_until_ready(x)  # dispatch is asynchronous: wait so the bar tells the truth
         return x
 
-    outs = []
+    outs, first = [], None
     for b in range(n_batches):
         idx = jnp.asarray(seeds[b * batch:(b + 1) * batch], dtype=jnp.uint32)
         if n_dev > 1:
             from jax.sharding import NamedSharding, PartitionSpec
 
             idx = jax.device_put(idx, NamedSharding(device_mesh(devices), PartitionSpec("seeds")))
-        if not rollout or len(sizes) == 1:  # the whole horizon at once: one program, one dispatch
-            outs.append(wait(_batch(_m_call, fn, where, values, key, idx, None, 0)))
+        if not rollout or len(sizes) == 1 or detail is not None or index:
+            # the whole horizon at once: one program, one dispatch
+            out = wait(_batch(call, fn, where, values, key, idx, None, 0, detail))
+            if detail is not None:
+                if b == 0:
+                    first = out[1]
+                out = out[0]
+            outs.append(out)
             bar.update(fn.steps if rollout else 1)
             continue
         state = _batch(_m_init, fn, where, values, key, idx, None, 0)
@@ -245,4 +272,4 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
     out = _concat(outs, seed_axis)
     if pad:
         out = jax.tree_util.tree_map(lambda a: jax.lax.slice_in_dim(a, 0, n, axis=seed_axis), out)
-    return out
+    return out if detail is None else (out, first)

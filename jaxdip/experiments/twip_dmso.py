@@ -42,8 +42,9 @@ last ``tail_s`` seconds; convergence time per state = first time after which |er
 band for the rest of the run (the run's length if it never does, counted in ``converged_fraction``); for the
 DMSO the RMS of fhat - B^T f over the run, and relative to RMS(B^T f) over the run and after ``settle_s``.
 
-Cases that share dt, horizon, seed count, spread and band (nominal, param, param_gamma_variant) run as one
-``monte_carlo`` sweep over their loops per estimator. The noisy case's mean RMS error as a differentiable
+Each case and estimator is one ``monte_carlo`` call (seed 0 at x0 and its trace in the same program,
+``index=True, detail=...``); cases of one estimator, sample period and horizon differ only in numbers and
+share a batch size, so they share one compiled program. The noisy case's mean RMS error as a differentiable
 function of the DMSO is ``jaxdip.scenarios.twip_dmso.rms_error`` (gradients checked in tests/test_dmso.py).
 """
 
@@ -64,7 +65,7 @@ from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import twip
 from jaxdip.resources import Load, steps_of
 from jaxdip.scenarios import twip_dmso as S
-from jaxdip.scenarios.twip_initial import run_seeds, thesis_x0
+from jaxdip.scenarios.twip_initial import thesis_x0
 
 INF = float("inf")
 STATES = twip.STATE_NAMES  # ("x", "x_dot", "phi", "phi_dot")
@@ -233,26 +234,18 @@ def n_steps(spec: CaseSpec) -> int:
     return int(round(spec.duration / spec.dt))
 
 
-def build(cfg: TwipDmsoConfig, specs: list[CaseSpec], est: str):
-    """(seed-0 trial with its trace, trial of the other seeds, sweep over the cases' loops) for cases of one
-    structure, size, initial-state spread and band."""
-    d = design(cfg, specs[0].dt)
-    x0 = thesis_x0(cfg.x0)
-    n = n_steps(specs[0])
-
-    def one(spec, spread, traces):
-        return S.trial(build_loop(cfg, spec, est), d, x0, spread, n, jnp.asarray(spec.band), tail_s=cfg.tail_s,
-                       settle_s=cfg.settle_s, traces=traces)
-
-    first, rest = one(specs[0], 0.0, True), one(specs[0], specs[0].spread, False)
-    if len(specs) == 1:
-        return first, rest, None
-    # the group shares dt, horizon, seeds, spread and band (``simulate``): only the loops differ
-    return first, rest, (lambda t: t.rollout.loop, _stack([build_loop(cfg, s, est) for s in specs]))
+def build(cfg: TwipDmsoConfig, spec: CaseSpec, est: str) -> S.Trial:
+    """The trial of one case and estimator; cases of one estimator, dt and horizon differ only in numbers."""
+    d = design(cfg, spec.dt)
+    return S.trial(build_loop(cfg, spec, est), d, thesis_x0(cfg.x0), spec.spread, n_steps(spec),
+                   jnp.asarray(spec.band), tail_s=cfg.tail_s, settle_s=cfg.settle_s)
 
 
-def _stack(items):
-    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *items)
+def batch_size(cfg: TwipDmsoConfig, spec: CaseSpec) -> int:
+    """Seeds per compiled call. Cases with the same sample period and horizon share it, hence one compiled
+    program per estimator and sample period: smaller cases are padded (the padding is dropped)."""
+    same = [s.n_seeds for s in case_specs(cfg) if s.dt == spec.dt and s.duration == spec.duration]
+    return max(1, min(cfg.chunk_seeds, max(same)))
 
 
 class Trace(NamedTuple):
@@ -264,24 +257,16 @@ class Trace(NamedTuple):
     fhat: np.ndarray  # (T - 1, 2) the DMSO's estimate (zeros for the KF)
 
 
-def run_group(cfg: TwipDmsoConfig, specs: list[CaseSpec], est: str, progress: bool = False):
-    """{case: (per-seed metrics, diverged, seed-0 Trace)} for cases that share dt, horizon and seed count:
-    one sweep (one compiled program for seed 0, one for the others)."""
-    first, rest, sweep = build(cfg, specs, est)
-    head, tail = run_seeds(first, rest, jax.random.PRNGKey(cfg.seed), specs[0].n_seeds, sweep=sweep,
-                           chunk=cfg.chunk_seeds, progress=progress, desc=f"twip-dmso {est}")
-    ax = 0 if sweep is None else 1
-    m, div = head[0], head[1]
-    if tail is not None:
-        m = jax.tree_util.tree_map(lambda a, b: np.concatenate([a, b], axis=ax), m, tail[0])
-        div = np.concatenate([div, tail[1]], axis=ax)
-    out = {}
-    for j, spec in enumerate(specs):
-        pick = (lambda a: np.asarray(a)) if sweep is None else (lambda a, j=j: np.asarray(a)[j])
-        tr = {k: pick(v)[0] for k, v in head[2].items()}
-        out[spec.name] = ({k: pick(v) for k, v in m.items()}, pick(div),
-                          Trace(tr["x"], tr["xhat"], tr["u"], tr["y"], tr["f"], tr["fhat"]))
-    return out
+def run_case(cfg: TwipDmsoConfig, spec: CaseSpec, est: str, progress: bool = False):
+    """(per-seed metrics, diverged, seed-0 Trace) of one case and estimator. A case with fewer seeds than the
+    batch runs a full batch (the extra seeds are dropped) so that it reuses the compiled program."""
+    bs, n = batch_size(cfg, spec), spec.n_seeds
+    (m, div), tr = jd.monte_carlo(build(cfg, spec, est), jax.random.PRNGKey(cfg.seed), max(n, bs), chunk=bs,
+                                  index=True, detail=S.split_trace, progress=progress,
+                                  desc=f"twip-dmso {spec.name} {est}")
+    tr = {k: np.asarray(v) for k, v in tr.items()}
+    return ({k: np.asarray(v)[:n] for k, v in m.items()}, np.asarray(div)[:n],
+            Trace(tr["x"], tr["xhat"], tr["u"], tr["y"], tr["f"], tr["fhat"]))
 
 
 # ---- summaries --------------------------------------------------------------------------------------------
@@ -390,17 +375,9 @@ def fig_uncertainty(name, tr: Trace, dt):
 
 
 def simulate(cfg: TwipDmsoConfig, progress: bool = False) -> dict:
-    """{(case, estimator): (per-seed metrics, diverged, seed-0 Trace)}: the cases of one dt, horizon and seed
-    count run as one sweep per estimator."""
-    groups: dict = {}
-    for spec in case_specs(cfg):
-        for est in spec.estimators:
-            groups.setdefault((est, spec.dt, spec.duration, spec.n_seeds, spec.spread, spec.band), []).append(spec)
-    out = {}
-    for (est, *_), specs in groups.items():
-        for name, r in run_group(cfg, specs, est, progress).items():
-            out[(name, est)] = r
-    return out
+    """{(case, estimator): (per-seed metrics, diverged, seed-0 Trace)}."""
+    return {(spec.name, est): run_case(cfg, spec, est, progress) for spec in case_specs(cfg)
+            for est in spec.estimators}
 
 
 def run(cfg: TwipDmsoConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:

@@ -60,7 +60,7 @@ from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.plants import twip
 from jaxdip.resources import Load, steps_of
 from jaxdip.scenarios import twip_extra as S
-from jaxdip.scenarios.twip_initial import run_seeds, thesis_x0
+from jaxdip.scenarios.twip_initial import thesis_x0
 
 CASES = S.CASES
 SYSTEMS = S.SYSTEMS
@@ -189,30 +189,24 @@ def rows(cfg: TwipExtraControlConfig) -> list[tuple[str, str]]:
 
 
 def build(cfg: TwipExtraControlConfig):
-    """(seed-0 trial with traces, trial of the other seeds, sweep over every row): one structure for all rows."""
+    """(trial recording the figures' trace, sweep over every row): one structure for all rows."""
     vcfgs = {spec: variant_config(cfg, spec) for spec in cfg.variants}
     loops = [build_loop(cfg, case, name) if name in SYSTEMS else build_loop(vcfgs[name], case, "extra")
              for case, name in rows(cfg)]
-    x0 = thesis_x0(cfg.x0)
-    n = n_steps(cfg)
-    return (S.scored(loops[0], x0, 0.0, n, save=S.trace), S.scored(loops[0], x0, cfg.init_spread, n),
-            S.sweep_of(loops))
+    return S.scored(loops[0], thesis_x0(cfg.x0), cfg.init_spread, n_steps(cfg), save=S.trace), S.sweep_of(loops)
 
 
 def simulate(cfg: TwipExtraControlConfig, progress: bool = False):
-    """{row: (scores, diverged)} over the seeds, and {row: seed-0 trace}: every row in one sweep (one compiled
-    program for seed 0 with its traces, one for the other seeds)."""
-    first, rest, sweep = build(cfg)
-    head, tail = run_seeds(first, rest, jax.random.PRNGKey(cfg.seed), cfg.seeds, sweep=sweep,
-                           chunk=cfg.chunk_seeds, progress=progress, desc="twip-extra-control")
-    sc, dv = np.asarray(head[0]), np.asarray(head[1])
-    if tail is not None:
-        sc = np.concatenate([sc, np.asarray(tail[0])], axis=1)
-        dv = np.concatenate([dv, np.asarray(tail[1])], axis=1)
+    """{row: (scores, diverged)} over the seeds, and {row: seed-0 trace}: every row in one sweep, one compiled
+    program (seed 0 starts at x0 and keeps its trace: ``index=True, detail=...``)."""
+    run, sweep = build(cfg)
+    (sc, dv), tr = jd.monte_carlo(run, jax.random.PRNGKey(cfg.seed), cfg.seeds, sweep=sweep, chunk=cfg.chunk_seeds,
+                                  index=True, detail=S.split_trace, progress=progress, desc="twip-extra-control")
+    sc, dv = np.asarray(sc), np.asarray(dv)
     out, traces = {}, {}
     for j, row in enumerate(rows(cfg)):
         out[row] = (sc[j], dv[j])
-        traces[row] = {k: np.asarray(v[j, 0]) for k, v in head[2].items()}
+        traces[row] = {k: np.asarray(v[j]) for k, v in tr.items()}
     return out, traces
 
 

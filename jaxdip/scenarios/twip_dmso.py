@@ -13,7 +13,7 @@ compare something else than the thesis does.
 
 A trial (``Trial``) records the whole trajectory inside the compiled program and reduces it to the per-seed
 metrics of the study (``seed_metrics``), with the DMSO's fhat taken from its ``aux``; only seed 0's trace
-leaves the program (``traces=True``).
+leaves the program (``monte_carlo(..., detail=split_trace)``).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from jaxdip.control.twip_lqr import TwipDesign, twip_dlqr
 from jaxdip.estimators.dmso import DMSO, DMSOAux, dmso_params, selection_matrix
 from jaxdip.estimators.kf import KalmanFilter
 from jaxdip.plants import twip
-from jaxdip.scenarios.twip_initial import Spread
+from jaxdip.scenarios.twip_initial import Spread, exact_first
 from jaxdip.sim.twip_sensors import DEG, TwipSensors
 
 ESTIMATORS = ("dmso", "kf", "kf_posterior", "kf_printed")
@@ -124,7 +124,10 @@ def seed_metrics(tr: dict, band, dt: float, tail_s: float, settle_s: float) -> d
 
 
 class Trial(eqx.Module):
-    """One seed: (``seed_metrics``, diverged, the trace or None). ``F``, ``G``: the model of (153)."""
+    """One seed: (``seed_metrics``, diverged, the trace). ``F``, ``G``: the model of (153).
+
+    Called as ``trial(key, i)`` (``jd.monte_carlo(..., index=True)``): seed 0 starts at the sampler's x0 itself,
+    the others at its spread. ``DETAIL`` keeps the trace of the run's first seed only."""
 
     rollout: jd.Rollout
     F: jax.Array = jd.param()
@@ -132,18 +135,22 @@ class Trial(eqx.Module):
     band: jax.Array = jd.param()
     tail_s: float = eqx.field(default=5.0, static=True)
     settle_s: float = eqx.field(default=0.25, static=True)
-    traces: bool = eqx.field(default=False, static=True)
 
-    def __call__(self, key):
-        sol = self.rollout(key)
+    def __call__(self, key, i):
+        r = exact_first(self.rollout, key, i)
+        sol = r(key)
         tr = trace(sol.saved, self.F, self.G)
-        m = seed_metrics(tr, self.band, self.rollout.loop.dt, self.tail_s, self.settle_s)
-        return m, sol.result != jd.RESULTS.ok, (tr if self.traces else None)
+        m = seed_metrics(tr, self.band, r.loop.dt, self.tail_s, self.settle_s)
+        return m, sol.result != jd.RESULTS.ok, tr
 
 
-def trial(lp: jd.Loop, d: TwipDesign, x0, spread, steps: int, band, *, tail_s=5.0, settle_s=0.25,
-          traces=False) -> Trial:
-    return Trial(jd.Rollout(lp, Spread(x0, spread), steps, save=record), d.F, d.G, band, tail_s, settle_s, traces)
+def split_trace(out):
+    """``monte_carlo(detail=...)`` for a ``Trial``: ((metrics, diverged) per seed, the trace)."""
+    return (out[0], out[1]), out[2]
+
+
+def trial(lp: jd.Loop, d: TwipDesign, x0, spread, steps: int, band, *, tail_s=5.0, settle_s=0.25) -> Trial:
+    return Trial(jd.Rollout(lp, Spread(x0, spread), steps, save=record), d.F, d.G, band, tail_s, settle_s)
 
 
 class RmsError(eqx.Module):

@@ -28,7 +28,7 @@ import jaxdip as jd
 from jaxdip.control.extra_control import ExtraControl, desired_state
 from jaxdip.control.twip_lqr import twip_dlqr
 from jaxdip.plants import twip
-from jaxdip.scenarios.twip_initial import Spread
+from jaxdip.scenarios.twip_initial import Spread, exact_first
 from jaxdip.sim.actuators import Deadzone, OutputBacklash
 from jaxdip.sim.twip_sensors import DEG
 
@@ -93,13 +93,14 @@ def trace(sample: jd.Sample):
 
 
 class Scored(eqx.Module):
-    """One trial: (Table 8.3's score, diverged, what ``rollout.save`` recorded)."""
+    """One trial: (Table 8.3's score, diverged, what ``rollout.save`` recorded). Called as ``scored(key, i)``
+    (``monte_carlo(..., index=True)``), seed 0 starts at x0 exactly (``exact_first``)."""
 
     rollout: jd.Rollout
 
-    def __call__(self, key):
-        sol = self.rollout(key)
-        ro = self.rollout
+    def __call__(self, key, i=None):
+        ro = self.rollout if i is None else exact_first(self.rollout, key, i)
+        sol = ro(key)
         # periods from the one whose successor left the bounds (failed_at - 1) on hold the frozen state
         k = jnp.arange(ro.steps)
         frozen = jnp.linalg.norm(sol.final.x - desired_state(ro.loop.controller, k * ro.loop.dt), axis=-1)
@@ -112,6 +113,11 @@ def scored(lp: jd.Loop, x0, spread, steps: int, save=None) -> Scored:
     return Scored(jd.Rollout(lp, Spread(x0, spread), steps, save=save, metrics=jd.metrics.Sum(distance)))
 
 
+def split_trace(out):
+    """``monte_carlo(detail=...)`` for a ``Scored`` that saves: ((score, diverged) per seed, the record)."""
+    return (out[0], out[1]), out[2]
+
+
 def sweep_of(loops):
     """The ``sweep`` argument of ``monte_carlo`` running a ``Scored`` over each of ``loops``."""
     return (lambda s: s.rollout.loop), stack(loops)
@@ -120,14 +126,8 @@ def sweep_of(loops):
 def scores_at(lp: jd.Loop, x0, spread, steps: int, key, seeds):
     """(scores, diverged) of the given seed indices (increasing; seed 0 starts at x0 exactly), as arrays over
     the seeds: differentiable in ``lp``'s leaves (the tuning target's objective)."""
-    from jaxdip.scenarios.twip_initial import run_seeds, seed_runs
+    from jaxdip.scenarios.twip_initial import seed_runs
 
-    first, rest = scored(lp, x0, 0.0, steps), scored(lp, x0, spread, steps)
-    parts = []
-    for off, n in seed_runs(seeds):
-        if off == 0:
-            head, tail = run_seeds(first, rest, key, n)
-            parts += [head] + ([tail] if tail is not None else [])
-        else:
-            parts.append(jd.monte_carlo(rest, key, n, offset=off))
+    run = scored(lp, x0, spread, steps)
+    parts = [jd.monte_carlo(run, key, n, offset=off, index=True) for off, n in seed_runs(seeds)]
     return (jnp.concatenate([p[0] for p in parts]), jnp.concatenate([p[1] for p in parts]))

@@ -18,8 +18,7 @@ def thesis_x0(x0=(1.0, 0.3, 10.0, 1.0)) -> jax.Array:
 class Spread(eqx.Module):
     """Initial-state sampler: x0 * (1 + U(-spread, spread)) per component (spread 0: x0 exactly).
 
-    The studies start seed 0 at x0 itself: run seed 0 with ``spread = 0`` and the others with the spread
-    (``jaxdip.scenarios.twip_extra.run_seeds``), which draws from the same keys as one call would."""
+    The studies start seed 0 at x0 itself (``exact_first``)."""
 
     x0: jax.Array = param()
     spread: jax.Array = param(0.0)
@@ -28,17 +27,12 @@ class Spread(eqx.Module):
         return self.x0 * (1.0 + self.spread * jax.random.uniform(key, self.x0.shape, minval=-1.0, maxval=1.0))
 
 
-def run_seeds(first, rest, key, n: int, *, sweep=None, **mc):
-    """Seeds 0 .. n-1 of a study whose seed 0 starts at x0 exactly: seed 0 by ``first`` (the trial with a zero
-    spread, and possibly a richer ``save`` for the figures), seeds 1 .. n-1 by ``rest``, each through
-    ``jd.monte_carlo`` with the same base key (so with the keys one call would give). Returns ``(head, tail)``:
-    the two outputs, seed axis of length 1 and n - 1 (``tail`` is None for n = 1). ``mc``: further
-    ``monte_carlo`` arguments for ``rest`` (chunk, progress, desc)."""
-    from jaxdip.engine.driver import monte_carlo
-
-    head = monte_carlo(first, key, 1, sweep=sweep)
-    tail = monte_carlo(rest, key, n - 1, offset=1, sweep=sweep, **mc) if n > 1 else None
-    return head, tail
+def exact_first(rollout, key, i):
+    """``rollout`` with its initial state fixed for seed i: the sampler's x0 itself for seed 0, its draw from
+    ``fold_in(key, 0)`` for the others (the studies start seed 0 at the nominal state). For trials called as
+    ``fn(key, i)`` by ``jd.monte_carlo(..., index=True)``, so seed 0 and the rest share one program."""
+    x = jnp.where(i == 0, rollout.x0.x0, rollout.initial_state(key))
+    return eqx.tree_at(lambda r: r.x0, rollout, x)
 
 
 def seed_runs(seeds) -> list[list[int]]:
