@@ -223,10 +223,24 @@ def simulate(loop: Loop, x0, key, steps: int, *, save: Optional[Callable] = None
         if steps % save_every:
             raise ValueError(f"steps={steps} is not a multiple of save_every={save_every}")
 
-        def block(c, _):
-            c, sample = step(c)
-            c = jax.lax.fori_loop(0, save_every - 1, lambda _, ci: step(ci)[0], c)
-            return c, save(sample)
+        if save_every == 1:
+            def block(c, _):
+                c, sample = step(c)
+                return c, save(sample)
+        else:
+            # one copy of the period in the program (compile time grows with copies): the record of the
+            # block's first period is carried through the block's loop
+            rec0 = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype),
+                                          jax.eval_shape(lambda c: save(step(c)[1]), st))
+
+            def block(c, _):
+                def inner(j, carry):
+                    ci, rec = carry
+                    ci, sample = step(ci)
+                    rec = jax.tree_util.tree_map(lambda a, b: jnp.where(j == 0, a, b), save(sample), rec)
+                    return ci, rec
+
+                return jax.lax.fori_loop(0, save_every, inner, (c, rec0))
 
         st, saved = jax.lax.scan(block, st, None, length=steps // save_every)
     return Solution(st, saved, _metrics.finalize(metrics, st.metrics), st.result)
