@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import os
 import re
 import shlex
@@ -90,6 +91,10 @@ def _parser():
     rp.add_argument("--quick", action="store_true")
     rp.add_argument("--out", default="results")
     rp.add_argument("--force", action="store_true", help="replace jaxdip result folders of other experiments")
+    rp.add_argument("--jobs", type=int, default=None,
+                    help="experiments run side by side, each in its own process (default: one per CPU core, "
+                         "at most 2; compilation is single-threaded, so a second job uses the idle core)")
+    rp.add_argument("--only", default=None, metavar="ID,ID", help="run these experiments only")
     for q in (r, b, rp):
         q.add_argument("--no-compile-cache", action="store_true",
                        help="do not read or write the on-disk cache of compiled code (see JAXDIP_CACHE_DIR)")
@@ -218,6 +223,16 @@ def cmd_reproduce(args, argv=None) -> int:
     from jaxdip.outdir import OutputError
 
     reg = sorted(registry().items())
+    if args.only is not None:
+        want = [w.strip() for w in args.only.split(",") if w.strip()]
+        unknown = [w for w in want if w not in dict(reg)]
+        if unknown or not want:
+            return _error(f"--only: unknown experiment {', '.join(unknown) or '(none given)'}; "
+                          f"choose from {', '.join(i for i, _ in reg)}")
+        reg = [(i, e) for i, e in reg if i in want]
+    jobs = args.jobs if args.jobs is not None else max(1, min(2, os.cpu_count() or 1))
+    if jobs < 1:
+        return _error(f"--jobs: must be >= 1, got {jobs}")
     report_path = os.path.join(args.out, "REPORT.md")
     # every destination is checked before the first experiment compiles
     try:
@@ -233,23 +248,38 @@ def cmd_reproduce(args, argv=None) -> int:
 
     t0 = time.perf_counter()
     rows, sections = [], []
-    with _Signals() as sig:
-        try:
-            for exp_id, exp in reg:
-                out = os.path.join(args.out, exp_id)
-                print(f"== {exp_id}", file=sys.stderr)
-                m = run_experiment(exp, cfgs[exp_id], out, force=args.force, stop_requested=sig.requested)
-                rows.append(f"| [{exp_id}]({exp_id}/report.md) | {exp.title} | {m['seeds']} | {m['wall_s']:.1f} |")
-                with open(os.path.join(out, "report.md")) as fh:
-                    body = fh.read()
-                sections.append(re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", rf"![\1]({exp_id}/\2)", body))
-        except (ConfigError, OutputError) as e:
-            return _error(f"{e.key}: {e.why}")
-        except RiccatiError as e:
-            return _error(f"{exp_id}: {_riccati_keys(cfgs[exp_id])}: {e}")
-        except KeyboardInterrupt:
-            print(f"interrupted: the experiments finished before it are in {args.out}", file=sys.stderr)
-            return 130
+
+    def collect(exp_id, exp):
+        out = os.path.join(args.out, exp_id)
+        with open(os.path.join(out, "metrics.json")) as fh:
+            m = json.load(fh)
+        rows.append(f"| [{exp_id}]({exp_id}/report.md) | {exp.title} | {m['seeds']} | {m['wall_s']:.1f} |")
+        with open(os.path.join(out, "report.md")) as fh:
+            body = fh.read()
+        sections.append(re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", rf"![\1]({exp_id}/\2)", body))
+
+    if jobs > 1 and len(reg) > 1:
+        with _Signals():
+            code = _reproduce_parallel(args, reg, jobs)
+        if code:
+            return code
+        for exp_id, exp in reg:
+            collect(exp_id, exp)
+    else:
+        with _Signals() as sig:
+            try:
+                for exp_id, exp in reg:
+                    out = os.path.join(args.out, exp_id)
+                    print(f"== {exp_id}", file=sys.stderr)
+                    run_experiment(exp, cfgs[exp_id], out, force=args.force, stop_requested=sig.requested)
+                    collect(exp_id, exp)
+            except (ConfigError, OutputError) as e:
+                return _error(f"{e.key}: {e.why}")
+            except RiccatiError as e:
+                return _error(f"{exp_id}: {_riccati_keys(cfgs[exp_id])}: {e}")
+            except KeyboardInterrupt:
+                print(f"interrupted: the experiments finished before it are in {args.out}", file=sys.stderr)
+                return 130
     wall = time.perf_counter() - t0
     text = (
         f"# jaxdip reproduction{' (quick)' if args.quick else ''}\n\n"
@@ -259,6 +289,68 @@ def cmd_reproduce(args, argv=None) -> int:
     outdir.write_file_atomic(report_path, text)
     print(f"reproduce: wrote {report_path} ({wall:.1f} s)")
     return 0
+
+
+def _reproduce_parallel(args, reg, jobs: int) -> int:
+    """Run the experiments as ``jaxdip run`` child processes, ``jobs`` at a time, longest first; each child's
+    output goes to a log beside its result folder's staging, shown only when it fails. 0 or the exit code."""
+    import subprocess
+    import tempfile
+
+    order = sorted(reg, key=lambda r: -_QUICK_COST.get(r[0], 10.0)) if args.quick else list(reg)
+    pending = list(order)
+    running: dict = {}
+    failed: list = []
+    logs = tempfile.mkdtemp(prefix="jaxdip-reproduce-")
+    n, done = len(order), 0
+
+    def launch(exp_id):
+        cmd = [sys.executable, "-m", "jaxdip.cli", "run", exp_id, "--out", os.path.join(args.out, exp_id)]
+        cmd += ["--quick"] * bool(args.quick) + ["--force"] * bool(args.force)
+        cmd += ["--no-compile-cache"] * bool(args.no_compile_cache)
+        log = open(os.path.join(logs, f"{exp_id}.log"), "w")
+        env = dict(os.environ, JAXDIP_NO_PROGRESS="1")
+        running[exp_id] = (subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env,
+                                             start_new_session=True), log,
+                           time.perf_counter())
+
+    try:
+        while pending or running:
+            while pending and len(running) < jobs and not failed:
+                launch(pending.pop(0)[0])
+            time.sleep(0.2)
+            for exp_id, (proc, log, t) in list(running.items()):
+                if proc.poll() is None:
+                    continue
+                log.close()
+                del running[exp_id]
+                done += 1
+                if proc.returncode == 0:
+                    print(f"== {exp_id} done ({time.perf_counter() - t:.1f} s) [{done}/{n}]", file=sys.stderr)
+                else:
+                    with open(log.name) as fh:
+                        tail = [ln for ln in fh.read().splitlines() if ln.strip()][-1:] or ["(no output)"]
+                    failed.append((exp_id, proc.returncode, tail[0]))
+    except KeyboardInterrupt:
+        for proc, _, _ in running.values():
+            proc.send_signal(signal.SIGINT)  # once: the children are in their own sessions
+        for proc, log, _ in running.values():
+            proc.wait()
+            log.close()
+        print(f"interrupted: the experiments finished before it are in {args.out}", file=sys.stderr)
+        return 130
+    if failed:
+        exp_id, code, line = failed[0]
+        line = line[len("error: "):] if line.startswith("error: ") else line
+        print(f"error: {exp_id}: {line} (log: {os.path.join(logs, exp_id + '.log')})", file=sys.stderr)
+        return 130 if code == 130 else (code if code == 2 else 1)
+    return 0
+
+
+# rough cold --quick wall times (s) on a 2-core CPU: the parallel reproduce starts the long ones first
+_QUICK_COST = {"ifn-protection": 38, "tune": 35, "rwp-bias": 27, "dip-controllers": 27, "dip-cpx-ldf": 27,
+               "eki-dip": 26, "twip-dmso": 21, "eki-nonlinear": 21, "lorenz-mhe": 19, "twip-extra-control": 10,
+               "eki-linear": 9, "dip-lqr": 5}
 
 
 def cmd_bench(args, argv=None) -> int:
