@@ -133,3 +133,19 @@ def test_compilation_cache_is_written_and_reused(tmp_path):
     assert sorted(os.listdir(cache)) == entries  # the second run added nothing: every loop came from disk
     res = [json.loads((tmp_path / o / "metrics.json").read_text())["results"] for o in "abc"]
     assert res[0] == res[1] == res[2]
+
+
+@pytest.mark.slow
+def test_parallel_reproduce_equals_sequential(tmp_path):
+    """``reproduce --jobs 2`` runs experiments as child processes: same results and report rows as ``--jobs 1``."""
+    import json
+
+    ids = "dip-lqr,eki-linear"
+    for jobs in ("1", "2"):
+        r = jaxdip("reproduce", "--quick", "--only", ids, "--jobs", jobs, "--out", str(tmp_path / f"j{jobs}"))
+        assert r.returncode == 0, r.stderr[-2000:]
+    for exp_id in ids.split(","):
+        a, b = (json.loads((tmp_path / f"j{j}" / exp_id / "metrics.json").read_text())["results"] for j in "12")
+        assert a == b
+    report = (tmp_path / "j2" / "REPORT.md").read_text()
+    assert "[dip-lqr](dip-lqr/report.md)" in report and "[eki-linear](eki-linear/report.md)" in report
