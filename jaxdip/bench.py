@@ -1,19 +1,31 @@
-"""``jaxdip bench``: closed-loop throughput of dip-lqr, as ratios against a plain NumPy loop in the same process.
+"""``jaxdip bench``: the scoreboard of the dip-lqr loop (printed DIP, LQR on noisy full-state measurements,
+1 ms periods) against the ways one would write it without JAX, all measured in one process.
 
-The NumPy baseline is the same loop written the way one would without JAX: one trajectory, a Python loop over
-periods, RK4 with the same sub-steps, the same noise and the same LQR gain. Its DIP right-hand side is written
-out again in NumPy (``numpy_dip_f``), which the tests also use as an independent check of the JAX model.
-FLOPs come from XLA's cost analysis of one loop-free period (a loop body is counted once, so counting a
-scanned program would undercount), and the machine's f64 matmul rate is measured for scale.
+Contenders, each timed once per round, rounds interleaved, medians reported:
+
+- ``numpy_rk4x10``: one trajectory, a Python loop over periods, RK4 with 10 sub-steps per period, the DIP
+  right-hand side written out again in NumPy (``numpy_dip_f``, also the tests' independent check of the model);
+- ``scipy_rk45``: ``scipy.integrate.solve_ivp`` RK45 restarted every period (the input is held over a period),
+  rtol 1e-6 / atol 1e-9, and ``ode45_defaults``: the same at MATLAB ode45's defaults (rtol 1e-3, atol 1e-6),
+  the documents' integrator;
+- ``jaxdip_batch_B`` (one device) and ``jaxdip_batch_B_all`` (sharded over every device): ``jd.monte_carlo`` of
+  the loop at its default integration, B seeds.
+
+Accuracy: every contender runs the same fixed noise sequence (seed 0's sensor noise, read off jaxdip's own
+run) from the same initial state, and its final state is compared with DOP853 at rtol 1e-12 / atol 1e-14 per
+period on that sequence. Ratios are periods per second against ode45's defaults and against the NumPy loop.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
 import platform
+import statistics
 import time
+from typing import Callable, Optional
 
 import jax
 import jax.numpy as jnp
@@ -49,14 +61,29 @@ def numpy_dip_f(p: DIPParams, x, V):
     return np.concatenate([x[3:], np.linalg.solve(M, rhs)])
 
 
-def numpy_loop(K, noise_std, x0, n_periods, dt, substeps, seed=0):
+def _wait(x):
+    return jax.block_until_ready(x)
+
+
+def scipy_loop(K, noise, x0, dt, method="RK45", rtol=1e-6, atol=1e-9):
+    """The loop with ``solve_ivp`` restarted every period (input held): final state. ``noise``: (n, 6)."""
+    from scipy.integrate import solve_ivp
+
     p = DIPParams()
-    rng = np.random.default_rng(seed)
+    x = np.array(x0, dtype=np.float64)
+    for w in noise:
+        u = float(-(K @ (x + w))[0])
+        x = solve_ivp(lambda t, z: numpy_dip_f(p, z, u), (0.0, dt), x, method=method, rtol=rtol, atol=atol).y[:, -1]
+    return x
+
+
+def numpy_loop(K, noise, x0, dt, substeps=10):
+    """The loop in plain NumPy, RK4 with ``substeps`` steps per period: final state. ``noise``: (n, 6)."""
+    p = DIPParams()
     x = np.array(x0, dtype=np.float64)
     h = dt / substeps
-    for _ in range(n_periods):
-        y = x + noise_std * rng.standard_normal(6)
-        u = float(-(K @ y)[0])
+    for w in noise:
+        u = float(-(K @ (x + w))[0])
         for _ in range(substeps):
             k1 = numpy_dip_f(p, x, u)
             k2 = numpy_dip_f(p, x + 0.5 * h * k1, u)
@@ -66,20 +93,45 @@ def numpy_loop(K, noise_std, x0, n_periods, dt, substeps, seed=0):
     return x
 
 
-def _time(fn, repeat=2):
-    best = float("inf")
-    for _ in range(repeat):
-        t = time.perf_counter()
-        jax.block_until_ready(fn())
-        best = min(best, time.perf_counter() - t)
-    return best
+def _sensor_noise(rollout, key, n):
+    """(x0, noise (n, 6), final state) of seed 0 of ``rollout`` over n periods: what the references replay."""
+    r = dataclasses.replace(rollout, steps=n, save=_x_and_y, save_every=1)
+    sol = jd.monte_carlo(r, key, 1)
+    xs, ys = (np.asarray(a[0]) for a in sol.saved)
+    return xs[0], ys - xs, np.asarray(sol.final.x[0])
+
+
+def _x_and_y(sample):
+    return sample.x, sample.y
+
+
+def integration_errors(substeps=(1, 2, 5, 10), n=6500, dt=0.001, key=0) -> dict:
+    """Final-state error (max abs over the state) after ``n`` periods on seed 0's noise sequence, against DOP853
+    at rtol 1e-12: jaxdip at each sub-step count, the NumPy RK4 x 10 loop, and SciPy's RK45 per period."""
+    key = jax.random.PRNGKey(key)
+    base = dip_lqr(dt=dt, substeps=1, duration=n * dt, record_every=None)
+    x0, noise, _ = _sensor_noise(base, key, n)
+    K = np.asarray(base.loop.controller.K)
+    ref = scipy_loop(K, noise, x0, dt, method="DOP853", rtol=1e-12, atol=1e-14)
+    err = {}
+    for s in substeps:
+        r = dip_lqr(dt=dt, substeps=s, duration=n * dt, record_every=None)
+        err[f"jaxdip_rk4x{s}"] = float(np.max(np.abs(_sensor_noise(r, key, n)[2] - ref)))
+    err["numpy_rk4x10"] = float(np.max(np.abs(numpy_loop(K, noise, x0, dt, 10) - ref)))
+    err["scipy_rk45"] = float(np.max(np.abs(scipy_loop(K, noise, x0, dt) - ref)))
+    err["ode45_defaults"] = float(np.max(np.abs(scipy_loop(K, noise, x0, dt, rtol=1e-3, atol=1e-6) - ref)))
+    return {"periods": n, "dt": dt, "reference": "DOP853 rtol 1e-12 atol 1e-14, restarted every period",
+            "max_abs_final_state_error": err}
 
 
 def matmul_peak(n=1024):
     a = jnp.ones((n, n))
     f = jax.jit(lambda a: a @ a)
-    t = _time(lambda: f(a), repeat=3)
-    return 2 * n**3 / t
+    f(a).block_until_ready()
+    t = time.perf_counter()
+    for _ in range(3):
+        f(a).block_until_ready()
+    return 3 * 2 * n**3 / (time.perf_counter() - t)
 
 
 def is_bench_file(text: str) -> bool:
@@ -91,68 +143,128 @@ def is_bench_file(text: str) -> bool:
     return isinstance(d, dict) and (d.get("tool") == "jaxdip bench" or {"machine", "periods_per_s"} <= set(d))
 
 
-def run_bench(quick: bool = False, out: str = "bench.json") -> dict:
-    n_periods = 200 if quick else 1000
-    dt, substeps, noise_std = 0.001, 10, (1e-3, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2)
-    r = dip_lqr(dt=dt, substeps=substeps, noise_std=noise_std, duration=n_periods * dt,
-                record_every=None)  # the statistics, no stored trajectory
+def _contenders(quick: bool, substeps: int, dt: float) -> dict[str, tuple[Callable[[], object], int]]:
+    """name -> (a function running it once, periods it runs): compiled and warmed up."""
     key = jax.random.PRNGKey(0)
+    probe = dip_lqr(dt=dt, substeps=substeps, duration=dt, record_every=None)
+    K = np.asarray(probe.loop.controller.K)
+    rng = np.random.default_rng(0)
+    x0 = np.full(6, 0.01)
+    out = {}
+    n_np = 40 if quick else 200
+    noise_np = rng.standard_normal((n_np, 6)) * np.asarray((1e-3,) * 3 + (1e-2,) * 3)
+    out["numpy_rk4x10"] = (lambda: numpy_loop(K, noise_np, x0, dt, 10), n_np)
+    n_sp = 40 if quick else 200
+    out["scipy_rk45"] = (lambda: scipy_loop(K, noise_np[:n_sp], x0, dt), n_sp)
+    out["ode45_defaults"] = (lambda: scipy_loop(K, noise_np[:n_sp], x0, dt, rtol=1e-3, atol=1e-6), n_sp)
+    # periods per call chosen so a call lasts ~0.1-1 s on a 2-core CPU
+    batches = {1: 2000, 1024: 200, 4096: 100} if quick else {1: 5000, 1024: 500, 4096: 250, 16384: 100}
+    shards = (False, True) if jax.device_count() > 1 else (False,)
+    for b, n in batches.items():
+        r = dip_lqr(dt=dt, substeps=substeps, duration=n * dt, record_every=None)
+        for shard in shards:
+            if shard and b == 1:
+                continue
+            name = f"jaxdip_batch_{b}" + ("_all" if shard else "")
 
-    def batched(batch, shard):
-        def run():
-            return jd.monte_carlo(r, key, batch, shard=shard)
+            def run(r=r, b=b, shard=shard):
+                return _wait(jd.monte_carlo(r, key, b, shard=shard).final.x)
 
-        jax.block_until_ready(run())  # compile
-        t = _time(run)
-        return batch * n_periods / t
+            run()  # compile
+            out[name] = (run, n * b)
+    return out
 
-    rows = {}
-    for batch in (1, 1024, 4096):
-        rows[f"jax_batch_{batch}"] = batched(batch, shard=False)
-    if jax.device_count() > 1:
-        rows["jax_batch_4096_sharded"] = batched(4096, shard=True)
 
-    K = np.asarray(r.loop.controller.K)
-    noise = np.asarray(noise_std)
-    n_np = 100 if quick else 500
-    t = time.perf_counter()
-    numpy_loop(K, noise, np.full(6, 0.01), n_np, dt, substeps)
-    np_rate = n_np / (time.perf_counter() - t)
+def other_loops(quick: bool) -> dict:
+    """Periods per second of the other plants' loops at batch 256 (one call each, after compiling)."""
+    from jaxdip.estimators import homd
+    from jaxdip.plants.rwp import DT as RWP_DT
+    from jaxdip.scenarios import lorenz_mhe, rwp, twip_dmso
 
-    # FLOPs of one period, from a loop-free program (one RK4 sub-step, one period)
-    import dataclasses
+    key = jax.random.PRNGKey(0)
+    n = 100 if quick else 500
+    d = twip_dmso.design(0.01)
+    loops = {
+        "twip_dmso_10ms": jd.Rollout(twip_dmso.loop(twip_dmso.estimator("dmso", d), twip_dmso.sensors(0.01, True), d),
+                                     jnp.asarray([0.1, 0.0, 0.05, 0.0]), n),
+        "rwp_homd_2ms": rwp.rollout(homd.HOMDObserver.of(homd.homd_params(), dt=RWP_DT, substeps=10, hold="foh"),
+                                    steps=n),
+        "lorenz_cpx_1ms": lorenz_mhe.build(steps=n),
+    }
+    out = {}
+    for name, r in loops.items():
+        run = lambda r=r: _wait(jd.monte_carlo(r, key, 256).result)  # noqa: E731
+        run()
+        t = time.perf_counter()
+        run()
+        out[name] = 256 * n / (time.perf_counter() - t)
+    return out
 
-    import equinox as eqx
 
-    arrays, static = eqx.partition(dataclasses.replace(r.loop, substeps=1), eqx.is_array)
-    one = jax.jit(lambda a: jd.simulate(eqx.combine(a, static), jnp.zeros(6), key, 1, metrics=r.metrics))
-    cost = one.lower(arrays).compile().cost_analysis()
-    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
-    flops_sub = float(cost.get("flops", float("nan")))
-    # one period = `substeps` RK4 steps; the sensor/controller part is counted once per period
-    flops_period = flops_sub * substeps
-    peak = matmul_peak(512 if quick else 1024)
-
-    best = max(v for k, v in rows.items())
+def run_bench(quick: bool = False, out: str = "bench.json", substeps: Optional[int] = None,
+              progress: bool = True) -> dict:
+    """The scoreboard (module docstring); writes ``out`` (JSON) and a figure beside it."""
+    dt = 0.001
+    substeps = DEFAULT_SUBSTEPS if substeps is None else substeps
+    rounds = 3 if quick else 5
+    errors = integration_errors(substeps=(1, 2, 10) if quick else (1, 2, 5, 10), n=1000 if quick else 6500)
+    cont = _contenders(quick, substeps, dt)
+    times: dict[str, list[float]] = {k: [] for k in cont}
+    for i in range(rounds):
+        for name, (fn, _) in cont.items():
+            t = time.perf_counter()
+            fn()
+            times[name].append(time.perf_counter() - t)
+        if progress:
+            print(f"bench: round {i + 1}/{rounds}", flush=True)
+    rate = {k: cont[k][1] / statistics.median(v) for k, v in times.items()}
+    ode45 = rate["ode45_defaults"]
     result = {
         "tool": "jaxdip bench",
         "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "devices": jax.device_count(),
                     "backend": jax.default_backend(), "jax_version": jax.__version__},
-        "periods_per_s": {**rows, "numpy_loop": np_rate},
-        "ratio_vs_numpy": {k: v / np_rate for k, v in rows.items()},
-        "flops_per_period_estimate": flops_period,
-        "achieved_flops_per_s": best * flops_period,
-        "matmul_peak_flops_per_s": peak,
-        "fraction_of_matmul_peak": best * flops_period / peak,
-        "n_periods": n_periods,
+        "loop": {"plant": "DIP (printed)", "dt": dt, "jaxdip_rk4_substeps": substeps, "rounds": rounds},
+        "periods_per_s": rate,
+        "ratio_vs_ode45": {k: v / ode45 for k, v in rate.items()},
+        "ratio_vs_numpy": {k: v / rate["numpy_rk4x10"] for k, v in rate.items()},
+        "integration": errors,
+        "other_loops_periods_per_s": other_loops(quick),
+        "matmul_peak_flops_per_s": matmul_peak(512 if quick else 1024),
         "quick": quick,
     }
     write_file_atomic(out, json.dumps(result, indent=2))
-    w = max(len(k) for k in result["periods_per_s"])
-    for k, v in result["periods_per_s"].items():
-        ratio = result["ratio_vs_numpy"].get(k)
-        print(f"{k:<{w}}  {v:12.4g} periods/s" + (f"  {ratio:8.1f}x numpy" if ratio else ""))
-    print(f"FLOPs/period ~{flops_period:.3g}; achieved {result['achieved_flops_per_s']:.3g} FLOP/s = "
-          f"{100 * result['fraction_of_matmul_peak']:.2f}% of the f64 matmul rate ({peak:.3g} FLOP/s)")
-    print(f"wrote {out}")
+    fig_path = os.path.splitext(out)[0] + ".png"
+    _figure(result, fig_path)
+    w = max(len(k) for k in rate)
+    for k, v in rate.items():
+        print(f"{k:<{w}}  {v:12.4g} periods/s  {result['ratio_vs_ode45'][k]:9.1f}x ode45  "
+              f"{result['ratio_vs_numpy'][k]:8.1f}x numpy")
+    for k, v in errors["max_abs_final_state_error"].items():
+        print(f"error {k:<{w - 6}}  {v:.2g}")
+    print(f"wrote {out} and {fig_path}")
     return result
+
+
+# the measured default (docs/performance.md): one RK4 step per 1 ms period is 1e-11 from DOP853 after 6.5 s
+DEFAULT_SUBSTEPS = 1
+
+
+def _figure(result: dict, path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rate = result["periods_per_s"]
+    names = sorted(rate, key=rate.get)
+    fig, ax = plt.subplots(figsize=(8, 0.45 * len(names) + 1.5))
+    ax.barh(names, [rate[n] for n in names], color=["C1" if n.startswith("jaxdip") else "C0" for n in names])
+    ax.set_xscale("log")
+    ax.set_xlabel("periods per second (median of rounds)")
+    for i, n in enumerate(names):
+        ax.text(rate[n], i, f" {result['ratio_vs_ode45'][n]:.3g}x ode45", va="center", fontsize=8)
+    ax.set_title(f"dip-lqr loop, {result['machine']['cpu_count']} CPU cores, "
+                 f"RK4 x{result['loop']['jaxdip_rk4_substeps']} per period in jaxdip")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

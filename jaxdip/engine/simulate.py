@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine import metrics as _metrics
-from jaxdip.engine.roles import Identity, param
+from jaxdip.engine.roles import Identity, _as_float_array, param
 
 
 class RESULTS(enum.IntEnum):
@@ -60,6 +60,10 @@ class KeySchedule(eqx.Module):
         return jax.random.split(jax.random.fold_in(base, k), 5)
 
 
+def _optional_array(v):
+    return None if v is None else _as_float_array(v)
+
+
 class Loop(eqx.Module):
     """A closed loop: its components (each with its own hyperparameters) and the sampling structure.
 
@@ -76,12 +80,13 @@ class Loop(eqx.Module):
     dt: float = eqx.field(static=True)
     actuator: Any = eqx.field(default_factory=Identity)
     substeps: int = eqx.field(default=10, static=True)
-    process_noise_std: jax.Array = param(0.0)
+    # None (the default) leaves the noise draw and the norm test out of the program; a value is traced
+    process_noise_std: Optional[jax.Array] = eqx.field(default=None, converter=_optional_array)
     state_bound: jax.Array = param(jnp.inf)
     keys: KeySchedule = eqx.field(default_factory=KeySchedule)
     # a bound on the Euclidean norm of x - equilibrium (the failure rule of the thesis's Procedure 1: a state
     # norm above it ends a simulation); crossing it counts as out_of_bounds, like state_bound
-    norm_bound: jax.Array = param(jnp.inf)
+    norm_bound: Optional[jax.Array] = eqx.field(default=None, converter=_optional_array)
 
 
 class Aux(NamedTuple):
@@ -136,7 +141,8 @@ def _period(loop: Loop, st: State, base):
     u = jnp.reshape(u, (loop.plant.m,))
     s_act, u_applied, a_act = loop.actuator.step(st.actuator, u, k_act, st.k)
     x_next = loop.plant.period(st.x, u_applied, loop.dt, loop.substeps)
-    x_next = x_next + loop.process_noise_std * jax.random.normal(k_proc, st.x.shape)
+    if loop.process_noise_std is not None:
+        x_next = x_next + loop.process_noise_std * jax.random.normal(k_proc, st.x.shape)
     sample = Sample(st.k, st.k * loop.dt, st.x, y, xhat, u, u_applied, Aux(a_sens, a_est, a_ctrl, a_act))
     return (s_sens, s_est, s_ctrl, s_act), x_next, u, sample
 
@@ -144,7 +150,9 @@ def _period(loop: Loop, st: State, base):
 def _step(loop: Loop, metrics, base, st: State):
     comps, x_next, u, sample = _period(loop, st, base)
     dev = x_next - loop.plant.equilibrium()
-    out = jnp.any(jnp.abs(dev) > loop.state_bound) | (jnp.linalg.norm(dev) > loop.norm_bound)
+    out = jnp.any(jnp.abs(dev) > loop.state_bound)
+    if loop.norm_bound is not None:
+        out = out | (jnp.linalg.norm(dev) > loop.norm_bound)
     code = jnp.where(~jnp.all(jnp.isfinite(x_next)), RESULTS.nonfinite,
                      jnp.where(out, RESULTS.out_of_bounds, RESULTS.ok))
     was_ok = st.result == RESULTS.ok
