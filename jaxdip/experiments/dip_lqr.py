@@ -30,7 +30,7 @@ class DipLqrConfig:
     seed: int = C.field(0, C.nonneg, doc="base PRNG key")
     variant: str = C.field("printed", C.one_of("printed", "lagrangian"), doc="DIP equations of motion")
     dt: float = C.field(0.001, C.positive_finite, doc="control period (s)")
-    substeps: int = C.field(10, C.positive, doc="RK4 sub-steps per period")
+    substeps: int = C.field(1, C.positive, doc="RK4 sub-steps per period (1: measured, docs/performance.md)")
     duration: float = C.field(6.5, C.positive_finite, doc="simulated time (s)")
     Q: list[float] | list[list[float]] = C.field([30.0, 350.0, 100.0, 0.0, 0.0, 0.0],
                                                 doc="state weight on [xc, alpha, theta, xc_dot, alpha_dot, theta_dot]")
