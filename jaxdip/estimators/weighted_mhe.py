@@ -82,6 +82,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
+import numpy as np
 
 from jaxdip.engine.roles import Estimator, param
 from jaxdip.estimators.kalman import _guarded_cho_factor
@@ -120,6 +121,15 @@ def _powers(Phi, Phi_inv, N: int, a: int):
     return out
 
 
+def _bounded_coordinates(lower, upper) -> tuple:
+    """Indices with a finite lower or upper bound (all of them when the bounds are traced at construction)."""
+    try:
+        lo, hi = np.asarray(lower), np.asarray(upper)
+    except (TypeError, jax.errors.TracerArrayConversionError):
+        return tuple(range(jnp.shape(lower)[0]))
+    return tuple(int(i) for i in np.flatnonzero(np.isfinite(lo) | np.isfinite(hi)))
+
+
 class WeightedMHE(Estimator):
     """Weighted proximal MHE of horizon N for an LTI model ``Discrete(Phi, Phi_inv, W)`` (module docstring).
 
@@ -149,14 +159,15 @@ class WeightedMHE(Estimator):
     A_c: Optional[jax.Array]
     b_c: Optional[jax.Array]
     box: bool = eqx.field(static=True)
-    box_iters: int = eqx.field(static=True)
+    box_rows: tuple = eqx.field(static=True)  # the coordinates with a finite bound, fixed at construction
+    box_iters: Optional[int] = eqx.field(static=True)
     prior: str = eqx.field(static=True)
     h: Optional[Callable] = eqx.field(static=True)
     window_sqrt: Optional[jax.Array]
 
     def __init__(self, model, C, meas_weight, arrival_weight, gamma=1.0, proc_weight=None, N: int = 2,
                  anchor: int = 0, xhat0=None, lower=None, upper=None, output: str = "current",
-                 from_truth: bool = False, box_iters: int = 20, prior: str = "smoothed", h: Optional[Callable] = None,
+                 from_truth: bool = False, box_iters: Optional[int] = None, prior: str = "smoothed", h: Optional[Callable] = None,
                  window_sqrt=None, A_c=None, b_c=None):
         d = jnp.shape(model[0])[0]
         if not 0 <= anchor < N:
@@ -180,6 +191,7 @@ class WeightedMHE(Estimator):
         self.lower = jnp.full(d, -jnp.inf) if lower is None else lower
         self.upper = jnp.full(d, jnp.inf) if upper is None else upper
         self.box = lower is not None or upper is not None
+        self.box_rows = _bounded_coordinates(self.lower, self.upper) if self.box else ()
         if (A_c is None) != (b_c is None):
             raise ValueError("give both A_c and b_c (affine constraints A_c z <= b_c) or neither")
         fl = jnp.result_type(float)
@@ -296,7 +308,8 @@ class WeightedMHE(Estimator):
         dt = self.model.Phi.dtype
         rows = []
         if self.box:
-            rows.append((jnp.eye(d, dtype=dt), self.lower, self.upper))
+            i = np.asarray(self.box_rows, dtype=int)
+            rows.append((jnp.eye(d, dtype=dt)[i], self.lower[i], self.upper[i]))
         if self.A_c is not None:
             rows.append((self.A_c, jnp.full(self.b_c.shape, -jnp.inf, dt), self.b_c))
         return tuple(jnp.concatenate([r[j] for r in rows]) for j in range(3))
@@ -326,37 +339,61 @@ class WeightedMHE(Estimator):
         return jsl.solve_triangular(R, V, lower=False), V.T @ V
 
     def constrained_solve(self, R, X_u, KM, c):
-        """Primal-dual active-set iterations on the multipliers for min 1/2 X^T H X - g^T X subject to
+        """Dual active-set iterations (Goldfarb and Idnani) for min 1/2 X^T H X - g^T X subject to
         lo <= G X + c <= hi, from the unconstrained minimiser X_u = H^{-1} g (module docstring). ``KM``:
         (H^{-1} G^T, G H^{-1} G^T) from ``_constraint_factor(R)``. Returns (X, KKT residual)."""
         G, lo, hi = self.constraint_matrix()
         K, M = KM
         s_u = G @ X_u + c
+        n_rows = s_u.shape[0]
         dM = jnp.diag(M)
         dM = jnp.where(dM > 0, dM, 1.0)
+        idx = jnp.arange(n_rows)
+        fin = lambda v: jnp.where(jnp.isfinite(v), v, 0.0)
+        bound_scale = jnp.abs(fin(lo)) + jnp.abs(fin(hi)) + jnp.abs(s_u)
 
         def it(_, carry):
-            mu, s, _, _ = carry
-            # mu_j M_jj is the row's movement its multiplier causes alone: both terms in the row's units
-            up = mu * dM + (s - hi) > 0
-            dn = mu * dM + (s - lo) < 0
-            act = up | dn
-            rhs = jnp.where(act, s_u - jnp.where(up, hi, jnp.where(dn, lo, 0.0)), 0.0)
-            Mm = jnp.where(act[:, None] & act[None, :], M, 0.0) + jnp.diag(jnp.where(act, 0.0, dM))
-            mu = jsl.cho_solve(_guarded_cho_factor(Mm), rhs)
-            return mu, s_u - M @ mu, up, dn
+            mu, act, side, pend = carry  # signed multipliers (> 0 at an upper bound), working set, pending row
+            s = s_u - M @ mu  # G X + c at X = X_u - K mu
+            over, under = s - hi, lo - s
+            viol = jnp.maximum(over, under)
+            tol = 1e-11 * (bound_scale + jnp.abs(M @ mu)) + jnp.finfo(s.dtype).tiny
+            cand = ~act & (viol > tol)
+            # the most violated row in the H^{-1} metric (its distance to the bound over the row's norm)
+            j_new = jnp.argmax(jnp.where(cand, viol / jnp.sqrt(dM), -jnp.inf))
+            pend = jnp.where(pend >= 0, pend, jnp.where(jnp.any(cand), j_new, -1))
+            idle = pend < 0
+            is_p = (idx == pend) & ~idle
+            side2 = jnp.where(is_p, jnp.where(over[jnp.maximum(pend, 0)] > 0, 1.0, -1.0), side)
+            A2 = act | is_p
+            target = jnp.where(A2, jnp.where(side2 > 0, fin(hi), fin(lo)), 0.0)
+            rhs = jnp.where(A2, s_u - target, 0.0)
+            Mm = jnp.where(A2[:, None] & A2[None, :], M, 0.0) + jnp.diag(jnp.where(A2, 0.0, dM))
+            # a pending row dependent on the working set makes Mm singular: the guarded factor then gives a long
+            # finite step along the dependence, and the ratio test below drops the row that blocks it
+            mu_full = jnp.where(A2, jsl.cho_solve(_guarded_cho_factor(Mm), rhs), 0.0)
+            wrong = act & (side * mu_full < 0)
+            ratio = jnp.where(wrong, mu / jnp.where(wrong, mu - mu_full, 1.0), jnp.inf)
+            k_drop = jnp.argmin(ratio)
+            partial = jnp.any(wrong)
+            t = jnp.where(partial, ratio[k_drop], 1.0)
+            mu_next = mu + t * (mu_full - mu)
+            act_next = jnp.where(partial, act & (idx != k_drop), A2)
+            mu_next = jnp.where(act_next | (is_p & partial), mu_next, 0.0)
+            pend_next = jnp.where(partial, pend, -1)
+            keep = lambda old, new: jnp.where(idle, old, new)
+            return keep(mu, mu_next), keep(act, act_next), keep(side, side2), keep(pend, pend_next)
 
-        zero = jnp.zeros_like(s_u)
-        no = jnp.zeros(s_u.shape, bool)
-        mu, _, up, dn = jax.lax.fori_loop(0, self.box_iters, it, (zero, s_u, no, no))
+        init = (jnp.zeros_like(s_u), jnp.zeros(n_rows, bool), jnp.ones_like(s_u), jnp.array(-1))
+        iters = 2 * n_rows + 2 if self.box_iters is None else self.box_iters
+        mu, act, side, _ = jax.lax.fori_loop(0, iters, it, init)
         X = X_u - K @ mu
         s = G @ X + c
-        # KKT residual: feasibility of every row, and multipliers of the right sign on the active ones
-        # (complementarity holds by construction: inactive rows have mu = 0, active ones sit on their bound)
+        # KKT residual: feasibility of every row, and multipliers of the right sign on the working set
+        # (complementarity holds by construction: mu = 0 off it, its rows sit on their bounds)
         gap = jnp.max(jnp.maximum(jnp.maximum(s - hi, lo - s), 0.0), initial=0.0)
         g = R.T @ (R @ X_u)
-        wrong = jnp.max(jnp.where(up, jnp.maximum(-mu, 0.0), 0.0) + jnp.where(dn, jnp.maximum(mu, 0.0), 0.0),
-                        initial=0.0)
+        wrong = jnp.max(jnp.where(act, jnp.maximum(-side * mu, 0.0), 0.0), initial=0.0)
         return X, jnp.maximum(gap, wrong * jnp.max(jnp.abs(G)) / jnp.maximum(jnp.max(jnp.abs(g)), 1.0))
 
     # ---- the engine protocol -------------------------------------------------------------------------------
