@@ -297,6 +297,9 @@ def test_constraints_in_the_hard_model_form_equal_a_certified_qp_solution():
         active += n_act
     assert active > 3
     print("hard-model form: active rows over 6 windows", active)
+    # and the engine step with these constraints (offsets from the input buffer) runs and converges
+    ms, viol = _load_run(jax.random.PRNGKey(0), {"hard": mhe}, steps=80)["hard"]
+    assert np.all(np.isfinite(np.asarray(ms))) and float(viol) < 1e-8
 
 
 # two carts, each with an unknown load modelled as slowly varying; the loads are known to have a nonnegative sum

@@ -24,8 +24,8 @@ Two forms.
 
 Either way the problem is min ||A X - b||^2 with A fixed (LTI model, static N): A is factorised once by QR in
 ``init`` (a differentiable function of every weight, so gradients and sweeps need no recompilation). Each step
-is then one product with Q^T and a triangular solve, as in the thesis's (3.7)-(3.8); without bounds the two are
-merged into the precomputed R^{-1} Q^T (one matrix-vector product).
+is then one product with Q^T and a triangular solve, as in the thesis's (3.7)-(3.8), merged into the precomputed
+R^{-1} Q^T (one matrix-vector product); with constraints that product is the starting point of the QP below.
 
 The current estimate is z_N (with the hard model: z_a propagated to j). The prior xbar of the anchor comes in
 two kinds (static ``prior``):
@@ -50,22 +50,23 @@ Constraints on every window state z_i: a box ``lower <= z_i <= upper`` and affin
 In the unknown X of either form they are rows lo <= G X + c <= hi: the full form has G = I (box) and
 blockdiag(A_c) (affine), c = 0; the hard-model form has z_i = Phi^{i-a} z_a + s_i, so G stacks Phi^{i-a} and
 A_c Phi^{i-a}, and c (the input response s_i) changes every step. The proximal step is then the strictly convex QP
-min 1/2 X^T H X - g^T X subject to those rows, H = A^T A = R^T R, solved by the primal-dual active-set method
-(Hintermueller, Ito and Kunisch 2003; a semismooth Newton method) applied to its multipliers: guess which rows
-are active (at their lower or upper bound) from the multiplier mu and the row violation, solve the KKT system
-with those rows as equalities exactly, repeat. With K = H^{-1} G^T and M = G H^{-1} G^T (fixed for an LTI model:
-formed in ``init`` from the QR factor) the solve is M_AA mu_A = G_A X_u + c_A - bound_A, X = X_u - K mu, X_u the
-unconstrained minimiser. For G = I it is the box method on the primal coordinates (same KKT system for the same
-active set, same updates). Why this and not projected gradient, ADMM or a dual step inside the proximal step:
-each iteration is an exact solve, so the answer satisfies the KKT conditions to rounding as soon as the active
-set is right (typically 1-3 iterations when a few rows touch), and the iteration count does not depend on the
-conditioning of H, which is poor here (Ww = Q^{-1} is large for a precise model); projected gradient and ADMM
-would need many iterations and a step or penalty tuned to that conditioning, and projecting onto a polyhedron is
-itself a QP. The cost is a Cholesky of the masked M per iteration (one row per finite constraint and window
-state). The active rows must be linearly independent (LICQ; the factor is guarded, so a violation gives finite
-numbers and a KKT residual, not NaN). A fixed number of iterations (``box_iters``) keeps it a static program
-under jit/vmap (and reverse-mode differentiable); ``aux.violation`` reports the KKT residual left (0 when the
-active set was found; 8 iterations left a residual on some steps of the box test problem, 20 none).
+min 1/2 X^T H X - g^T X subject to those rows, H = A^T A = R^T R, solved through its multipliers by a dual
+active-set method (Goldfarb and Idnani 1983): with K = H^{-1} G^T and M = G H^{-1} G^T (fixed for an LTI model:
+formed in ``init`` from the QR factor), a working set W of rows held at their bounds gives
+M_WW mu_W = G_W X_u + c_W - bound_W and X = X_u - K mu, X_u the unconstrained minimiser. Each iteration adds the
+most violated row; if a multiplier of the working set would change sign, the step stops where it reaches zero and
+that row leaves. Why this and not projected gradient, ADMM or a dual gradient step inside the proximal step:
+each iteration is an exact solve, so the answer satisfies the KKT conditions to rounding as soon as the working
+set is right, and the iteration count does not depend on the conditioning of H, which is poor here (Ww = Q^{-1}
+is large for a precise model); the others would need many iterations and a step or penalty tuned to that
+conditioning, and projecting onto a polyhedron is itself a QP. Why one row at a time and not the all-at-once
+primal-dual active-set update (every violated row in, every wrong-sign multiplier out) that suffices for a box:
+with affine rows that update can pick more rows than the window has freedom for, and it cycled to an infeasible
+point on the hard-model test problem (3 unknowns, 25 rows, some repeated). Dependent rows are handled by the
+guarded factor of M (a long finite step along the dependence; the ratio test then drops the blocking row). The
+cost is a Cholesky of the masked M per iteration, one iteration per row that becomes active. A fixed number of
+iterations (``box_iters``, default 2 x rows + 2) keeps it a static program under jit/vmap (and reverse-mode
+differentiable); ``aux.violation`` reports the KKT residual left (row infeasibility and wrong-sign multipliers).
 
 The filtered prior is propagated from the *unconstrained* window estimate. Feeding the constrained estimates
 back instead biases the arrival cost towards the interior of the box whenever the truth sits on a bound (every
