@@ -4,8 +4,8 @@ noise weights (N = 10) and the batch filter/smoother over recorded sequences.
 
     python benchmarks/estimators.py [--seeds 128] [--steps 2000]
 
-Not part of the test suite. The peers (dynamax's lgssm_filter/smoother, do-mpc's MHE) are not run here: neither
-is a dependency of jaxdip; their figures in issue 18 were taken separately.
+Not part of the test suite. ``benchmarks/peers.py`` compares with dynamax and do-mpc on the same loop
+(``dip_problem`` and ``dip_loop`` below).
 """
 
 from __future__ import annotations
@@ -46,16 +46,29 @@ def _vel_err(s):
     return s.xhat[3:6] - s.x[3:6]
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--seeds", type=int, default=128)
-    ap.add_argument("--steps", type=int, default=2000)
-    args = ap.parse_args()
+def dip_problem():
+    """The linearised DIP (ZOH 1 ms) with its LQR gain and the true noise covariances: (model, K, Q, R, P0).
+    P0 is the covariance of the initial state (uniform in the ball of radius X0_RADIUS: r^2 / (d + 2) I)."""
     A, B = jd.linearize(jd.plants.DIP())
     model = jd.zoh(A, B, DT)
     K, _, _ = jd.control.dlqr(model.Phi, model.W, np.diag([10.0] * 3 + [0.1] * 3), np.eye(1))
     Q, R = PROC_STD**2 * np.eye(6), np.diag(SENSOR_STD**2)
     P0 = X0_RADIUS**2 / 8 * np.eye(6)
+    return model, K, Q, R, P0
+
+
+def dip_loop(estimator, model, K) -> jd.Loop:
+    """The closed loop: linear plant with process noise, outputs xc, alpha, theta with sensor noise, LQR."""
+    return jd.Loop(plant=LinearPlant(model.Phi, model.W), sensor=LinearSensor(C3, SENSOR_STD), estimator=estimator,
+                   controller=jd.control.StateFeedback(K), dt=DT, substeps=1, process_noise_std=PROC_STD)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seeds", type=int, default=128)
+    ap.add_argument("--steps", type=int, default=2000)
+    args = ap.parse_args()
+    model, K, Q, R, P0 = dip_problem()
     estimators = {
         "kf": jd.estimators.KalmanFilter(model.Phi, model.W, C3, Q, R, P0),
         "cpx": jd.estimators.CPX(150.0, model, C3, jnp.zeros(6), output="current"),
@@ -64,9 +77,7 @@ def main() -> None:
     n_ts = args.seeds * args.steps
     print(f"{args.seeds} seeds x {args.steps} steps, device {jax.devices()[0].platform}")
     for name, est in estimators.items():
-        loop = jd.Loop(plant=LinearPlant(model.Phi, model.W), sensor=LinearSensor(C3, SENSOR_STD), estimator=est,
-                       controller=jd.control.StateFeedback(K), dt=DT, substeps=1, process_noise_std=PROC_STD)
-        ro = jd.Rollout(loop, jd.Ball(jnp.zeros(6), X0_RADIUS), args.steps, metrics=jd.metrics.RMS(_vel_err))
+        ro = jd.Rollout(dip_loop(est, model, K), jd.Ball(jnp.zeros(6), X0_RADIUS), args.steps, metrics=jd.metrics.RMS(_vel_err))
         jax.block_until_ready(jd.monte_carlo(ro, 0, args.seeds))  # compile
         t = time.perf_counter()
         out = jax.block_until_ready(jd.monte_carlo(ro, 0, args.seeds))

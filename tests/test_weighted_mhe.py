@@ -125,8 +125,9 @@ def load_mhe(box: bool, N: int = 10, **extra):
 
 
 def test_box_step_equals_bounded_least_squares():
-    mhe = load_mhe(True, N=4)
-    mhe = eqx.tree_at(lambda m: (m.lower, m.upper), mhe, (jnp.array([-0.05, -0.2, 0.0]), jnp.array([0.05, 0.2, 0.3])))
+    model = jd.Discrete(PHI_LOAD, np.linalg.inv(PHI_LOAD), W_LOAD)
+    mhe = WeightedMHE.from_noise(model, C_LOAD, Q_LOAD, R_LOAD, N=4, lower=np.array([-0.05, -0.2, 0.0]),
+                                 upper=np.array([0.05, 0.2, 0.3]))
     rng = np.random.default_rng(0)
     A = np.asarray(mhe.stacked_matrix())
     Qm, R = np.linalg.qr(A)
@@ -136,10 +137,12 @@ def test_box_step_equals_bounded_least_squares():
         b = np.asarray(mhe.stacked_vector(jnp.asarray(rng.normal(0, 0.05, 3)), jnp.asarray(rng.normal(0, 0.1, (5, 1))),
                                           jnp.asarray(rng.normal(size=(4, 1)))))
         X_free = np.linalg.solve(R, Qm.T @ b)
-        X, viol = mhe._box_solve(jnp.asarray(R), jnp.asarray(Qm.T @ b), jnp.asarray(X_free))
+        Rj = jnp.asarray(R)
+        X, viol = mhe.constrained_solve(Rj, jnp.asarray(X_free), mhe._constraint_factor(Rj),
+                                        mhe.constraint_offset(jnp.zeros((4, 1))))
         ref = lsq_linear(A, b, bounds=(lo, hi), tol=1e-14, method="bvls")
         X = np.asarray(X)
-        assert np.all(X >= lo) and np.all(X <= hi)
+        assert np.all(X >= lo - 1e-14) and np.all(X <= hi + 1e-14)  # feasible to rounding (X = X_u - K mu)
         cost = lambda x: np.sum((A @ x - b) ** 2)
         assert cost(X) <= cost(ref.x) * (1 + 1e-12)  # at least as good as scipy's BVLS (better in its last digits)
         np.testing.assert_allclose(X, ref.x, atol=1e-8)
@@ -148,28 +151,37 @@ def test_box_step_equals_bounded_least_squares():
     assert active > 0  # the bounds were binding somewhere
 
 
-def _load_run(key, mhes, steps=400):
-    kw, kv, ku = jax.random.split(key, 3)
-    w = V_STD * jax.random.normal(kw, (steps,))
-    v = Y_STD * jax.random.normal(kv, (steps,))
+def _open_loop_run(key, mhes, Phi, W, C, proc_std, y_std, steps=400, burn=50, combo=None):
+    """One seed of an open-loop LTI system with a known input, fed to every estimator of ``mhes``: per-state
+    mean-square errors after ``burn`` samples, that of the combination ``combo @ x`` of the states, and the
+    largest KKT residual of the constrained steps."""
+    combo = jnp.zeros(Phi.shape[0]) if combo is None else jnp.asarray(combo)
+    kw, kv = jax.random.split(key)
+    d, p = Phi.shape[0], C.shape[0]
+    w = proc_std * jax.random.normal(kw, (steps, d))
+    v = y_std * jax.random.normal(kv, (steps, p))
     us = 0.5 * jnp.sin(0.05 * jnp.arange(steps))[:, None]  # a known input
 
     def body(carry, inp):
         x, sts, u_prev, k = carry
         wk, vk, u = inp
-        y = C_LOAD @ x + vk
+        y = C @ x + vk
         outs, new = {}, {}
         for name, est in mhes.items():
             new[name], xhat, aux = est.step(sts[name], y, u_prev, key, k)
             outs[name] = (xhat - x, aux.violation)
-        xn = PHI_LOAD @ x + W_LOAD @ u + jnp.array([0.0, wk, 0.0])
-        return (xn, new, u, k + 1), outs
+        return (Phi @ x + W @ u + wk, new, u, k + 1), outs
 
-    x0 = jnp.zeros(3)
+    x0 = jnp.zeros(d)
     sts = {name: est.init(key, x0) for name, est in mhes.items()}
-    _, outs = jax.lax.scan(body, (x0, sts, jnp.zeros(1), 0), (w, v, us))
-    burn = 50
-    return {name: (jnp.mean(e[burn:] ** 2, axis=0), jnp.max(viol)) for name, (e, viol) in outs.items()}
+    _, outs = jax.lax.scan(body, (x0, sts, jnp.zeros(W.shape[1]), 0), (w, v, us))
+    return {name: (jnp.mean(e[burn:] ** 2, axis=0), jnp.mean((e[burn:] @ combo) ** 2), jnp.max(viol))
+            for name, (e, viol) in outs.items()}
+
+
+def _load_run(key, mhes, steps=400):
+    res = _open_loop_run(key, mhes, PHI_LOAD, W_LOAD, C_LOAD, jnp.array([0.0, V_STD, 0.0]), Y_STD, steps)
+    return {name: (ms, viol) for name, (ms, _, viol) in res.items()}
 
 
 def test_bound_the_true_state_touches_lowers_the_error():
@@ -183,6 +195,138 @@ def test_bound_the_true_state_touches_lowers_the_error():
     r, lo, hi = _ratio_interval(np.asarray(ms_box[:, 1]), np.asarray(ms_free[:, 1]))
     print(f"velocity mean-square error constrained/unconstrained {r:.4f} [{lo:.4f}, {hi:.4f}]")
     assert hi < 1.01  # and the unconstrained states are not made worse
+
+
+# ---- affine constraints -------------------------------------------------------------------------------------
+
+def _kkt_reference(A, b, G, lo, hi, x_start):
+    """The minimiser of ||A x - b||^2 subject to lo <= G x <= hi, certified: the active set of an approximate
+    solution (scipy's SLSQP) is fixed and the equality-constrained KKT system solved exactly in NumPy; the
+    answer must then be feasible and its multipliers of the right sign (KKT, sufficient for a convex QP)."""
+    from scipy.optimize import minimize
+
+    fin_lo, fin_hi = np.isfinite(lo), np.isfinite(hi)
+    cons = [{"type": "ineq", "fun": lambda x: (G @ x - lo)[fin_lo], "jac": lambda x: G[fin_lo]},
+            {"type": "ineq", "fun": lambda x: (hi - G @ x)[fin_hi], "jac": lambda x: -G[fin_hi]}]
+    s = np.linalg.norm(A, 2) ** 2  # scaled so the objective is O(1) for SLSQP's absolute tolerance
+    r = minimize(lambda x: 0.5 * np.sum((A @ x - b) ** 2) / s, x_start, jac=lambda x: A.T @ (A @ x - b) / s,
+                 constraints=cons, method="SLSQP", options={"ftol": 1e-15, "maxiter": 1000})
+    gx = G @ r.x
+    scale = 1e-7 * max(1.0, np.max(np.abs(gx)))
+    up, dn = fin_hi & (gx > hi - scale), fin_lo & (gx < lo + scale)
+    act = up | dn
+    H, g = A.T @ A, A.T @ b
+    n, Ga = H.shape[0], G[act]
+    kkt = np.block([[H, Ga.T], [Ga, np.zeros((Ga.shape[0],) * 2)]])
+    # least squares: with dependent active rows (the hard model repeats a row for every window state when the
+    # model leaves that combination unchanged) x is still unique and lam the minimum-norm multiplier
+    sol = np.linalg.lstsq(kkt, np.concatenate([g, np.where(up, hi, lo)[act]]), rcond=None)[0]
+    x, lam = sol[:n], sol[n:]
+    assert np.all(G @ x <= hi + 1e-12) and np.all(G @ x >= lo - 1e-12)
+    sign = np.where(up[act], 1.0, -1.0)  # H x - g + Ga^T lam = 0: lam >= 0 at an upper bound, <= 0 at a lower
+    assert np.all(sign * lam >= -1e-9 * np.max(np.abs(g)))
+    assert np.max(np.abs(r.x - x)) < 1e-5  # scipy found this active set itself
+    return x, int(act.sum())
+
+
+def _window_data(mhe, rng, d, p, m):
+    N = mhe.N
+    xbar = jnp.asarray(rng.normal(0, 0.05, d))
+    ybuf, ubuf = jnp.asarray(rng.normal(0, 0.1, (N + 1, p))), jnp.asarray(rng.normal(size=(N, m)))
+    return xbar, ybuf, ubuf
+
+
+def _solve_window(mhe, xbar, ybuf, ubuf):
+    A, b = np.asarray(mhe.stacked_matrix()), np.asarray(mhe.stacked_vector(xbar, ybuf, ubuf))
+    Qm, R = np.linalg.qr(A)
+    Rj = jnp.asarray(R)
+    X, viol = mhe.constrained_solve(Rj, jnp.asarray(np.linalg.solve(R, Qm.T @ b)), mhe._constraint_factor(Rj),
+                                    mhe.constraint_offset(ubuf))
+    return A, b, np.asarray(X), float(viol)
+
+
+A_LOAD = np.array([[1.0, 2.0, 0.0], [0.0, -1.0, 3.0]])  # position + 2 velocity <= 0.04, 3 load - velocity <= 0.5
+B_LOAD = np.array([0.04, 0.5])
+
+
+def test_affine_step_equals_a_certified_qp_solution():
+    # full form: the unknown is the window trajectory and the rows act on each state; scipy never sees G
+    model = jd.Discrete(PHI_LOAD, np.linalg.inv(PHI_LOAD), W_LOAD)
+    Q = np.diag([1e-6, V_STD**2, 1e-4])  # a moderately conditioned window, so SLSQP finds the active set
+    mhe = WeightedMHE.from_noise(model, C_LOAD, Q, R_LOAD, N=4, lower=np.array([-0.05, -np.inf, 0.0]),
+                                 upper=np.array([np.inf, 0.2, np.inf]), A_c=A_LOAD, b_c=B_LOAD)
+    rng = np.random.default_rng(1)
+    E = np.vstack([-np.eye(3)[[0, 2]], np.eye(3)[[1]], A_LOAD])  # the same rows written as E z <= f
+    f = np.array([0.05, 0.0, 0.2, *B_LOAD])
+    G = np.kron(np.eye(5), E)
+    active = 0
+    for _ in range(6):
+        A, b, X, viol = _solve_window(mhe, *_window_data(mhe, rng, 3, 1, 1))
+        ref, n_act = _kkt_reference(A, b, G, np.full(25, -np.inf), np.tile(f, 5), np.zeros(15))
+        np.testing.assert_allclose(X, ref, rtol=0, atol=1e-8)
+        assert viol < 1e-9
+        active += n_act
+    assert active > 6  # the rows were binding, affine ones included
+    print("full form: active rows over 6 windows", active)
+
+
+def test_constraints_in_the_hard_model_form_equal_a_certified_qp_solution():
+    # hard model: z_i = Phi^(i-a) z_a + s_i, so box and affine rows on the window states are affine in z_a
+    model = jd.Discrete(PHI_LOAD, np.linalg.inv(PHI_LOAD), W_LOAD)
+    N, a = 4, 1
+    mhe = WeightedMHE(model, C_LOAD, np.eye(1) / Y_STD**2, np.eye(3) / 0.05**2, 1.0, N=N, anchor=a,
+                      lower=np.array([-0.05, -0.3, 0.0]), A_c=A_LOAD, b_c=B_LOAD)
+    rng = np.random.default_rng(2)
+    active = 0
+    for _ in range(6):
+        xbar, ybuf, ubuf = _window_data(mhe, rng, 3, 1, 1)
+        A, b, X, viol = _solve_window(mhe, xbar, ybuf, ubuf)
+        # the window states by simulation from z_a: z_i = T_i z_a + t_i
+        T, t = {a: np.eye(3)}, {a: np.zeros(3)}
+        Pi, Wl, u = np.linalg.inv(PHI_LOAD), W_LOAD[:, 0], np.asarray(ubuf)[:, 0]
+        for i in range(a + 1, N + 1):
+            T[i], t[i] = PHI_LOAD @ T[i - 1], PHI_LOAD @ t[i - 1] + Wl * u[i - 1]
+        for i in range(a - 1, -1, -1):
+            T[i], t[i] = Pi @ T[i + 1], Pi @ (t[i + 1] - Wl * u[i])
+        G = np.vstack([np.vstack([-T[i], A_LOAD @ T[i]]) for i in range(N + 1)])
+        f = np.concatenate([np.concatenate([np.array([0.05, 0.3, 0.0]) + t[i], B_LOAD - A_LOAD @ t[i]])
+                            for i in range(N + 1)])
+        ref, n_act = _kkt_reference(A, b, G, np.full(G.shape[0], -np.inf), f, np.asarray(xbar))
+        np.testing.assert_allclose(X, ref, rtol=0, atol=1e-8)
+        assert viol < 1e-9
+        active += n_act
+    assert active > 3
+    print("hard-model form: active rows over 6 windows", active)
+    # and the engine step with these constraints (offsets from the input buffer) runs and converges
+    ms, viol = _load_run(jax.random.PRNGKey(0), {"hard": mhe}, steps=80)["hard"]
+    assert np.all(np.isfinite(np.asarray(ms))) and float(viol) < 1e-8
+
+
+# two carts, each with an unknown load modelled as slowly varying; the loads are known to have a nonnegative sum
+# (a sum of states: not a box) and in truth both are 0, so the truth sits on the constraint
+PHI_2 = np.kron(np.eye(2), PHI_LOAD)
+W_2 = np.vstack([W_LOAD, 0.5 * W_LOAD])
+C_2 = np.kron(np.eye(2), C_LOAD)
+A_SUM = np.array([[0.0, 0.0, -1.0, 0.0, 0.0, -1.0]])
+
+
+def test_affine_constraint_the_truth_touches_lowers_the_error():
+    model = jd.Discrete(PHI_2, np.linalg.inv(PHI_2), W_2)
+    Q, R = np.kron(np.eye(2), Q_LOAD), np.kron(np.eye(2), R_LOAD)
+    mhes = {name: WeightedMHE.from_noise(model, C_2, Q, R, N=10, **kw)
+            for name, kw in (("free", {}), ("sum", dict(A_c=A_SUM, b_c=np.zeros(1))))}
+    proc = jnp.array([0.0, V_STD, 0.0, 0.0, V_STD, 0.0])
+    res = jd.monte_carlo(lambda key: _open_loop_run(key, mhes, PHI_2, W_2, C_2, proc, Y_STD, combo=-A_SUM[0]),
+                         jax.random.PRNGKey(6), 64)
+    (ms_free, sum_free, _), (ms_sum, sum_con, viol) = res["free"], res["sum"]
+    assert float(jnp.max(viol)) < 1e-8
+    # the constrained direction: the error of the loads' sum
+    r, lo, hi = _ratio_interval(np.asarray(sum_con), np.asarray(sum_free))
+    print(f"load-sum mean-square error constrained/unconstrained {r:.3f} [{lo:.3f}, {hi:.3f}]")
+    assert hi < 1.0
+    for i, name in ((2, "f1"), (5, "f2"), (1, "v1")):
+        r, lo, hi = _ratio_interval(np.asarray(ms_sum[:, i]), np.asarray(ms_free[:, i]))
+        print(f"{name} mean-square error constrained/unconstrained {r:.3f} [{lo:.3f}, {hi:.3f}]")
 
 
 def test_gradient_through_the_closed_loop_matches_finite_differences():

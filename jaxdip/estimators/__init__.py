@@ -17,6 +17,8 @@ from jaxdip.estimators import bias_observers, continuous, homd, luenberger  # re
 from jaxdip.estimators import lgssm  # batch filter, smoother and likelihood over whole sequences
 from jaxdip.estimators.weighted_mhe import WeightedMHE
 from jaxdip.estimators.ekf_online import NonlinearEKF
+from jaxdip.estimators import ukf  # unscented Kalman filter: batch form and engine estimator
+from jaxdip.estimators.ukf import NonlinearUKF
 
 __all__ = [
     "passthrough", "cpx", "kalman", "linearized", "proximal", "scpx", "CPXParams", "cpx_linearized", "cpx_qr",
@@ -26,4 +28,4 @@ __all__ = [
 __all__ += ["CPX", "LinearizedCPX", "KalmanFilter", "ExtendedKalmanFilter", "Passthrough", "FanOut", "LDF", "Delayed",
             "InitialError"]  # engine estimators (equinox Modules)
 __all__ += ["bias_observers", "continuous", "homd", "luenberger"]
-__all__ += ["lgssm", "WeightedMHE", "NonlinearEKF"]
+__all__ += ["lgssm", "WeightedMHE", "NonlinearEKF", "ukf", "NonlinearUKF"]

@@ -1,4 +1,5 @@
-"""Weighted proximal moving horizon estimation: noise weights, an arrival cost, box constraints (LTI model).
+"""Weighted proximal moving horizon estimation: noise weights, an arrival cost, box and affine constraints
+(LTI model).
 
 Window at sample j (the estimator receives y_j and u_{j-1}): states z_0 .. z_N = x_{j-N} .. x_j, outputs
 y_{j-N} .. y_j, inputs u_{j-N} .. u_{j-1}. With x_{i+1} = Phi x_i + W u_i + w_i, y_i = C x_i + v_i, the
@@ -23,8 +24,8 @@ Two forms.
 
 Either way the problem is min ||A X - b||^2 with A fixed (LTI model, static N): A is factorised once by QR in
 ``init`` (a differentiable function of every weight, so gradients and sweeps need no recompilation). Each step
-is then one product with Q^T and a triangular solve, as in the thesis's (3.7)-(3.8); without bounds the two are
-merged into the precomputed R^{-1} Q^T (one matrix-vector product).
+is then one product with Q^T and a triangular solve, as in the thesis's (3.7)-(3.8), merged into the precomputed
+R^{-1} Q^T (one matrix-vector product); with constraints that product is the starting point of the QP below.
 
 The current estimate is z_N (with the hard model: z_a propagated to j). The prior xbar of the anchor comes in
 two kinds (static ``prior``):
@@ -45,18 +46,27 @@ model, zb_a = xbar, zb_{i+1} = Phi zb_i + W u_i, so y_i - h(zb_i) + H_i zb_i ~ H
 (forward-mode autodiff): one Gauss-Newton step from the prior, the MHE analogue of the EKF's linearisation at
 the predicted mean. The stacked matrix then changes every step and is factorised every step.
 
-Box constraints (``lower``/``upper`` on every z_i; full form only) turn the proximal step into a small strictly
-convex QP, min 1/2 X^T H X - g^T X on a box, H = A^T A = R^T R. It is solved by the primal-dual active-set
-method (Hintermueller, Ito and Kunisch 2003; a semismooth Newton method): guess the active bounds from the
-multiplier mu = g - H X and the bound violation, fix those coordinates at their bounds, solve the free ones
-exactly, repeat. Why this and not projected gradient or ADMM: each iteration is an exact solve, so the answer
-satisfies the KKT conditions to rounding as soon as the active set is right (typically 1-3 iterations when a
-few bounds touch), and the iteration count does not depend on the conditioning of H, which is poor here
-(Ww = Q^{-1} is large for a precise model); projected gradient and ADMM would need many iterations and a step
-or penalty tuned to that conditioning. The cost is a Cholesky of the masked H per iteration (n = d (N + 1)).
-A fixed number of iterations (``box_iters``) keeps it a static program under jit/vmap (and reverse-mode
-differentiable); ``aux.violation`` reports the KKT residual left (0 when the active set was found; 8 iterations
-left a residual on some steps of the test problem, 20 none).
+Constraints on every window state z_i: a box ``lower <= z_i <= upper`` and affine rows ``A_c z_i <= b_c``.
+In the unknown X of either form they are rows lo <= G X + c <= hi: the full form has G = I (box) and
+blockdiag(A_c) (affine), c = 0; the hard-model form has z_i = Phi^{i-a} z_a + s_i, so G stacks Phi^{i-a} and
+A_c Phi^{i-a}, and c (the input response s_i) changes every step. The proximal step is then the strictly convex QP
+min 1/2 X^T H X - g^T X subject to those rows, H = A^T A = R^T R, solved through its multipliers by a dual
+active-set method (Goldfarb and Idnani 1983): with K = H^{-1} G^T and M = G H^{-1} G^T (fixed for an LTI model:
+formed in ``init`` from the QR factor), a working set W of rows held at their bounds gives
+M_WW mu_W = G_W X_u + c_W - bound_W and X = X_u - K mu, X_u the unconstrained minimiser. Each iteration adds the
+most violated row; if a multiplier of the working set would change sign, the step stops where it reaches zero and
+that row leaves. Why this and not projected gradient, ADMM or a dual gradient step inside the proximal step:
+each iteration is an exact solve, so the answer satisfies the KKT conditions to rounding as soon as the working
+set is right, and the iteration count does not depend on the conditioning of H, which is poor here (Ww = Q^{-1}
+is large for a precise model); the others would need many iterations and a step or penalty tuned to that
+conditioning, and projecting onto a polyhedron is itself a QP. Why one row at a time and not the all-at-once
+primal-dual active-set update (every violated row in, every wrong-sign multiplier out) that suffices for a box:
+with affine rows that update can pick more rows than the window has freedom for, and it cycled to an infeasible
+point on the hard-model test problem (3 unknowns, 25 rows, some repeated). Dependent rows are handled by the
+guarded factor of M (a long finite step along the dependence; the ratio test then drops the blocking row). The
+cost is a Cholesky of the masked M per iteration, one iteration per row that becomes active. A fixed number of
+iterations (``box_iters``, default 2 x rows + 2) keeps it a static program under jit/vmap (and reverse-mode
+differentiable); ``aux.violation`` reports the KKT residual left (row infeasibility and wrong-sign multipliers).
 
 The filtered prior is propagated from the *unconstrained* window estimate. Feeding the constrained estimates
 back instead biases the arrival cost towards the interior of the box whenever the truth sits on a bound (every
@@ -73,13 +83,15 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
+import numpy as np
 
 from jaxdip.engine.roles import Estimator, param
+from jaxdip.estimators.kalman import _guarded_cho_factor
 from jaxdip.sim.discretize import Discrete
 
 
 class WMHEState(NamedTuple):
-    factor: tuple  # (Q^T, R) of the stacked matrix A
+    factor: tuple  # (R^{-1} Q^T,) of the stacked matrix A = Q R; with constraints also R and (K, M)
     xbar: jax.Array  # prior of the next window's anchor state
     ybuf: jax.Array  # (N + 1, p) y_{j-N} .. y_j
     ubuf: jax.Array  # (N, m) u_{j-N} .. u_{j-1}
@@ -90,7 +102,7 @@ class WMHEState(NamedTuple):
 
 class WMHEAux(NamedTuple):
     xhat: jax.Array  # current estimate x_j (the output may be the prediction)
-    violation: jax.Array  # KKT residual of the box-constrained step (0 unconstrained or converged)
+    violation: jax.Array  # KKT residual of the constrained step (0 unconstrained or converged)
 
 
 def _sqrt_weight(Wt):
@@ -110,11 +122,22 @@ def _powers(Phi, Phi_inv, N: int, a: int):
     return out
 
 
+def _bounded_coordinates(lower, upper) -> tuple:
+    """Indices with a finite lower or upper bound (all of them when the bounds are traced at construction)."""
+    try:
+        lo, hi = np.asarray(lower), np.asarray(upper)
+    except (TypeError, jax.errors.TracerArrayConversionError):
+        return tuple(range(jnp.shape(lower)[0]))
+    return tuple(int(i) for i in np.flatnonzero(np.isfinite(lo) | np.isfinite(hi)))
+
+
 class WeightedMHE(Estimator):
     """Weighted proximal MHE of horizon N for an LTI model ``Discrete(Phi, Phi_inv, W)`` (module docstring).
 
     ``meas_weight`` (p, p), ``arrival_weight`` (d, d), ``proc_weight`` (d, d) or None (hard model), ``gamma``
-    the proximal scale; ``lower``/``upper`` (d,) box on every window state (``inf`` for none). ``N`` and the
+    the proximal scale; ``lower``/``upper`` (d,) box on every window state (``inf`` for none), ``A_c`` (r, d)
+    and ``b_c`` (r,) affine constraints A_c z_i <= b_c on every window state; ``box_iters`` active-set
+    iterations for either. ``N`` and the
     anchor ``a`` are static. Output: "current" (x_j) or "prediction" (Phi x_j + W u_{j-1}, as CPX). ``prior``:
     "smoothed" or "filtered" (see the module docstring); ``h(x)`` replaces ``C`` by a nonlinear output map
     (static, compared by identity); ``window_sqrt`` weighs the hard-model window residual as a whole (SCPX).
@@ -134,16 +157,19 @@ class WeightedMHE(Estimator):
     anchor: int = eqx.field(static=True)
     output: str = eqx.field(static=True)
     from_truth: bool = eqx.field(static=True)
+    A_c: Optional[jax.Array]
+    b_c: Optional[jax.Array]
     box: bool = eqx.field(static=True)
-    box_iters: int = eqx.field(static=True)
+    box_rows: tuple = eqx.field(static=True)  # the coordinates with a finite bound, fixed at construction
+    box_iters: Optional[int] = eqx.field(static=True)
     prior: str = eqx.field(static=True)
     h: Optional[Callable] = eqx.field(static=True)
     window_sqrt: Optional[jax.Array]
 
     def __init__(self, model, C, meas_weight, arrival_weight, gamma=1.0, proc_weight=None, N: int = 2,
                  anchor: int = 0, xhat0=None, lower=None, upper=None, output: str = "current",
-                 from_truth: bool = False, box_iters: int = 20, prior: str = "smoothed", h: Optional[Callable] = None,
-                 window_sqrt=None):
+                 from_truth: bool = False, box_iters: Optional[int] = None, prior: str = "smoothed", h: Optional[Callable] = None,
+                 window_sqrt=None, A_c=None, b_c=None):
         d = jnp.shape(model[0])[0]
         if not 0 <= anchor < N:
             raise ValueError(f"the anchor must satisfy 0 <= anchor < N = {N}, got {anchor}")
@@ -166,9 +192,14 @@ class WeightedMHE(Estimator):
         self.lower = jnp.full(d, -jnp.inf) if lower is None else lower
         self.upper = jnp.full(d, jnp.inf) if upper is None else upper
         self.box = lower is not None or upper is not None
-        if self.box and proc_weight is None:
-            raise ValueError("box constraints need the full form (give proc_weight): with the hard model the "
-                             "window states are affine in z_a and the bounds are not a box")
+        self.box_rows = _bounded_coordinates(self.lower, self.upper) if self.box else ()
+        if (A_c is None) != (b_c is None):
+            raise ValueError("give both A_c and b_c (affine constraints A_c z <= b_c) or neither")
+        fl = jnp.result_type(float)
+        self.A_c = None if A_c is None else jnp.atleast_2d(jnp.asarray(A_c, fl))
+        self.b_c = None if b_c is None else jnp.atleast_1d(jnp.asarray(b_c, fl))
+        if A_c is not None and (self.A_c.shape[1] != d or self.b_c.shape != (self.A_c.shape[0],)):
+            raise ValueError(f"A_c must be (r, {d}) and b_c (r,), got {self.A_c.shape} and {self.b_c.shape}")
         self.N, self.anchor, self.output, self.from_truth, self.box_iters = N, anchor, output, from_truth, box_iters
 
     @classmethod
@@ -239,52 +270,132 @@ class WeightedMHE(Estimator):
             proc = proc.at[i * d:(i + 1) * d, (i + 1) * d:(i + 2) * d].set(Sw)
         return jnp.concatenate([arr, meas, proc], axis=0)
 
+    def _input_response(self, ubuf) -> list:
+        """s_i, i = 0 .. N: the hard-model window's response to the known inputs with z_a = 0."""
+        d, _, _ = self._dims
+        N, a = self.N, self.anchor
+        Phi, Phi_inv, W = self.model
+        s = [None] * (N + 1)
+        s[a] = jnp.zeros(d, Phi.dtype)
+        for i in range(a + 1, N + 1):
+            s[i] = Phi @ s[i - 1] + W @ ubuf[i - 1]
+        for i in range(a - 1, -1, -1):
+            s[i] = Phi_inv @ (s[i + 1] - W @ ubuf[i])
+        return s
+
     def stacked_vector(self, xbar, ybuf, ubuf, Cs=None) -> jax.Array:
         d, p, _ = self._dims
         Cs = self._output_matrices(Cs)
-        N, a = self.N, self.anchor
-        Phi, Phi_inv, W = self.model
+        N = self.N
+        Phi, _, W = self.model
         Sa = _sqrt_weight(self.arrival_weight) * (1.0 / jnp.sqrt(jnp.asarray(self.gamma, Phi.dtype)))
         Sv = _sqrt_weight(self.meas_weight)
         if self.proc_weight is None:
-            s = [None] * (N + 1)
-            s[a] = jnp.zeros(d, Phi.dtype)
-            for i in range(a + 1, N + 1):
-                s[i] = Phi @ s[i - 1] + W @ ubuf[i - 1]
-            for i in range(a - 1, -1, -1):
-                s[i] = Phi_inv @ (s[i + 1] - W @ ubuf[i])
+            s = self._input_response(ubuf)
             q = jnp.concatenate([Sv @ (ybuf[i] - Cs[i] @ s[i]) for i in range(N + 1)])
             return jnp.concatenate([Sa @ xbar, q if self.window_sqrt is None else self.window_sqrt @ q])
         Sw = _sqrt_weight(self.proc_weight)
         return jnp.concatenate([Sa @ xbar, (ybuf @ Sv.T).reshape(-1), (ubuf @ (Sw @ W).T).reshape(-1)])
 
-    def _box_solve(self, R, QTb, X):
-        """Primal-dual active-set iterations for min 1/2 X^T H X - g^T X on the box, from the unconstrained X."""
-        H = R.T @ R
-        g = R.T @ QTb
-        lo = jnp.tile(self.lower, self.N + 1)
-        hi = jnp.tile(self.upper, self.N + 1)
-        c = jnp.diag(H)
+    # ---- constraints --------------------------------------------------------------------------------------
+
+    @property
+    def constrained(self) -> bool:
+        return self.box or self.A_c is not None
+
+    def _state_rows(self):
+        """(E, lo, hi): the constraints on one window state, lo <= E z <= hi (box rows first, then A_c)."""
+        d, _, _ = self._dims
+        dt = self.model.Phi.dtype
+        rows = []
+        if self.box:
+            i = np.asarray(self.box_rows, dtype=int)
+            rows.append((jnp.eye(d, dtype=dt)[i], self.lower[i], self.upper[i]))
+        if self.A_c is not None:
+            rows.append((self.A_c, jnp.full(self.b_c.shape, -jnp.inf, dt), self.b_c))
+        return tuple(jnp.concatenate([r[j] for r in rows]) for j in range(3))
+
+    def constraint_matrix(self):
+        """(G, lo, hi): the window constraints in the unknown X as lo <= G X + c <= hi, rows ordered by window
+        state i = 0 .. N (c from ``constraint_offset``)."""
+        E, lo, hi = self._state_rows()
+        N = self.N
+        if self.proc_weight is not None:
+            G = jnp.kron(jnp.eye(N + 1, dtype=E.dtype), E)
+        else:
+            G = jnp.concatenate([E @ M for M in _powers(self.model.Phi, self.model.Phi_inv, N, self.anchor)])
+        return G, jnp.tile(lo, N + 1), jnp.tile(hi, N + 1)
+
+    def constraint_offset(self, ubuf) -> jax.Array:
+        """c of lo <= G X + c <= hi: zero for the full form, E s_i (the input response) for the hard model."""
+        E, _, _ = self._state_rows()
+        if self.proc_weight is not None:
+            return jnp.zeros(E.shape[0] * (self.N + 1), E.dtype)
+        return jnp.concatenate([E @ si for si in self._input_response(ubuf)])
+
+    def _constraint_factor(self, R):
+        """K = H^{-1} G^T and M = G H^{-1} G^T from the triangular factor R of H = R^T R."""
+        G, _, _ = self.constraint_matrix()
+        V = jsl.solve_triangular(R, G.T, trans="T", lower=False)  # R^{-T} G^T
+        return jsl.solve_triangular(R, V, lower=False), V.T @ V
+
+    def constrained_solve(self, R, X_u, KM, c):
+        """Dual active-set iterations (Goldfarb and Idnani) for min 1/2 X^T H X - g^T X subject to
+        lo <= G X + c <= hi, from the unconstrained minimiser X_u = H^{-1} g (module docstring). ``KM``:
+        (H^{-1} G^T, G H^{-1} G^T) from ``_constraint_factor(R)``. Returns (X, KKT residual)."""
+        G, lo, hi = self.constraint_matrix()
+        K, M = KM
+        s_u = G @ X_u + c
+        n_rows = s_u.shape[0]
+        dM = jnp.diag(M)
+        dM = jnp.where(dM > 0, dM, 1.0)
+        idx = jnp.arange(n_rows)
+        fin = lambda v: jnp.where(jnp.isfinite(v), v, 0.0)
+        bound_scale = jnp.abs(fin(lo)) + jnp.abs(fin(hi)) + jnp.abs(s_u)
 
         def it(_, carry):
-            X, mu = carry
-            up = mu + c * (X - hi) > 0
-            dn = mu + c * (X - lo) < 0
-            free = ~(up | dn)
-            Xa = jnp.where(up, hi, jnp.where(dn, lo, 0.0))
-            rhs = jnp.where(free, g - H @ Xa, Xa)
-            Hm = jnp.where(free[:, None] & free[None, :], H, 0.0) + jnp.diag(jnp.where(free, 0.0, 1.0))
-            X = jsl.cho_solve(jsl.cho_factor(Hm, lower=True), rhs)
-            mu = jnp.where(free, 0.0, g - H @ X)
-            return X, mu
+            mu, act, side, pend = carry  # signed multipliers (> 0 at an upper bound), working set, pending row
+            s = s_u - M @ mu  # G X + c at X = X_u - K mu
+            over, under = s - hi, lo - s
+            viol = jnp.maximum(over, under)
+            tol = 1e-11 * (bound_scale + jnp.abs(M @ mu)) + jnp.finfo(s.dtype).tiny
+            cand = ~act & (viol > tol)
+            # the most violated row in the H^{-1} metric (its distance to the bound over the row's norm)
+            j_new = jnp.argmax(jnp.where(cand, viol / jnp.sqrt(dM), -jnp.inf))
+            pend = jnp.where(pend >= 0, pend, jnp.where(jnp.any(cand), j_new, -1))
+            idle = pend < 0
+            is_p = (idx == pend) & ~idle
+            side2 = jnp.where(is_p, jnp.where(over[jnp.maximum(pend, 0)] > 0, 1.0, -1.0), side)
+            A2 = act | is_p
+            target = jnp.where(A2, jnp.where(side2 > 0, fin(hi), fin(lo)), 0.0)
+            rhs = jnp.where(A2, s_u - target, 0.0)
+            Mm = jnp.where(A2[:, None] & A2[None, :], M, 0.0) + jnp.diag(jnp.where(A2, 0.0, dM))
+            # a pending row dependent on the working set makes Mm singular: the guarded factor then gives a long
+            # finite step along the dependence, and the ratio test below drops the row that blocks it
+            mu_full = jnp.where(A2, jsl.cho_solve(_guarded_cho_factor(Mm), rhs), 0.0)
+            wrong = act & (side * mu_full < 0)
+            ratio = jnp.where(wrong, mu / jnp.where(wrong, mu - mu_full, 1.0), jnp.inf)
+            k_drop = jnp.argmin(ratio)
+            partial = jnp.any(wrong)
+            t = jnp.where(partial, ratio[k_drop], 1.0)
+            mu_next = mu + t * (mu_full - mu)
+            act_next = jnp.where(partial, act & (idx != k_drop), A2)
+            mu_next = jnp.where(act_next | (is_p & partial), mu_next, 0.0)
+            pend_next = jnp.where(partial, pend, -1)
+            keep = lambda old, new: jnp.where(idle, old, new)
+            return keep(mu, mu_next), keep(act, act_next), keep(side, side2), keep(pend, pend_next)
 
-        X, mu = jax.lax.fori_loop(0, self.box_iters, it, (X, jnp.zeros_like(X)))
-        scale = jnp.maximum(jnp.max(jnp.abs(g)), 1.0)
-        bound_gap = jnp.maximum(jnp.max(X - hi), jnp.max(lo - X))
-        wrong_sign = jnp.max(jnp.maximum(jnp.where(X >= hi, -mu, 0.0), 0.0)
-                             + jnp.maximum(jnp.where(X <= lo, mu, 0.0), 0.0)
-                             + jnp.where((X > lo) & (X < hi), jnp.abs(mu), 0.0))
-        return X, jnp.maximum(jnp.maximum(bound_gap, 0.0), wrong_sign / scale)
+        init = (jnp.zeros_like(s_u), jnp.zeros(n_rows, bool), jnp.ones_like(s_u), jnp.array(-1))
+        iters = 2 * n_rows + 2 if self.box_iters is None else self.box_iters
+        mu, act, side, _ = jax.lax.fori_loop(0, iters, it, init)
+        X = X_u - K @ mu
+        s = G @ X + c
+        # KKT residual: feasibility of every row, and multipliers of the right sign on the working set
+        # (complementarity holds by construction: mu = 0 off it, its rows sit on their bounds)
+        gap = jnp.max(jnp.maximum(jnp.maximum(s - hi, lo - s), 0.0), initial=0.0)
+        g = R.T @ (R @ X_u)
+        wrong = jnp.max(jnp.where(act, jnp.maximum(-side * mu, 0.0), 0.0), initial=0.0)
+        return X, jnp.maximum(gap, wrong * jnp.max(jnp.abs(G)) / jnp.maximum(jnp.max(jnp.abs(g)), 1.0))
 
     # ---- the engine protocol -------------------------------------------------------------------------------
 
@@ -293,9 +404,11 @@ class WeightedMHE(Estimator):
         x = jnp.asarray(x0 if self.from_truth else self.xhat0, dtype=jnp.result_type(float))
         if self.h is None:
             Qm, R = jnp.linalg.qr(self.stacked_matrix(), mode="reduced")
-            # without bounds the estimate is linear in b: X = R^{-1} Q^T b, one matrix-vector product a step
+            # the unconstrained estimate is linear in b: X = R^{-1} Q^T b, one matrix-vector product a step
             # (the batched triangular solve per step cost ~10x more under vmap on a CPU)
-            factor = (Qm.T, R) if self.box else (jsl.solve_triangular(R, Qm.T, lower=False),)
+            factor = (jsl.solve_triangular(R, Qm.T, lower=False),)
+            if self.constrained:
+                factor += (R, self._constraint_factor(R))
         else:  # the stacked matrix changes with the linearisation point: factorised at every step
             factor = ()
         return WMHEState(factor, x, jnp.zeros((self.N + 1, p), x.dtype), jnp.zeros((self.N, m), x.dtype), x,
@@ -312,11 +425,10 @@ class WeightedMHE(Estimator):
         x_chain = jnp.where(k == 0, state.xchain, Phi @ state.xchain + W @ u_prev)
         pbuf = jnp.concatenate([state.pbuf[1:], x_chain[None]])
         xprior = state.xbar if self.prior == "smoothed" else pbuf[a]
-        if self.h is None and not self.box:
+        if self.h is None:
             X = state.factor[0] @ self.stacked_vector(xprior, ybuf, ubuf)
-        elif self.h is None:
-            QT, R = state.factor
-            QTb = QT @ self.stacked_vector(xprior, ybuf, ubuf)
+            if self.constrained:
+                R, KM = state.factor[1:]
         else:
             # linearise h along the prior propagated through the window: y_i ~ h(zb_i) + H_i (z_i - zb_i)
             zb = [None] * (N + 1)
@@ -329,24 +441,27 @@ class WeightedMHE(Estimator):
             Hs = jax.vmap(jax.jacfwd(self.h))(zb)
             y_lin = ybuf - jax.vmap(self.h)(zb) + jnp.einsum("ipd,id->ip", Hs, zb)
             Qm, R = jnp.linalg.qr(self.stacked_matrix(Hs), mode="reduced")
-            QT = Qm.T
-            QTb = QT @ self.stacked_vector(xprior, y_lin, ubuf, Hs)
-        if self.box or self.h is not None:
-            X = jsl.solve_triangular(R, QTb, lower=False)
+            X = jsl.solve_triangular(R, Qm.T @ self.stacked_vector(xprior, y_lin, ubuf, Hs), lower=False)
+            if self.constrained:
+                KM = self._constraint_factor(R)
         violation = jnp.zeros((), X.dtype)
-        z_free = X[(self.N) * d:] if self.proc_weight is not None else None
-        if self.box:
-            X, violation = self._box_solve(R, QTb, X)
-        if self.proc_weight is None:
-            z_a = X
-            z_N = z_a
+        X_free = X
+        if self.constrained:
+            X, violation = self.constrained_solve(R, X, KM, self.constraint_offset(ubuf))
+
+        def last_and_anchor(X):
+            if self.proc_weight is not None:
+                return X[N * d:], X[a * d:(a + 1) * d]
+            z = X
             for i in range(a, N):
-                z_N = Phi @ z_N + W @ ubuf[i]
-        else:
-            z_a, z_N = X[a * d:(a + 1) * d], X[N * d:]
+                z = Phi @ z + W @ ubuf[i]
+            return z, X
+
+        z_N, z_a = last_and_anchor(X)
+        z_free = last_and_anchor(X_free)[0]
         full = k >= N
         xcur = jnp.where(full, z_N, x_model)
-        xchain = xcur if z_free is None else jnp.where(full, z_free, x_chain)
+        xchain = jnp.where(full, z_free, x_chain)
         # the anchor prior: from the solution, or (warm-up) propagated once its time index k - N + a is >= 0
         xbar = jnp.where(full, Phi @ z_a + W @ ubuf[a],
                          jnp.where(k - N + a >= 0, Phi @ state.xbar + W @ ubuf[a], state.xbar))
