@@ -20,47 +20,13 @@ import numpy as np
 import jaxdip as jd
 from jaxdip.estimators import lgssm
 from jaxdip.estimators.weighted_mhe import WeightedMHE
-
-DT, SENSOR_STD, PROC_STD, X0_RADIUS = 1e-3, np.array([1e-4, 1e-3, 1e-3]), 2e-4, 0.01
-C3 = np.eye(3, 6)
-
-
-class LinearPlant(jd.DiscretePlant):
-    Phi: jax.Array = jd.param()
-    W: jax.Array = jd.param()
-    state_names = ("xc", "alpha", "theta", "xc_dot", "alpha_dot", "theta_dot")
-
-    def step(self, x, u):
-        return self.Phi @ x + self.W @ u
-
-
-class LinearSensor(jd.Sensor):
-    C: jax.Array = jd.param()
-    std: jax.Array = jd.param()
-
-    def step(self, state, x, key, k):
-        return state, self.C @ x + self.std * jax.random.normal(key, (self.C.shape[0],)), None
+from jaxdip.scenarios.dip_linear import C3, DT, SENSOR_STD, X0_RADIUS  # noqa: F401  (peers.py reads them here)
+from jaxdip.scenarios.dip_linear import loop as dip_loop
+from jaxdip.scenarios.dip_linear import problem as dip_problem
 
 
 def _vel_err(s):
     return s.xhat[3:6] - s.x[3:6]
-
-
-def dip_problem():
-    """The linearised DIP (ZOH 1 ms) with its LQR gain and the true noise covariances: (model, K, Q, R, P0).
-    P0 is the covariance of the initial state (uniform in the ball of radius X0_RADIUS: r^2 / (d + 2) I)."""
-    A, B = jd.linearize(jd.plants.DIP())
-    model = jd.zoh(A, B, DT)
-    K, _, _ = jd.control.dlqr(model.Phi, model.W, np.diag([10.0] * 3 + [0.1] * 3), np.eye(1))
-    Q, R = PROC_STD**2 * np.eye(6), np.diag(SENSOR_STD**2)
-    P0 = X0_RADIUS**2 / 8 * np.eye(6)
-    return model, K, Q, R, P0
-
-
-def dip_loop(estimator, model, K) -> jd.Loop:
-    """The closed loop: linear plant with process noise, outputs xc, alpha, theta with sensor noise, LQR."""
-    return jd.Loop(plant=LinearPlant(model.Phi, model.W), sensor=LinearSensor(C3, SENSOR_STD), estimator=estimator,
-                   controller=jd.control.StateFeedback(K), dt=DT, substeps=1, process_noise_std=PROC_STD)
 
 
 def main() -> None:

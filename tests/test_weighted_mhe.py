@@ -11,42 +11,12 @@ from scipy.optimize import lsq_linear
 
 import jaxdip as jd
 from jaxdip.estimators.weighted_mhe import WeightedMHE
-
-
-class LinearPlant(jd.DiscretePlant):
-    Phi: jax.Array = jd.param()
-    W: jax.Array = jd.param()
-    state_names = ("xc", "alpha", "theta", "xc_dot", "alpha_dot", "theta_dot")
-
-    def step(self, x, u):
-        return self.Phi @ x + self.W @ u
-
-
-class LinearSensor(jd.Sensor):
-    C: jax.Array = jd.param()
-    std: jax.Array = jd.param()
-
-    def step(self, state, x, key, k):
-        return state, self.C @ x + self.std * jax.random.normal(key, (self.C.shape[0],)), None
-
-
-DT = 1e-3
-C3 = np.eye(3, 6)  # outputs xc, alpha, theta
-SENSOR_STD = np.array([1e-4, 1e-3, 1e-3])
-PROC_STD = 2e-4
-X0_RADIUS = 0.01
+from jaxdip.scenarios.dip_linear import C3, DT, PROC_STD, SENSOR_STD, X0_RADIUS, LinearPlant, problem
+from jaxdip.scenarios.dip_linear import loop as dip_loop
 
 
 def dip_setup():
-    A, B = jd.linearize(jd.plants.DIP())
-    model = jd.zoh(A, B, DT)
-    K, _, _ = jd.control.dlqr(model.Phi, model.W, np.diag([10.0, 10.0, 10.0, 0.1, 0.1, 0.1]), np.eye(1))
-    return model, K
-
-
-def dip_loop(estimator, model, K):
-    return jd.Loop(plant=LinearPlant(model.Phi, model.W), sensor=LinearSensor(C3, SENSOR_STD), estimator=estimator,
-                   controller=jd.control.StateFeedback(K), dt=DT, substeps=1, process_noise_std=PROC_STD)
+    return problem()[:2]
 
 
 def _err(name):
