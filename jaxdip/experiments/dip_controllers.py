@@ -263,8 +263,10 @@ def report(cfg, r) -> str:
         f"the nonlinear loop {'is' if r['published_P']['stabilizes_from_thesis_x0'] else 'is NOT'} stabilised; "
         f"over the random initial states the stabilised fraction is {r['published_P']['stabilized_fraction']:.3g}.",
         "The published P was tuned on the laboratory system and may fit a model that differs from the printed "
-        "equations (docs/models.md lists the differences); on this model it does not stabilise the upright. The "
-        "library's own P (switching-surface normal c from the LQR's slow poles, P_v(c, 1e6)) has linearised "
+        "equations (docs/models.md lists the differences); "
+        + ("on this model it does not stabilise the upright. " if not r["published_P"]["linearised_stable"] else
+           "under this reading its linearised loop is stable (docs/fidelity/published_p.md has every reading). ")
+        + "The library's own P (switching-surface normal c from the LQR's slow poles, P_v(c, 1e6)) has linearised "
         f"eigenvalues with real parts {', '.join(f'{e:.3g}' for e in r['library_P']['linearised_eigs_real'])}; "
         f"its c = {', '.join(f'{e:.4f}' for e in r['library_P']['surface_normal'])} is close to the published "
         "v1 = .0758, -.2888, -.9414, .0699, -.1077, -.0904.",
