@@ -86,7 +86,11 @@ class ExtendedKalmanFilter(Estimator):
     """EKF for an engine ``Plant`` ``model`` sampled every ``h``: relinearised at x+ every sample (Jacobian and
     matrix exponential, ``local_model``), the mean propagated by the same local affine model. The
     ``kalman.ekf`` estimator with its params (``EKFParams``' fields) as fields; ``aux`` is P+_j.
-    ``jitter``: see ``kalman.kf_update`` (static: a literal 0 leaves the update as it was)."""
+    ``jitter``: see ``kalman.kf_update`` (static: a literal 0 leaves the update as it was).
+
+    ``output`` (static): "posterior" hands out x+_j; "prior" the one-step prediction x-_j made at j - 1 from
+    x+_{j-1} (the starting estimate at j = 0), for comparing with predictors on the same time alignment. The
+    filter itself is the same either way."""
 
     model: Any
     C: jax.Array = param()
@@ -98,6 +102,11 @@ class ExtendedKalmanFilter(Estimator):
     from_truth: bool = eqx.field(default=False, static=True)
     expm_squarings: int = eqx.field(default=24, static=True)
     jitter: float = eqx.field(default=0.0, static=True)
+    output: str = eqx.field(default="posterior", static=True)
+
+    def __check_init__(self):
+        if self.output not in ("posterior", "prior"):
+            raise ValueError(f"output must be 'posterior' or 'prior', got {self.output!r}")
 
     def init(self, key, x0):
         x = jnp.asarray(x0 if self.from_truth else self.xhat0, dtype=jnp.result_type(float))
@@ -111,4 +120,4 @@ class ExtendedKalmanFilter(Estimator):
         first = k == 0
         xp, Pp = jnp.where(first, state.x, xp), jnp.where(first, state.P, Pp)
         x, P = kf_update(xp, Pp, y, self.C, self.R, self.jitter)
-        return KFState(x, P), x, P
+        return KFState(x, P), (xp if self.output == "prior" else x), P

@@ -19,16 +19,16 @@ import numpy as np
 import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
-from jaxdip.control.spd import P_v, P_Vs, surface_normal
+from jaxdip.control.spd import P_v, surface_normal
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import failure_lines, fmt_ci, loop_summary, weight_matrix
 from jaxdip.plants import dip
+from jaxdip.theory import published_p
 
 INF = float("inf")
-# thesis (3.6): the P basis and singular values used on the laboratory system
-PUBLISHED_V = [[0.0758, -0.2888, -0.9414, 0.0699, -0.1077, -0.0904],
-               [0.4917, 0.5334, -0.2177, -0.5440, 0.3085, 0.1877]]
-PUBLISHED_S = [9.99e5, 3.37e4]
+# thesis (3.6): the P basis and singular values used on the laboratory system; how they are read is
+# ``jaxdip.theory.published_p.Reading`` (the published_P_* keys)
+PUBLISHED_V, PUBLISHED_S = published_p.PUBLISHED_V, published_p.PUBLISHED_S
 THESIS_X0 = [0.0192, 0.0025, 0.0287, -0.0392, -0.004, -0.0242]  # Fig. 3.3
 # Table 3.1 (laboratory, typical 20 s): mean / variance of |alpha|, |theta|, |xc|, |u|; units not printed
 TABLE_3_1 = {"lqr": {"alpha": (3.4, 3.03), "theta": (1.9, 0.81), "xc": (29.4, 410.7), "u": (1.7, 1.5)},
@@ -56,6 +56,24 @@ class DipControllersConfig:
     state_bound: list[float] = C.field([1.0, 1.5708, 1.5708, INF, INF, INF], C.positive, C.length(6),
                                        doc="|x_i| above this counts as divergence")
     stabilized_tol: float = C.field(0.02, C.positive_finite, doc="max |alpha|, |theta| over the last second")
+    variant: str = C.field("printed", C.one_of("printed", "lagrangian"),
+                           doc="DIP equations of motion (the plant and every controller's model)")
+    Mw: float = C.field(published_p.MW_ON, C.nonneg_finite, doc="extra weight on the cart (kg); 0 takes it off")
+    published_P_order: str = C.field("alpha_theta", C.one_of(*published_p.CHOICES["order"]),
+                                     doc="state order (3.6)'s vectors are read in: [xc, alpha, theta, ...] or the "
+                                         "paper's [xc, theta, alpha, ...]")
+    published_P_flip: str = C.field("none", C.one_of(*published_p.CHOICES["flip"]),
+                                    doc="coordinate (with its rate) (3.6) counts with the opposite sign")
+    published_P_angles: str = C.field("relative", C.one_of(*published_p.CHOICES["angles"]),
+                                      doc="theta in (3.6): relative to the lower link, or the upper link's absolute "
+                                          "angle alpha + theta")
+    published_P_units: str = C.field("rad", C.one_of(*published_p.CHOICES["units"]),
+                                     doc="units of (3.6)'s coordinates: rad, deg (angles and rates), cm_deg (and xc "
+                                         "in cm)")
+    published_P_construction: str = C.field("gram_schmidt", C.one_of(*published_p.CHOICES["construction"]),
+                                            doc="how (2.20) makes P from (3.6): gram_schmidt (as printed), "
+                                                "gram_schmidt_v2_first, rank_update (no re-orthogonalisation), "
+                                                "squared (s as singular values of a factor of P)")
 
     def loads(self) -> list[Load]:
         n = steps_of(self.duration, self.dt)
@@ -68,6 +86,18 @@ class DipControllersConfig:
             raise C.ConfigError("rp_extra_pole", "must be negative (a stable pole)")
 
 
+def plant_of(cfg: DipControllersConfig) -> dip.DIP:
+    return dip.DIP(variant=cfg.variant, Mw=cfg.Mw)
+
+
+def reading_of(cfg: DipControllersConfig) -> published_p.Reading:
+    """The reading of (3.6) this configuration asks for."""
+    return published_p.Reading(variant=cfg.variant, Mw=cfg.Mw, order=cfg.published_P_order,
+                               flip=cfg.published_P_flip, angles=cfg.published_P_angles,
+                               units=cfg.published_P_units, construction=cfg.published_P_construction,
+                               gamma=cfg.rp_gamma)
+
+
 def controllers(cfg: DipControllersConfig, plant: dip.DIP):
     """The LQR, PS and RP controllers (RP with the library's P; the published P goes in by a sweep over P)."""
     A, B = jd.linearize(plant)
@@ -77,7 +107,7 @@ def controllers(cfg: DipControllersConfig, plant: dip.DIP):
     slow = E[np.argsort(-E.real)][:4]
     c = surface_normal(A, B, np.concatenate([slow, [cfg.rp_extra_pole]]))
     P_lib = P_v(c, cfg.rp_surface_s)
-    P_pub = P_Vs(jnp.asarray(PUBLISHED_V).T, jnp.asarray(PUBLISHED_S))
+    P_pub = jnp.asarray(published_p.P_of(reading_of(cfg)))
     return {
         "lqr": jd.control.StateFeedback(K),
         "ps": jd.control.PowerSeries.design(plant, Q, cfg.R),
@@ -97,7 +127,7 @@ def trajectory(s: jd.Sample):
 def build(cfg: DipControllersConfig, controller, noise_std=None, x0=None, save=None) -> jd.Rollout:
     """One trial of the DIP under ``controller``: full-state measurements with white noise, initial states
     uniform in a ball around upright (or ``x0``)."""
-    plant = dip.DIP()
+    plant = plant_of(cfg)
     n_steps = int(round(cfg.duration / cfg.dt))
     loop = jd.Loop(plant=plant, sensor=jd.sensors.WhiteNoise(cfg.noise_std if noise_std is None else noise_std),
                    estimator=jd.Passthrough(), controller=controller, dt=cfg.dt, substeps=cfg.substeps,
@@ -109,10 +139,7 @@ def build(cfg: DipControllersConfig, controller, noise_std=None, x0=None, save=N
                       metrics=metrics)
 
 
-def linear_rp_eigs(A, B, P, gamma):
-    """Eigenvalues of the linearised closed loop of (2.14) with g = B."""
-    Kc = jnp.linalg.solve(B.T @ P @ B, gamma * B.T @ P + B.T @ P @ A)
-    return np.asarray(jnp.linalg.eigvals(A - B @ Kc))
+linear_rp_eigs = published_p.linear_rp_eigs
 
 
 def _pick(sol, j):
@@ -121,7 +148,7 @@ def _pick(sol, j):
 
 def simulate(cfg: DipControllersConfig, progress: bool = True) -> tuple[dict, dict, tuple]:
     """Monte Carlo Solutions and the noise-free trajectories from the thesis's x0, per controller."""
-    ctrls, design = controllers(cfg, dip.DIP())
+    ctrls, design = controllers(cfg, plant_of(cfg))
     P_pub, P_lib = design[2], design[3]
     key = jax.random.PRNGKey(cfg.seed)
     sols, clean = {}, {}
@@ -188,9 +215,14 @@ def run(cfg: DipControllersConfig, ctx: RunContext | None = None, progress: bool
     return Outcome(results=results, report=report(cfg, results), figures={"fig3_3_controllers": fig})
 
 
+def _reading_text(cfg) -> str:
+    ch = {k: v for k, v in reading_of(cfg).changes().items() if k not in ("variant", "Mw", "gamma")}
+    return f" read with {', '.join(f'{k} {v}' for k, v in ch.items())}" if ch else ""
+
+
 def report(cfg, r) -> str:
     lines = [
-        f"Printed DIP model; LQR and PS with Q = {cfg.Q}, R = {cfg.R}; RP (2.14) with gamma = {cfg.rp_gamma}. "
+        f"{cfg.variant.capitalize()} DIP model{'' if cfg.Mw == published_p.MW_ON else f' (Mw = {cfg.Mw:g})'}; LQR and PS with Q = {cfg.Q}, R = {cfg.R}; RP (2.14) with gamma = {cfg.rp_gamma}. "
         f"Monte Carlo: {cfg.seeds} seeds from states uniform in a ball of radius {cfg.init_radius}, measurement "
         f"noise std {cfg.noise_std}, {cfg.duration} s.",
         "",
@@ -224,14 +256,17 @@ def report(cfg, r) -> str:
         "",
         "## Does the published P (3.6) stabilise this model?",
         "",
-        f"Linearised closed loop of (2.14) with P from (3.6), gamma = {cfg.rp_gamma}: largest real part of an "
+        f"Linearised closed loop of (2.14) with P from (3.6){_reading_text(cfg)}, gamma = {cfg.rp_gamma}: "
+        f"largest real part of an "
         f"eigenvalue {r['published_P']['linearised_max_real_eig']:.3g} "
         f"({'stable' if r['published_P']['linearised_stable'] else 'UNSTABLE'}). From the thesis's initial state "
         f"the nonlinear loop {'is' if r['published_P']['stabilizes_from_thesis_x0'] else 'is NOT'} stabilised; "
         f"over the random initial states the stabilised fraction is {r['published_P']['stabilized_fraction']:.3g}.",
         "The published P was tuned on the laboratory system and may fit a model that differs from the printed "
-        "equations (docs/models.md lists the differences); on this model it does not stabilise the upright. The "
-        "library's own P (switching-surface normal c from the LQR's slow poles, P_v(c, 1e6)) has linearised "
+        "equations (docs/models.md lists the differences); "
+        + ("on this model it does not stabilise the upright. " if not r["published_P"]["linearised_stable"] else
+           "under this reading its linearised loop is stable (docs/fidelity/published_p.md has every reading). ")
+        + "The library's own P (switching-surface normal c from the LQR's slow poles, P_v(c, 1e6)) has linearised "
         f"eigenvalues with real parts {', '.join(f'{e:.3g}' for e in r['library_P']['linearised_eigs_real'])}; "
         f"its c = {', '.join(f'{e:.4f}' for e in r['library_P']['surface_normal'])} is close to the published "
         "v1 = .0758, -.2888, -.9414, .0699, -.1077, -.0904.",

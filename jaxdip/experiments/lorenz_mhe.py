@@ -23,6 +23,7 @@ A trial is diverged for a method once its estimate is non-finite or off by more 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import jax
@@ -60,6 +61,21 @@ class LorenzMheConfig:
     ekf_sigma_eps: float = C.field(5.0, C.positive_finite, doc="EKF measurement noise std")
     ekf2_sigma_eta: float = C.field(0.005, C.positive_finite, doc="EKF2 process noise std")
     ekf2_sigma_eps: float = C.field(10.0, C.positive_finite, doc="EKF2 measurement noise std")
+    eps_reading: str = C.field("std", C.one_of("std", "variance"),
+                               doc="reading of the printed measurement-noise values (sigma_eps, ekf_sigma_eps, "
+                                   "ekf2_sigma_eps): std, or variance (the thesis's N(0, sigma I) taken literally)")
+    eta_reading: str = C.field("std", C.one_of("std", "variance"),
+                               doc="the same for the state-noise values (sigma_eta, ekf_sigma_eta, ekf2_sigma_eta)")
+    eta_time: str = C.field("sample", C.one_of("sample", "unit_time"),
+                            doc="the data's state noise: sigma_eta per sample, or per unit time (a diffusion: "
+                                "std sigma_eta sqrt(h) per sample)")
+    ekf_eta_time: str = C.field("sample", C.one_of("sample", "unit_time"),
+                                doc="the EKFs' process noise: Q = s^2 I per sample, or s^2 h I (continuous-discrete: "
+                                    "s^2 an intensity per unit time)")
+    alignment: str = C.field("mixed", C.one_of(*scenario.ALIGNMENTS),
+                             doc="estimates scored against x_k: mixed (CPX/SCPX one-step predictions as the thesis "
+                                 "returns them, EKFs filtered estimates), filtered (all filtered), prediction (all "
+                                 "one-step predictions)")
     extrema_threshold: float = C.field(15.0, C.positive_finite,
                                        doc="|xL| above this counts as an extremum (xL error at extrema)")
     divergence_bound: float = C.field(1000.0, C.positive_finite, doc="estimate error norm that counts as divergence")
@@ -88,15 +104,35 @@ class LorenzMheConfig:
         return int(round(self.duration / self.h))
 
 
+def noise_levels(cfg: LorenzMheConfig) -> dict[str, float]:
+    """Per-sample standard deviations of the data's and the filters' noises under the configured reading.
+
+    The thesis writes eps_k ~ N(0, sigma_eps I) and eta_k ~ N(0, sigma_eta I) and calls the sigmas standard
+    deviations; read as variances the std is sqrt(sigma). A state noise "per unit time" is a diffusion of
+    intensity s^2 sampled every h (std s sqrt(h) per sample); for the EKFs that is the continuous-discrete
+    Q = s^2 h. The default reading (std, per sample) returns the configured values unchanged."""
+    def read(v: float, reading: str) -> float:
+        return v if reading == "std" else math.sqrt(v)
+
+    def eta(v: float, time: str) -> float:
+        s = read(v, cfg.eta_reading)
+        return s if time == "sample" else s * math.sqrt(cfg.h)
+
+    return {"sigma_eps": read(cfg.sigma_eps, cfg.eps_reading), "sigma_eta": eta(cfg.sigma_eta, cfg.eta_time),
+            "ekf_sigma_eps": read(cfg.ekf_sigma_eps, cfg.eps_reading),
+            "ekf_sigma_eta": eta(cfg.ekf_sigma_eta, cfg.ekf_eta_time),
+            "ekf2_sigma_eps": read(cfg.ekf2_sigma_eps, cfg.eps_reading),
+            "ekf2_sigma_eta": eta(cfg.ekf2_sigma_eta, cfg.ekf_eta_time)}
+
+
 def build(cfg: LorenzMheConfig, steps: int | None = None, save_every: int | None = None) -> jd.Rollout:
     """One trial of the comparison (``jaxdip.scenarios.lorenz_mhe``) with this configuration."""
     return scenario.build(
-        h=cfg.h, steps=cfg.n_steps if steps is None else steps, substeps=cfg.substeps, sigma_eps=cfg.sigma_eps,
-        sigma_eta=cfg.sigma_eta, x0_mean=tuple(cfg.x0_mean), x0_std=cfg.x0_std, init_error_std=cfg.init_error_std,
-        cpx_gamma=cfg.cpx_gamma, scpx_gamma=cfg.scpx_gamma, scpx_p=cfg.scpx_p, ekf_sigma_eta=cfg.ekf_sigma_eta,
-        ekf_sigma_eps=cfg.ekf_sigma_eps, ekf2_sigma_eta=cfg.ekf2_sigma_eta, ekf2_sigma_eps=cfg.ekf2_sigma_eps,
+        h=cfg.h, steps=cfg.n_steps if steps is None else steps, substeps=cfg.substeps, **noise_levels(cfg),
+        x0_mean=tuple(cfg.x0_mean), x0_std=cfg.x0_std, init_error_std=cfg.init_error_std,
+        cpx_gamma=cfg.cpx_gamma, scpx_gamma=cfg.scpx_gamma, scpx_p=cfg.scpx_p,
         extrema_threshold=cfg.extrema_threshold, divergence_bound=cfg.divergence_bound,
-        expm_squarings=cfg.expm_squarings, save_every=save_every)
+        expm_squarings=cfg.expm_squarings, save_every=save_every, alignment=cfg.alignment)
 
 
 def simulate(cfg: LorenzMheConfig, progress: bool = True) -> dict:
@@ -130,7 +166,7 @@ def summarize(cfg: LorenzMheConfig, s: dict) -> tuple[dict, dict]:
         r = {**stats.with_ci("mean_norm_error", e, ok), **stats.with_ci("mean_xL_error", ex, ok),
              **stats.with_ci("mean_xL_error_at_extrema", ext, ok & (s["n_ext"][:, j] > 0)),
              "diverged": int(div[:, j].sum())}
-        if j < 2:
+        if m in scenario.PREDICTORS and cfg.alignment != "filtered":
             r.update(stats.with_ci("mean_norm_error_current", s["norm_cur"][:, j] / n[:, j], ok))
             r.update(stats.with_ci("mean_xL_error_current", s["xl_cur"][:, j] / n[:, j], ok))
         results[m] = r
@@ -196,6 +232,21 @@ def summary(r: dict) -> list[str]:
     ]
 
 
+def _default_reading(cfg: LorenzMheConfig) -> bool:
+    return (cfg.eps_reading, cfg.eta_reading, cfg.eta_time, cfg.ekf_eta_time) == ("std", "std", "sample", "sample")
+
+
+def _reading_lines(cfg: LorenzMheConfig) -> list[str]:
+    """What a non-default noise reading or alignment makes of the printed values (nothing for the default)."""
+    if _default_reading(cfg) and cfg.alignment == "mixed":
+        return []
+    lv = noise_levels(cfg)
+    return ["", f"Reading: measurement values read as {cfg.eps_reading}, state-noise values as {cfg.eta_reading}; "
+            f"data state noise per {cfg.eta_time.replace('_', ' ')}, EKF process noise per "
+            f"{cfg.ekf_eta_time.replace('_', ' ')}; alignment {cfg.alignment}. Per-sample standard deviations used: "
+            + ", ".join(f"{k} {v:.4g}" for k, v in lv.items()) + "."]
+
+
 def report(cfg: LorenzMheConfig, r: dict) -> str:
     lam = window_spectrum(cfg)
     lines = [
@@ -205,6 +256,7 @@ def report(cfg: LorenzMheConfig, r: dict) -> str:
         f"SCPX gamma = {cfg.scpx_gamma} with p = {cfg.scpx_p}, EKF (sigma_eta, sigma_eps) = ({cfg.ekf_sigma_eta}, "
         f"{cfg.ekf_sigma_eps}), EKF2 = ({cfg.ekf2_sigma_eta}, {cfg.ekf2_sigma_eps}). Initial estimates: the true "
         f"x0 plus N(0, {cfg.init_error_std}^2 I), the same for every method.",
+        *_reading_lines(cfg),
         "",
         "Time-averaged errors per trial, then the mean over the trials that did not diverge, with 95% intervals:",
         "",
@@ -218,13 +270,24 @@ def report(cfg: LorenzMheConfig, r: dict) -> str:
                      f"{_fmt(s['mean_xL_error'], s['mean_xL_error_ci95'])} | "
                      f"{_fmt(s['mean_xL_error_at_extrema'], s['mean_xL_error_at_extrema_ci95'])} | "
                      f"{s['diverged']} |")
+    if cfg.alignment == "filtered":
+        current = ("All four are scored on their estimate of x_k from the measurements up to y_k (CPX/SCPX: their "
+                   "current estimates xhat_k; EKFs: x+_k).")
+    else:
+        who = ("the EKFs' on their filtered estimates x+_k" if cfg.alignment == "mixed"
+               else "the EKFs' on their one-step predictions x-_k")
+        current = (f"CPX/SCPX errors are those of the prediction handed out one sample ahead (the thesis's "
+                   f"x~_{{k+2}}), {who}; the CPX/SCPX current estimates xhat_k give: "
+                   + "; ".join(f"{LABELS[m]} e = "
+                               f"{_fmt(r[m]['mean_norm_error_current'], r[m]['mean_norm_error_current_ci95'])},"
+                               f" e_xL = {_fmt(r[m]['mean_xL_error_current'], r[m]['mean_xL_error_current_ci95'])}"
+                               for m in ("cpx", "scpx")) + ".")
+        if cfg.alignment == "mixed":  # the default's sentence as it always read
+            current = current.replace(", the EKFs' on their filtered estimates x+_k;", ";").replace(
+                "; the CPX/SCPX current estimates", "; their current estimates")
     lines += [
         "",
-        "CPX/SCPX errors are those of the prediction handed out one sample ahead (the thesis's x~_{k+2}); their "
-        "current estimates xhat_k give: "
-        + "; ".join(f"{LABELS[m]} e = {_fmt(r[m]['mean_norm_error_current'], r[m]['mean_norm_error_current_ci95'])},"
-                    f" e_xL = {_fmt(r[m]['mean_xL_error_current'], r[m]['mean_xL_error_current_ci95'])}"
-                    for m in ("cpx", "scpx")) + ".",
+        current,
         "",
         "## The thesis's findings (§1.6, Fig. 1.1-1.2)",
         "",
@@ -255,7 +318,8 @@ def report(cfg: LorenzMheConfig, r: dict) -> str:
         f"(p < 3 drops it): there xL follows the model, xL' = sigma (yL - xL). The EKFs weigh each new sample "
         f"by their gain instead, which at 1 kHz averages the noise over many samples.",
     ]
-    if _below(r, "ekf", "ekf2", "mean_xL_error") == "yes" and cfg.ekf2_sigma_eta < cfg.sigma_eta:
+    if (_below(r, "ekf", "ekf2", "mean_xL_error") == "yes" and cfg.ekf2_sigma_eta < cfg.sigma_eta
+            and _default_reading(cfg)):
         lines += [
             "",
             f"EKF2 (sigma_eta = {cfg.ekf2_sigma_eta:g}) assumes {cfg.sigma_eta / cfg.ekf2_sigma_eta:.0f} times less "

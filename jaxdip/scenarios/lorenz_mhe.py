@@ -11,6 +11,13 @@ thesis's xtilde_{k+2} = Phi xhat_{k+1} compared with the state it predicts), and
 xhat_k come out as aux. The EKFs' outputs are their filtered estimates x+_k. Nothing is controlled
 (``ConstantInput`` of zero); the EKF is the nominal driver of the FanOut.
 
+``alignment`` picks the time alignment the four are scored on:
+  "mixed"       (default, as above) CPX/SCPX: the delayed prediction of x_k; EKFs: the filtered x+_k;
+  "filtered"    every method's estimate of x_k from y_0 .. y_k: CPX/SCPX their current xhat_k, EKFs x+_k;
+  "prediction"  every method's one-step prediction of x_k made at k - 1: CPX/SCPX as in "mixed", EKFs their
+                prior x-_k.
+The estimators compute the same numbers in every alignment; only what is compared with x_k changes.
+
 Random streams (the experiment's convention, kept by ``MHEKeys``): trial key sk; x0 from fold_in(sk, 0), the
 common initial estimate from fold_in(sk, 1), and at sample k, kk = fold_in(fold_in(sk, 2), k) split in two for
 the measurement and the state noise.
@@ -37,6 +44,7 @@ from jaxdip.sim.sensors import LinearSensor, sensor_params
 
 METHODS = ("cpx", "scpx", "ekf", "ekf2")
 PREDICTORS = ("cpx", "scpx")  # compared through their delayed prediction; their current estimate is aux
+ALIGNMENTS = ("mixed", "filtered", "prediction")
 
 
 class MHEKeys(KeySchedule):
@@ -82,14 +90,14 @@ class TrackingErrors(Reducer):
         err = jnp.stack([est.xhat[n] for n in self.names]) - x
         norm = jnp.sqrt(jnp.sum(err**2, axis=1))
         xl = jnp.abs(err[:, self.component])
-        cur = jnp.stack([est.aux[n] for n in self.current]) - x
+        cur = jnp.stack([est.aux[n] for n in self.current]) - x if self.current else jnp.zeros((0, x.shape[0]))
         norm_cur = jnp.sqrt(jnp.sum(cur**2, axis=1))
         xl_cur = jnp.abs(cur[:, self.component])
         bad = ~jnp.isfinite(norm) | (norm > self.bound)
         diverged = s["diverged"] | bad
         w = (~diverged).astype(norm.dtype)
         ext = (jnp.abs(x[self.component]) > self.threshold) & ~diverged
-        wc = w[jnp.asarray([self.names.index(n) for n in self.current])]
+        wc = w[jnp.asarray([self.names.index(n) for n in self.current], dtype=int)]
         return {
             "norm": s["norm"] + w * _safe(norm),
             "xl": s["xl"] + w * _safe(xl),
@@ -116,9 +124,14 @@ def build(*, h: float = 0.001, steps: int, substeps: int = 1, sigma_eps: float =
           cpx_gamma: float = 0.5, scpx_gamma: float = 50.0, scpx_p: int = 2, ekf_sigma_eta: float = 0.1,
           ekf_sigma_eps: float = 5.0, ekf2_sigma_eta: float = 0.005, ekf2_sigma_eps: float = 10.0,
           extrema_threshold: float = 15.0, divergence_bound: float = 1000.0, expm_squarings: int = 3,
-          save_every: Optional[int] = None) -> Rollout:
+          save_every: Optional[int] = None, alignment: str = "mixed") -> Rollout:
     """One trial of the comparison: metrics ``{"errors": TrackingErrors}``; with ``save_every``, ``record_xl``
-    every ``save_every`` samples (``steps`` must be a multiple)."""
+    every ``save_every`` samples (``steps`` must be a multiple). All noise levels are standard deviations per
+    sample (the EKFs' Q = ekf_sigma_eta^2 I, R = ekf_sigma_eps^2 I). ``alignment``: see the module docstring;
+    the predictors' current estimates are ``TrackingErrors``' ``current`` sums except under "filtered", where
+    they are the compared estimates themselves."""
+    if alignment not in ALIGNMENTS:
+        raise ValueError(f"alignment must be one of {ALIGNMENTS}, got {alignment!r}")
     plant = Lorenz()
     Cm = lorenz.output_matrix()
     z3 = jnp.zeros(3)
@@ -128,19 +141,25 @@ def build(*, h: float = 0.001, steps: int, substeps: int = 1, sigma_eps: float =
         return InitialError(e, init_error_std)
 
     def cpx(gamma, keep):
+        if alignment == "filtered":
+            return start(LinearizedCPX(gamma, plant, Cm, z3, h=h, keep=keep, output="current", from_truth=True,
+                                       expm_squarings=expm_squarings))
         return start(Delayed(LinearizedCPX(gamma, plant, Cm, z3, h=h, keep=keep, output="prediction",
                                            from_truth=True, expm_squarings=expm_squarings)))
 
+    ekf_output = "prior" if alignment == "prediction" else "posterior"
+
     def ekf(s_eta, s_eps):
         return start(ExtendedKalmanFilter(plant, Cm, s_eta**2 * jnp.eye(3), s_eps**2 * jnp.eye(2), P0, z3, h=h,
-                                          from_truth=True, expm_squarings=expm_squarings))
+                                          from_truth=True, expm_squarings=expm_squarings, output=ekf_output))
 
     estimators = FanOut({"cpx": cpx(cpx_gamma, None), "scpx": cpx(scpx_gamma, scpx_p),
                          "ekf": ekf(ekf_sigma_eta, ekf_sigma_eps), "ekf2": ekf(ekf2_sigma_eta, ekf2_sigma_eps)},
                         drive="ekf")
     loop = Loop(plant, LinearSensor.of(sensor_params(Cm, white_std=sigma_eps), h), estimators,
                 ConstantInput(jnp.zeros(1)), dt=h, substeps=substeps, process_noise_std=sigma_eta, keys=MHEKeys())
-    metrics = {"errors": TrackingErrors(METHODS, PREDICTORS, extrema_threshold, divergence_bound)}
+    current = () if alignment == "filtered" else PREDICTORS
+    metrics = {"errors": TrackingErrors(METHODS, current, extrema_threshold, divergence_bound)}
     x0 = Gaussian(jnp.asarray(x0_mean, dtype=jnp.float64), x0_std)
     if save_every is None:
         return Rollout(loop, x0, steps, metrics=metrics)
@@ -150,4 +169,8 @@ def build(*, h: float = 0.001, steps: int, substeps: int = 1, sigma_eps: float =
 def gamma_of(name: str):
     """``where`` of the proximal weight of ``cpx`` or ``scpx`` in a rollout from ``build`` (for sweeps and
     gradients: ``eqx.tree_at(gamma_of("cpx"), rollout, g)``)."""
-    return lambda r: r.loop.estimator.estimators[name].inner.inner.gamma
+    def where(r):
+        e = r.loop.estimator.estimators[name].inner
+        return (e.inner if isinstance(e, Delayed) else e).gamma
+
+    return where
