@@ -24,6 +24,10 @@ def fingerprint(obj) -> str:
 
 
 def save(path: str, tree, fingerprint_: str = "", **meta):
+    """Write ``tree`` to ``path`` atomically. With ``jax.distributed`` only process 0 writes (every process
+    holds the same state; a resume reads the file on every process, so it must be on a shared file system)."""
+    if jax.process_index() != 0:
+        return
     leaves, treedef = jax.tree_util.tree_flatten(tree)
     arrays = {f"leaf_{i}": np.asarray(x) for i, x in enumerate(leaves)}
     arrays["__meta__"] = np.frombuffer(json.dumps({"fingerprint": fingerprint_, "n": len(leaves), **meta})

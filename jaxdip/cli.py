@@ -98,7 +98,38 @@ def _parser():
     for q in (r, b, rp):
         q.add_argument("--no-compile-cache", action="store_true",
                        help="do not read or write the on-disk cache of compiled code (see JAXDIP_CACHE_DIR)")
+    for q in (r, rp):
+        d = q.add_argument_group("several processes (jax.distributed)")
+        d.add_argument("--distributed", action="store_true",
+                       help="run as one of several processes: Monte Carlo seeds are split over the devices of all "
+                            "of them and only process 0 writes; the values below, else JAXDIP_COORDINATOR, "
+                            "JAXDIP_NUM_PROCESSES, JAXDIP_PROCESS_ID, else the cluster's (SLURM, Open MPI)")
+        d.add_argument("--coordinator", metavar="HOST:PORT", help="address of process 0's coordinator service")
+        d.add_argument("--num-processes", metavar="N", help="number of processes")
+        d.add_argument("--process-id", metavar="I", help="this process's index, 0 .. N-1")
     return p
+
+
+def _distributed(args) -> int:
+    """``--distributed``: join the other processes (before any JAX computation). 0, or the exit code."""
+    from jaxdip import distributed
+
+    given = [f for f, v in (("--coordinator", args.coordinator), ("--num-processes", args.num_processes),
+                            ("--process-id", args.process_id)) if v is not None]
+    if not args.distributed:
+        return _error(f"{given[0]}: only with --distributed") if given else 0
+    if args.cmd == "reproduce":
+        if args.jobs is not None and args.jobs != 1:
+            return _error("--jobs: --distributed runs the experiments one after another in this process; "
+                          "leave --jobs out")
+        args.jobs = 1
+    try:
+        pid, n = distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+    except distributed.DistributedError as e:
+        return _error(f"--distributed: {e}")
+    if pid != 0:
+        os.environ["JAXDIP_NO_PROGRESS"] = "1"  # one progress bar, process 0's
+    return 0
 
 
 def _error(msg: str) -> int:
@@ -210,13 +241,16 @@ def cmd_run(args, argv=None) -> int:
             if _out_of_memory(e):
                 return _error("--seeds: the run ran out of memory; lower --seeds, shorten the run or save less")
             raise
-    print(f"{exp.id}: wrote {out} ({metrics['wall_s']:.1f} s)")
+    from jaxdip.distributed import is_main
+
+    if is_main():
+        print(f"{exp.id}: wrote {out} ({metrics['wall_s']:.1f} s)")
     return 0
 
 
 def cmd_reproduce(args, argv=None) -> int:
     from jaxdip import config as C
-    from jaxdip import outdir
+    from jaxdip import distributed, outdir
     from jaxdip.config import ConfigError
     from jaxdip.control.riccati import RiccatiError
     from jaxdip.experiments import registry, run_experiment
@@ -234,22 +268,33 @@ def cmd_reproduce(args, argv=None) -> int:
     if jobs < 1:
         return _error(f"--jobs: must be >= 1, got {jobs}")
     report_path = os.path.join(args.out, "REPORT.md")
-    # every destination is checked before the first experiment compiles
+    # every destination is checked before the first experiment compiles (with --distributed by process 0, the
+    # only one that writes; the others follow its verdict)
+    main = not args.distributed or distributed.is_main()
+    refused = None
     try:
-        if os.path.exists(args.out) and not os.path.isdir(args.out):
-            raise OutputError("--out", f"{args.out} exists and is a file, not a folder")
-        cfgs = {}
-        for exp_id, exp in reg:
-            cfgs[exp_id] = C.load(exp.config_cls, quick=exp.quick if args.quick else None)
-            outdir.check_destination(os.path.join(args.out, exp_id), exp_id, force=args.force)
-        outdir.check_file(report_path, lambda text: text.startswith("# jaxdip reproduction"))
-    except (ConfigError, OutputError) as e:
+        cfgs = {exp_id: C.load(exp.config_cls, quick=exp.quick if args.quick else None) for exp_id, exp in reg}
+        if main:
+            if os.path.exists(args.out) and not os.path.isdir(args.out):
+                raise OutputError("--out", f"{args.out} exists and is a file, not a folder")
+            for exp_id, _ in reg:
+                outdir.check_destination(os.path.join(args.out, exp_id), exp_id, force=args.force)
+            outdir.check_file(report_path, lambda text: text.startswith("# jaxdip reproduction"))
+    except ConfigError as e:
         return _error(f"{e.key}: {e.why}")
+    except OutputError as e:
+        refused = e
+    if args.distributed and not distributed.agree(refused is None):
+        refused = refused or OutputError("--out", f"process 0 cannot write {args.out} (see its error)")
+    if refused is not None:
+        return _error(f"{refused.key}: {refused.why}")
 
     t0 = time.perf_counter()
     rows, sections = [], []
 
     def collect(exp_id, exp):
+        if not main:
+            return
         out = os.path.join(args.out, exp_id)
         with open(os.path.join(out, "metrics.json")) as fh:
             m = json.load(fh)
@@ -270,7 +315,8 @@ def cmd_reproduce(args, argv=None) -> int:
             try:
                 for exp_id, exp in reg:
                     out = os.path.join(args.out, exp_id)
-                    print(f"== {exp_id}", file=sys.stderr)
+                    if main:
+                        print(f"== {exp_id}", file=sys.stderr)
                     run_experiment(exp, cfgs[exp_id], out, force=args.force, stop_requested=sig.requested)
                     collect(exp_id, exp)
             except (ConfigError, OutputError) as e:
@@ -281,6 +327,8 @@ def cmd_reproduce(args, argv=None) -> int:
                 print(f"interrupted: the experiments finished before it are in {args.out}", file=sys.stderr)
                 return 130
     wall = time.perf_counter() - t0
+    if not main:
+        return 0
     text = (
         f"# jaxdip reproduction{' (quick)' if args.quick else ''}\n\n"
         f"Total wall time {wall:.1f} s.\n\n| experiment | what | seeds | wall (s) |\n|---|---|---|---|\n"
@@ -381,6 +429,8 @@ def main(argv=None) -> int:
     if args.cmd in ("run", "reproduce", "bench"):
         _use_all_cores()
         _compile_cache(not args.no_compile_cache)
+    if args.cmd in ("run", "reproduce") and (code := _distributed(args)):
+        return code
     if args.cmd == "list":
         from jaxdip.experiments import registry
 

@@ -13,6 +13,7 @@ over a hyperparameter is one program with the swept leaf batched.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, Callable, Optional
 
@@ -161,6 +162,36 @@ def _concat(parts, axis):
     return jax.tree_util.tree_map(lambda *a: jnp.concatenate(a, axis=axis), *parts)
 
 
+@functools.lru_cache(maxsize=None)
+def _replicate(sharding):
+    # one identity program per mesh, its outputs whole on every device: XLA gathers the shards
+    return jax.jit(lambda leaves: leaves, out_shardings=sharding)
+
+
+def _gather(tree, devices):
+    """Every leaf that spans several processes, as a whole array on this process, in one gathering program
+    (a collective: all processes call it in the same order); other leaves as they are. The copy is exact."""
+    from jax.sharding import NamedSharding, PartitionSpec
+
+    leaves, treedef = jax.tree_util.tree_flatten(tree)
+    spread = [i for i, a in enumerate(leaves) if isinstance(a, jax.Array) and not a.is_fully_addressable]
+    if spread:
+        whole = _replicate(NamedSharding(device_mesh(devices), PartitionSpec()))([leaves[i] for i in spread])
+        for i, a in zip(spread, whole):
+            leaves[i] = jnp.asarray(np.asarray(a.addressable_data(0)))
+    return jax.tree_util.tree_unflatten(treedef, leaves)
+
+
+def _global_indices(seeds: np.ndarray, devices):
+    """The seed indices as one array over ``devices`` of all processes, sharded on its axis; each process
+    supplies the shards of its own devices (every process knows every index)."""
+    from jax.sharding import NamedSharding, PartitionSpec
+
+    seeds = seeds.astype(np.uint32)
+    sharding = NamedSharding(device_mesh(devices), PartitionSpec("seeds"))
+    return jax.make_array_from_callback(seeds.shape, sharding, lambda i: seeds[i])
+
+
 def device_mesh(devices=None):
     from jax.sharding import Mesh
 
@@ -181,7 +212,8 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
     time_chunk: for a ``Rollout``, periods per call (rounded to a multiple of ``save_every``); the progress bar
         advances between calls. ``None``: the whole horizon at once, or about 20 calls with ``progress``.
     shard: split each call's seeds over all devices (``None``: when there is more than one device and at
-        least ``AUTO_SHARD_MIN_SEEDS`` seeds). Results do not depend on it.
+        least ``AUTO_SHARD_MIN_SEEDS`` seeds, and always with ``jax.distributed``, whose devices are those
+        of every process; the result is then gathered to every process). Results do not depend on it.
     sweep: ``(where, values)``: run every seed for each entry of ``values`` (leading axis) put into
         ``fn`` at ``where(fn)`` (``eqx.tree_at``), in one program. Outputs get a leading sweep axis before
         the seed axis.
@@ -211,8 +243,15 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
     progress = progress and not traced
 
     devices = jax.devices()
+    # With jax.distributed, jax.devices() spans every process: the seeds are split over all of them and the
+    # outputs gathered back, so every process returns the whole result. A traced call (a gradient) cannot
+    # gather inside the trace: it stays on this process's devices, each process computing the same thing.
+    multi = jax.process_count() > 1
+    if multi and traced:
+        devices, multi = jax.local_devices(), False
     if shard is None:
-        shard = len(devices) > 1 and n >= AUTO_SHARD_MIN_SEEDS
+        shard = multi or (len(devices) > 1 and n >= AUTO_SHARD_MIN_SEEDS)
+    multi = multi and shard
     n_dev = len(devices) if shard else 1
     batch = min(chunk or n, n)
     batch = math.ceil(batch / n_dev) * n_dev
@@ -233,7 +272,9 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
         tc = time_chunk or (max(1, fn.steps // 20) if progress else fn.steps)
         tc = max(every, (tc // every) * every)
         sizes = [tc] * (fn.steps // tc) + ([fn.steps % tc] if fn.steps % tc else [])
-    bar = Progress(n_batches * (fn.steps if rollout else 1), desc=desc, enabled=progress)
+    # one bar, process 0's; the chunking above must not depend on it (every process runs the same programs)
+    bar = Progress(n_batches * (fn.steps if rollout else 1), desc=desc,
+                   enabled=progress and jax.process_index() == 0)
 
     def wait(x):
         if not traced:
@@ -242,14 +283,19 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
 
     outs, first = [], None
     for b in range(n_batches):
-        idx = jnp.asarray(seeds[b * batch:(b + 1) * batch], dtype=jnp.uint32)
-        if n_dev > 1:
+        if multi:
+            idx = _global_indices(seeds[b * batch:(b + 1) * batch], devices)
+        else:
+            idx = jnp.asarray(seeds[b * batch:(b + 1) * batch], dtype=jnp.uint32)
+        if n_dev > 1 and not multi:
             from jax.sharding import NamedSharding, PartitionSpec
 
             idx = jax.device_put(idx, NamedSharding(device_mesh(devices), PartitionSpec("seeds")))
         if not rollout or len(sizes) == 1 or detail is not None or index:
             # the whole horizon at once: one program, one dispatch
             out = wait(_batch(call, fn, where, values, key, idx, None, 0, detail))
+            if multi:
+                out = _gather(out, devices)
             if detail is not None:
                 if b == 0:
                     first = out[1]
@@ -261,11 +307,13 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
         saved = []
         for size in sizes:
             state, s = _batch(_m_advance, fn, where, values, key, idx, state, size)
-            saved.append(wait(s) if s is not None else None)
+            saved.append((_gather(wait(s), devices) if multi else wait(s)) if s is not None else None)
             if s is None:
                 wait(state)
             bar.update(size)
         mets = _batch(_m_finalize, fn, where, values, key, idx, state, 0)
+        if multi:
+            state, mets = _gather((state, mets), devices)
         outs.append(Solution(state, _concat(saved, seed_axis + 1), mets, state.result))
     bar.close()
 

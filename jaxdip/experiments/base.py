@@ -22,7 +22,7 @@ from typing import Any, Callable
 import jax
 
 from jaxdip import config as cfgmod
-from jaxdip import outdir, resources
+from jaxdip import distributed, outdir, resources
 
 
 @dataclass
@@ -74,7 +74,7 @@ def dump_json(obj) -> str:
 
 
 def provenance(exp_id: str, seeds: int, wall_s: float) -> dict:
-    return {
+    p = {
         "experiment": exp_id,
         "seeds": seeds,
         "dtype": "float64" if jax.config.jax_enable_x64 else "float32",
@@ -83,6 +83,9 @@ def provenance(exp_id: str, seeds: int, wall_s: float) -> dict:
         "jax_version": jax.__version__,
         "wall_s": round(wall_s, 3),
     }
+    if jax.process_count() > 1:
+        p["processes"] = jax.process_count()  # jax.distributed: "devices" counts those of every process
+    return p
 
 
 def check_resources(cfg, flag_keys: dict[str, str] | None = None) -> None:
@@ -107,7 +110,17 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
     import matplotlib.pyplot as plt
 
     check_resources(cfg, flag_keys)
-    staging = outdir.prepare(out_dir, exp.id, force=force)
+    # With jax.distributed every process runs the experiment (its Monte Carlo is split over all of them) and
+    # process 0 alone writes; the others learn whether process 0 could prepare its folder before computing.
+    main = distributed.is_main()
+    staging, refused = None, None
+    if main:
+        try:
+            staging = outdir.prepare(out_dir, exp.id, force=force)
+        except outdir.OutputError as e:
+            refused = e
+    if not distributed.agree(refused is None):
+        raise refused or outdir.OutputError("--out", f"process 0 cannot write {out_dir} (see its error)")
     ctx = RunContext(out_dir, resume)
     try:
         t0 = time.perf_counter()
@@ -115,10 +128,16 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
         wall = time.perf_counter() - t0
         seeds = getattr(cfg, "seeds", 1)
         metrics = {**provenance(exp.id, seeds, wall), "results": outcome.results, "timing": outcome.timing}
+        if not main:
+            for fig in outcome.figures.values():
+                plt.close(fig)
+            return metrics
+        where = f"{metrics['devices']} device(s)" + (
+            f" in {metrics['processes']} processes" if "processes" in metrics else "")
         header = (
             f"# {exp.id}: {exp.title}\n\n"
             f"Reproduces: {exp.source}. Seeds: {seeds}; {metrics['dtype']} on {metrics['backend']} "
-            f"({metrics['devices']} device(s)), JAX {metrics['jax_version']}; wall time {wall:.1f} s.\n\n"
+            f"({where}), JAX {metrics['jax_version']}; wall time {wall:.1f} s.\n\n"
         )
         tmp = staging.tmp
         with open(os.path.join(tmp, "metrics.json"), "w") as fh:
@@ -136,7 +155,8 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
             raise KeyboardInterrupt
         staging.commit()
     finally:
-        staging.discard()  # a no-op once committed
+        if staging is not None:
+            staging.discard()  # a no-op once committed
     if os.path.exists(ctx.checkpoint_path):
         os.remove(ctx.checkpoint_path)
     return metrics
