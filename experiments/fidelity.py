@@ -1,10 +1,13 @@
 """Fidelity readings: run each plausible reading of a document's claim and write what it gives.
 
     python experiments/fidelity.py [--quick] [--seeds N] [--only lorenz,published_p] [--check-commands]
-                                   [--runs DIR] [--docs DIR]
+                                   [--runs DIR] [--docs DIR] [--json-only]
 
 Writes ``docs/fidelity/lorenz.md`` (thesis §1.6, Fig. 1.1-1.2) and ``docs/fidelity/published_p.md`` (thesis
-(3.6)). Every Lorenz row is one ``jaxdip run lorenz-mhe ...`` command, run as a child process exactly as
+(3.6)), and beside each the same rows as JSON (``lorenz.json``, ``published_p.json``: one row per claim and reading,
+the format ``experiments/fidelity_index.py`` reads). ``--json-only`` writes only the JSON without running
+anything: the Lorenz rows are read back from the committed ``lorenz.md`` tables, the published-P rows are
+recomputed in-process (both cheap). Every Lorenz row is one ``jaxdip run lorenz-mhe ...`` command, run as a child process exactly as
 printed in the table, its ``metrics.json`` read back. The published-P rows are the linearised closed loop of
 (2.14) under each reading (``jaxdip.theory.published_p``), computed in-process; ``--check-commands`` also runs
 each one-at-a-time row's ``jaxdip run dip-controllers --quick ...`` command and checks that its metrics.json
@@ -20,6 +23,7 @@ import argparse
 import json
 import math
 import os
+import re
 import shlex
 import subprocess
 import sys
@@ -105,8 +109,71 @@ CLAIMS = {
     "C4": "SCPX recovers the extrema of x_L more closely than the EKF (x_L error where |x_L| > 15)",
 }
 
+# the inventory's ids (experiments/fidelity_claims.py) of the four statements
+CLAIM_IDS = {"C1": "thesis:fig-1.1-norm", "C2": "thesis:fig-1.1-xL", "C3": "thesis:claim-1.6-ekf2",
+             "C4": "thesis:fig-1.2"}
+# what each statement compares: (results key, methods shown), and the document's side of it
+CLAIM_NUMBERS = {"C1": ("mean_norm_error", ("cpx", "scpx", "ekf")),
+                 "C2": ("mean_xL_error", METHODS),
+                 "C3": ("mean_xL_error", ("ekf2", "ekf")),
+                 "C4": ("mean_xL_error_at_extrema", ("scpx", "ekf"))}
+CLAIM_DOCUMENT = {"C1": "CPX and SCPX below the EKF in e (Fig. 1.1 ordering; no number printed)",
+                  "C2": "SCPX lowest e_xL of the four (Fig. 1.1 ordering; no number printed)",
+                  "C3": "EKF2 (sigma_eta 0.005, sigma_eps 10) tuned for a better x_L fit than the EKF (no number)",
+                  "C4": "SCPX closer than the EKF at the extrema of x_L (Fig. 1.2; no number printed)"}
+KEY_SHORT = {"mean_norm_error": "e", "mean_xL_error": "e_xL", "mean_xL_error_at_extrema": "e_xL(|x_L|>15)"}
 
-def lorenz(args, workdir: str) -> str:
+
+def lorenz_rows(readings: list[tuple[str, str, str, dict, dict]]) -> list[dict]:
+    """JSON rows from (name, alignment, command, claims {C1..C4: yes/no/undecided}, numbers {key: {method:
+    (value, lo, hi)}}) per reading: one row per claim and reading."""
+    rows = []
+    for name, align, command, claims, numbers in readings:
+        for c, cid in CLAIM_IDS.items():
+            key, methods = CLAIM_NUMBERS[c]
+            ours = f"{KEY_SHORT[key]}: " + ", ".join(
+                f"{LABELS[m]} {_fmt(numbers[key][m][0], numbers[key][m][1:])}" for m in methods)
+            rows.append({"claim": cid, "reading": f"{name} ({align})", "what": CLAIMS[c], "command": command,
+                         "ours": ours, "document": CLAIM_DOCUMENT[c], "holds": claims[c]})
+    return rows
+
+
+def _numbers(r: dict) -> dict:
+    return {key: {m: (r[m][key], *r[m][f"{key}_ci95"]) for m in METHODS} for key in KEY_SHORT}
+
+
+def lorenz_rows_from_markdown(text: str) -> list[dict]:
+    """The Lorenz rows rebuilt from a committed lorenz.md (its claims table and its three number tables), so that
+    the JSON of results computed before the JSON existed needs no rerun."""
+    titles = {"Mean norm error e": "mean_norm_error", "Mean x_L error e_xL": "mean_xL_error",
+              "x_L error where |x_L| > 15": "mean_xL_error_at_extrema"}
+    claims, numbers, order, section = {}, {}, [], None
+    num = r"(-?[0-9.e+-]+|nan) \[(-?[0-9.e+-]+|nan), (-?[0-9.e+-]+|nan)\]"
+    for line in text.splitlines():
+        if line.startswith("## "):
+            section = line[3:].strip()
+        elif line.startswith("### "):
+            section = titles.get(line[4:].strip())
+        if not line.startswith("| ") or line.startswith("| reading"):
+            continue
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if section == "Claims per reading":
+            key = (cells[0], cells[1])
+            claims[key] = dict(zip(CLAIM_IDS, cells[2:6]))
+            order.append((key, cells[6].strip("`")))
+        elif section in KEY_SHORT:
+            for m, cell in zip(METHODS, cells[2:2 + len(METHODS)]):
+                v = re.fullmatch(num, cell)
+                if v is None:
+                    raise ValueError(f"lorenz.md: cannot read {cell!r} in {section}")
+                numbers.setdefault((cells[0], cells[1]), {}).setdefault(section, {})[m] = tuple(
+                    float(x) for x in v.groups())
+    if not order:
+        raise ValueError("lorenz.md: no claims table found")
+    return lorenz_rows([(k[0], k[1], cmd, claims[k], numbers[k]) for k, cmd in order])
+
+
+def lorenz(args, workdir: str) -> tuple[str, list[dict]]:
     rows = []
     plan = [("printed", LORENZ_READINGS[0][1], [], "mixed")]
     plan += [(n, d, s, a) for a in ALIGNMENTS for (n, d, s) in LORENZ_READINGS]
@@ -160,10 +227,12 @@ def lorenz(args, workdir: str) -> str:
         L.append("")
     L += ["## What each reading means", "", "| reading | per-sample noise levels it gives |", "|---|---|"]
     L += [f"| {n} | {d} |" for n, d, _ in LORENZ_READINGS]
-    return "\n".join(L) + "\n"
+    json_rows = lorenz_rows([(name, align, shlex.join(cmd), lorenz_claims(m["results"]), _numbers(m["results"]))
+                             for name, _desc, align, cmd, m in rows])
+    return "\n".join(L) + "\n", json_rows
 
 
-def published_p(args, workdir: str) -> str:
+def published_p(args, workdir: str) -> tuple[str, list[dict]]:
     import numpy as np
 
     from jaxdip.theory import published_p as pp
@@ -253,7 +322,18 @@ def published_p(args, workdir: str) -> str:
     ]
     L += ["", "The worst groups: " + "; ".join(f"{name_of(reps[i])}: {rep_vals[i]:+.1f}" for i in order[-3:][::-1])
           + "."]
-    return "\n".join(L) + "\n"
+    # JSON: the one-at-a-time rows and the ten best groups (the tables above), each reading once
+    json_rows, seen = [], set()
+    for r, v in [*rows, *((reps[i], rep_vals[i]) for i in order[:10])]:
+        if name_of(r) in seen:
+            continue
+        seen.add(name_of(r))
+        json_rows.append({"claim": "thesis:eq-3.6", "reading": name_of(r),
+                          "what": "largest real part of the linearised closed loop (2.14) with P (3.6) at upright "
+                                  "(negative: (3.6) stabilises the model locally)",
+                          "command": cmd_of(r), "ours": f"{float(v):+.3f} 1/s", "document": "stabilising (< 0)",
+                          "holds": holds(v)})
+    return "\n".join(L) + "\n", json_rows
 
 
 def main(argv=None) -> int:
@@ -266,6 +346,9 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", default=None,
                     help="keep the runs' folders here and reuse finished ones (default: a temporary folder)")
     ap.add_argument("--docs", default=os.path.join(ROOT, "docs", "fidelity"), help="where the markdown goes")
+    ap.add_argument("--json-only", action="store_true",
+                    help="write only the JSON rows, running nothing: Lorenz from the committed lorenz.md in --docs, "
+                         "published P recomputed in-process")
     args = ap.parse_args(argv)
     parts = [p.strip() for p in args.only.split(",") if p.strip()]
     bad = [p for p in parts if p not in ("lorenz", "published_p")]
@@ -278,13 +361,27 @@ def main(argv=None) -> int:
         workdir = args.runs or tmp
         os.makedirs(workdir, exist_ok=True)
         for part in parts:
-            text = lorenz(args, workdir) if part == "lorenz" else published_p(args, workdir)
             path = os.path.join(args.docs, f"{part}.md")
-            with open(path + ".tmp", "w") as fh:
-                fh.write(text)
-            os.replace(path + ".tmp", path)
-            print("wrote", os.path.relpath(path, ROOT))
+            if args.json_only and part == "lorenz":
+                with open(path) as fh:
+                    text, rows = None, lorenz_rows_from_markdown(fh.read())
+            elif args.json_only:
+                text, rows = None, published_p(replace_args(args, check_commands=False), workdir)[1]
+            else:
+                text, rows = lorenz(args, workdir) if part == "lorenz" else published_p(args, workdir)
+            outputs = [(os.path.join(args.docs, f"{part}.json"), json.dumps(rows, indent=1) + "\n")]
+            if text is not None:
+                outputs.append((path, text))
+            for out, body in outputs:
+                with open(out + ".tmp", "w") as fh:
+                    fh.write(body)
+                os.replace(out + ".tmp", out)
+                print("wrote", os.path.relpath(out, ROOT))
     return 0
+
+
+def replace_args(args: argparse.Namespace, **changes) -> argparse.Namespace:
+    return argparse.Namespace(**{**vars(args), **changes})
 
 
 if __name__ == "__main__":
