@@ -1,0 +1,556 @@
+"""The inventory of what the five source documents claim, and how jaxdip decides each claim.
+
+One ``Claim`` per numbered table, per figure with a quantitative message and per numeric claim in the prose of
+the paper (Bernstein, King, Tran), King's thesis (ch. 1-4), Stumfoll's thesis and Aranovskiy et al.; figures with
+nothing to score are listed once in ``QUALITATIVE``. ``experiments/fidelity_index.py`` turns this list, the
+readings rows ``docs/fidelity/*.json`` and the ``metrics.json`` of experiment runs into ``docs/fidelity.md``.
+
+A claim's status is decided in one of these ways (in this order of precedence):
+
+- ``readings=True``: rows of the readings studies (``experiments/fidelity*.py`` write ``docs/fidelity/<name>.json``,
+  one row per reading with ``holds`` yes/no/undecided) under the claim's id. No rows yet: "readings pending" (and
+  the default run's checks, if any, are shown beside it).
+- ``checks``: ``Check``s on the ``results`` of ``jaxdip run <experiment>`` (``metrics.json``), each with the
+  document's number and a stated rule (relative tolerance, the document's value inside our 95% interval, one
+  interval entirely below another, a threshold). All hold: reproduced; one fails: not reproduced; else undecided.
+- ``test``: checked by the named test against an independent reference, not by a run's number.
+- ``input``: a table of parameters the models use; nothing to reproduce.
+- ``not_attempted``: why not.
+
+Claim ids: ``<doc>:<kind>-<number>[<suffix>]`` with the document's own numbering; kind ``claim`` plus a slug for
+a number in the prose. Tolerances are ours (the documents state none); each ``Check`` says its rule.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+DOCUMENTS = {
+    "paper": "Bernstein, King, Tran: A moving horizon state estimator for real-time stabilization of a DIP",
+    "thesis": "King: Nonlinear feedback controllers and state estimators (PhD thesis)",
+    "stumfoll": "Stumfoll: Discrete-time neural network based state observer ... (MS thesis)",
+    "aranovskiy": "Aranovskiy et al.: Bias propagation and estimation in homogeneous differentiators",
+}
+RULES = ("close", "in_ci", "below", "true", "false", "ge", "le", "ratio_ge")
+
+
+@dataclass(frozen=True)
+class Check:
+    """One comparison of a run's result with the document. ``key`` (and ``other``) are paths into
+    ``metrics.json["results"]`` with ``/`` between levels (a list level takes an integer index).
+
+    rule: ``close`` |ours - value| <= tol |value| (``other``'s value in place of ``value`` when given); ``in_ci`` value inside ours' 95% interval; ``below`` ours'
+    interval entirely below ``other``'s (entirely above: fails; overlapping: undecided; a value without interval
+    counts as a point); ``true``/``false`` a boolean result; ``ge``/``le`` ours >= / <= value; ``ratio_ge``
+    ours / other >= value.
+    """
+
+    exp: str
+    rule: str
+    key: str
+    label: str
+    value: float | None = None
+    other: str | None = None
+    tol: float | None = None
+    ci: str | None = None  # path of key's interval when it is not the sibling ``<key>_ci95``
+    other_ci: str | None = None
+
+    def __post_init__(self):
+        if self.rule not in RULES:
+            raise ValueError(f"{self.key}: unknown rule {self.rule!r}")
+        if self.rule in ("below", "ratio_ge") and self.other is None:
+            raise ValueError(f"{self.key}: rule {self.rule} needs other")
+        if self.rule == "close" and (self.value is None) == (self.other is None):
+            raise ValueError(f"{self.key}: rule close needs value or other")
+        if self.rule in ("in_ci", "ge", "le", "ratio_ge") and self.value is None:
+            raise ValueError(f"{self.key}: rule {self.rule} needs value")
+        if self.rule == "close" and self.tol is None:
+            raise ValueError(f"{self.key}: rule close needs tol")
+
+
+@dataclass(frozen=True)
+class Claim:
+    id: str
+    where: str  # section and the document's own words that locate it
+    claim: str  # what the document claims, in our words, with its numbers
+    document: str  # the document's number(s) as text
+    exp: str | None = None  # the jaxdip experiment that addresses it
+    keys: str = ""  # config keys / readings that address it
+    checks: tuple[Check, ...] = ()
+    readings: bool = False
+    test: str | None = None
+    input: bool = False
+    not_attempted: str | None = None
+    notes: str = ""
+
+    @property
+    def doc(self) -> str:
+        return self.id.split(":", 1)[0]
+
+    def __post_init__(self):
+        doc, _, rest = self.id.partition(":")
+        if doc not in DOCUMENTS or not rest or "-" not in rest:
+            raise ValueError(f"{self.id}: not <doc>:<kind>-<number>")
+        ways = [bool(self.readings or self.checks), self.test is not None, self.input,
+                self.not_attempted is not None]
+        if sum(ways) != 1:
+            raise ValueError(f"{self.id}: give exactly one of readings/checks, test, input, not_attempted")
+        if any(c.exp != self.exp for c in self.checks):
+            raise ValueError(f"{self.id}: a check names another experiment than the claim's")
+
+
+@dataclass(frozen=True)
+class Qualitative:
+    id: str
+    what: str
+    doc: str = field(init=False)
+
+    def __post_init__(self):
+        object.__setattr__(self, "doc", self.id.split(":", 1)[0])
+
+
+def _below(exp, a, b, label, **kw):
+    return Check(exp, "below", a, label, other=b, **kw)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# the checks shared by the paper's Table 1 and the thesis's Table 3.2 (the same laboratory table, printed twice)
+_CPX_LDF = tuple(
+    _below("dip-cpx-ldf", f"cpx/{s}_var", f"ldf/{s}_var", f"{s} variance: CPX below LDF ({u})")
+    for s, u in (("xc", "cm^2"), ("alpha", "deg^2"), ("theta", "deg^2"))
+) + tuple(
+    _below("dip-cpx-ldf", f"cpx/{s}_abs_trial_mean_{u}", f"ldf/{s}_abs_trial_mean_{u}",
+           f"|trial mean of {s}|: CPX below LDF ({u})")
+    for s, u in (("xc", "cm"), ("alpha", "deg"), ("theta", "deg"))
+)
+_TABLE1_NUMBERS = ("lab, one run each: CPX xc mean -0.002 cm var 5.52 cm^2, alpha .178 deg / 35.2 deg^2, theta "
+                   "-.45 deg / 3.89 deg^2; LDF -0.119 / 5.98, 1.21 / 41.8, -.867 / 6.78")
+_GAMMA = Check("dip-cpx-ldf", "close", "gamma_criterion/gamma", "gamma criterion of Prop. 1.4.3 at 1 ms (outputs "
+               "xc, alpha, theta), within 1% of 24400", value=24400.0, tol=0.01)
+_GAMMA_OSC = (
+    _below("dip-cpx-ldf", "velocity_trial/theta_dot_rms_err_cpx", "velocity_trial/theta_dot_rms_err_cpx_criterion",
+           "theta_dot RMS error (rad/s), seed 0: gamma 150 below gamma at the criterion"),
+    _below("dip-cpx-ldf", "gamma_sweep/theta_dot_rms_err/0", "gamma_sweep/theta_dot_rms_err/-1",
+           "theta_dot RMS error (rad/s) of the gamma sweep: gamma 1 below gamma 1e5"),
+)
+
+CLAIMS: list[Claim] = [
+    # ---------------------------------------------------------------------------------------------- paper
+    Claim("paper:table-1", "§5, Table 1 (6.5 s of stabilisation, laboratory DIP)",
+          "Power-series control fed by CPX (gamma 150) keeps the DIP closer to upright and with less variance in "
+          "every measured state than fed by Quanser's low-pass derivative filter (LDF).",
+          _TABLE1_NUMBERS, exp="dip-cpx-ldf",
+          keys="dip-cpx-ldf readings (weight reading of (9)/(3.7), disturbance, encoder resolution, actuator "
+               "nonlinearities)", checks=_CPX_LDF, readings=True,
+          notes="Laboratory numbers; the simulation can decide the ranking, not the lab's scale."),
+    Claim("paper:prop-1", "§2, Proposition 1", "The proximal observer's error obeys "
+          "e_{k+1} = Phi U Lbar U^T e_k + Phi U Lddot U^T zeta_k - eta_k.", "an identity (no number)",
+          test="tests/test_theory_mhe.py::test_prop_1_4_2_cpx_and_1_5_1_scpx (same recursion as thesis Prop. 1.4.2)"),
+    Claim("paper:prop-2", "§2, Proposition 2 and §5 'gamma >= 24400 for the DIP system'",
+          "With fixed gamma > (||Phi|| - 1)/lambda_min the estimate error stays bounded; for the DIP this asks for "
+          "gamma >= 24400.", "24400", exp="dip-cpx-ldf", keys="dip-cpx-ldf (gamma_criterion)", checks=(_GAMMA,)),
+    Claim("paper:claim-5-gamma-oscillation", "§5, last paragraph",
+          "With gamma above the criterion the CPX velocity estimates oscillate with large amplitude at high "
+          "frequency, unusable for control; gamma had to be lowered by two orders of magnitude (to 150-ish).",
+          "gamma 24400 -> ~244 (two orders); lab observation", exp="dip-cpx-ldf",
+          keys="dip-cpx-ldf (gamma_sweep, velocity_trial)", checks=_GAMMA_OSC,
+          notes="Simulation: the loop still stabilises past the criterion; only the estimate error grows."),
+    # ---------------------------------------------------------------------------------------------- thesis ch. 1
+    Claim("thesis:thm-1.3.2", "§1.3, Theorem 1.3.2",
+          "The proximal point MHE with weights gamma_k growing as the theorem asks converges for nonlinear "
+          "fitting functionals (the two-measurement functional (1.9) as the example).", "a theorem (no number)",
+          keys="fid-dip readings study", readings=True,
+          notes="Not attempted before issue 16."),
+    Claim("thesis:prop-1.4.1", "§1.4, Proposition 1.4.1",
+          "With gamma_k as in Theorem 1.3.2 the least-squares proximal observer (1.10) converges.",
+          "a proposition (no number)", keys="fid-dip readings study", readings=True),
+    Claim("thesis:prop-1.4.2", "§1.4, Proposition 1.4.2", "Error recursion of the proximal observer (as paper "
+          "Prop. 1).", "an identity", test="tests/test_theory_mhe.py::test_prop_1_4_2_ltv_horizon"),
+    Claim("thesis:prop-1.4.3", "§1.4, Proposition 1.4.3; §3.3 'gamma >= 24400 for the DIP system'",
+          "Fixed gamma above (||Phi|| - 1)/lambda_min bounds the error by kappa/(1 - r); 24400 for the DIP.",
+          "24400", exp="dip-cpx-ldf", keys="dip-cpx-ldf (gamma_criterion)", checks=(_GAMMA,),
+          notes="The bound itself: tests/test_theory_mhe.py::test_prop_1_4_3_bound_1000_seeds."),
+    Claim("thesis:prop-1.5.2", "§1.5.2, Proposition 1.5.2", "Stability of the subspace (SCPX) estimates.",
+          "a proposition", test="tests/test_theory_mhe.py::test_prop_1_4_2_cpx_and_1_5_1_scpx"),
+    Claim("thesis:fig-1.1-norm", "§1.6, Fig. 1.1 and 'Both proximal point methods had smaller estimation error "
+          "than the EKF'", "Over 50 Lorenz trials (h = 0.001, 20 time units, sigma_eta 0.1, sigma_eps 5) CPX "
+          "(gamma 0.5) and SCPX (gamma 50) have a smaller mean norm error e than an EKF with the true noise.",
+          "ordering only (Fig. 1.1); no number printed", exp="lorenz-mhe",
+          keys="lorenz-mhe: eps_reading, eta_reading, ekf_eta_time, eta_time, alignment",
+          checks=tuple(_below("lorenz-mhe", f"{m}/mean_norm_error", "ekf/mean_norm_error", f"e: {m.upper()} below EKF")
+                       for m in ("cpx", "scpx")), readings=True),
+    Claim("thesis:fig-1.1-xL", "§1.6, Fig. 1.1 and 'the SCPX had the smallest estimation error of the unmeasured "
+          "state variable x_L'", "SCPX has the smallest mean x_L error of the four estimators.",
+          "ordering only (Fig. 1.1)", exp="lorenz-mhe", keys="as thesis:fig-1.1-norm",
+          checks=tuple(_below("lorenz-mhe", "scpx/mean_xL_error", f"{m}/mean_xL_error", f"e_xL: SCPX below "
+                              f"{m.upper()}") for m in ("cpx", "ekf", "ekf2")), readings=True),
+    Claim("thesis:claim-1.6-ekf2", "§1.6, 'the noise parameters were tuned for a better fit of the unmeasured state "
+          "variable x_L, the best parameters found were sigma_eta = .005 and sigma_eps = 10'",
+          "EKF2 (sigma_eta 0.005, sigma_eps 10) fits x_L better than the EKF with the true noise levels.",
+          "0.005, 10 (no error printed)", exp="lorenz-mhe", keys="as thesis:fig-1.1-norm",
+          checks=(_below("lorenz-mhe", "ekf2/mean_xL_error", "ekf/mean_xL_error", "e_xL: EKF2 below EKF"),),
+          readings=True),
+    Claim("thesis:fig-1.2", "§1.6, Fig. 1.2", "SCPX recovers the extrema of x_L's oscillations more closely than the "
+          "EKF.", "visual (Fig. 1.2)", exp="lorenz-mhe", keys="as thesis:fig-1.1-norm",
+          checks=(_below("lorenz-mhe", "scpx/mean_xL_error_at_extrema", "ekf/mean_xL_error_at_extrema",
+                         "x_L error where |x_L| > 15: SCPX below EKF"),), readings=True),
+    # ---------------------------------------------------------------------------------------------- thesis ch. 2
+    Claim("thesis:prop-2.4.2", "§2.4, Proposition 2.4.2", "The continuous relaxed projection control (2.14) is "
+          "globally exponentially stable when gamma(t) > zeta for all t.", "a proposition",
+          keys="fid-dip readings study", readings=True, notes="Not attempted before issue 16."),
+    Claim("thesis:procedure-1", "§2.6.4, Procedure 1; §3.2.1 'N(0, 5 x 10^-5)'",
+          "The ensemble Kalman search (2.21)-(2.24) finds a stabilising P; on the DIP with state noise "
+          "N(0, 5e-5) every 1 ms and one initial state per member.", "5e-5 (std or variance not said)",
+          exp="eki-dip", keys="eki-dip readings (noise as std or variance, x0 per member)",
+          checks=(Check("eki-dip", "ge", "judge/stabilized_fraction", "stabilised fraction of RP (gamma 40) with "
+                        "the found P, at least 0.95", value=0.95),), readings=True),
+    Claim("thesis:claim-2.7.1-v", "§2.7.1, 'after about 150 iterations the ensemble mean was' v = [-.9975, -.07]",
+          "On the linear example the search (J = 50, K = 8) ends at a stabilising v close to [-0.9975, -0.07].",
+          "v = [-0.9975, -0.07], ~150 iterations", exp="eki-linear", keys="eki-linear",
+          checks=(Check("eki-linear", "true", "stabilizing", "found P stabilising"),
+                  Check("eki-linear", "ge", "stabilizing_fraction", "fraction of search seeds ending stabilising, "
+                        "at least 0.9", value=0.9),
+                  Check("eki-linear", "ge", "alignment_with_thesis_v", "|cos| between our v and the thesis's, at "
+                        "least 0.99", value=0.99))),
+    Claim("thesis:fig-2.1", "§2.7.1, Fig. 2.1-2.2 and 'slower than the LQR control to bring the system near the "
+          "origin ... transitions to a faster convergence rate once near'",
+          "From x0 = [2, 1], relaxed projection is slower than the LQR to come near the origin and then converges "
+          "faster.", "visual (Fig. 2.1-2.2)", exp="eki-linear", keys="eki-linear (steps_to_reach)",
+          checks=(Check("eki-linear", "ratio_ge", "steps_to_reach/1/rp", "steps to ||x|| < 1: RP at least the "
+                        "LQR's (slower to come near)", value=1.0, other="steps_to_reach/1/lqr"),
+                  _below("eki-linear", "steps_to_reach/0.01/rp", "steps_to_reach/0.01/lqr",
+                         "steps to ||x|| < 1e-2: RP fewer than the LQR")),
+          notes="The thesis tuned gamma so that RP's largest |u| matched the LQR's for its v; we keep its gamma, "
+                "so with our v RP's largest |u| is larger (max_abs_u in metrics.json)."),
+    Claim("thesis:fig-2.2", "§2.7.1, Fig. 2.2 (log scale)", "The relaxed projection's convergence rate grows as the "
+          "state nears the origin (superlinear on the log plot), the LQR's stays constant.", "visual",
+          exp="eki-linear", keys="eki-linear (steps_to_reach)",
+          checks=(_below("eki-linear", "steps_to_reach/0.0001/rp", "steps_to_reach/0.01/lqr",
+                         "steps to ||x|| < 1e-4 by RP below the LQR's steps to 1e-2"),)),
+    Claim("thesis:claim-2.7.2-v", "§2.7.2, 'after about 250 iterations the ensemble mean was' v = [.995, .1003]",
+          "On the nonlinear example the search (J = 100, K = 4) ends at a stabilising v close to [0.995, 0.1003].",
+          "v = [0.995, 0.1003], ~250 iterations", exp="eki-nonlinear", keys="eki-nonlinear",
+          checks=(Check("eki-nonlinear", "true", "stabilizing", "found P stabilising"),
+                  Check("eki-nonlinear", "ge", "stabilizing_fraction_single_ensemble", "searches with one ensemble "
+                        "(the thesis's procedure) ending stabilising, at least 0.9", value=0.9),
+                  Check("eki-nonlinear", "ge", "alignment_with_thesis_v", "|cos| with the thesis's v, at least "
+                        "0.99", value=0.99))),
+    Claim("thesis:fig-2.3", "§2.7.2, Fig. 2.3", "Relaxed projection with the found P stabilises the nonlinear "
+          "example smoothly.", "visual", exp="eki-nonlinear", keys="eki-nonlinear",
+          checks=(Check("eki-nonlinear", "ge", "stabilized_fraction_of_initial_states", "random initial states "
+                        "brought below 1e-3, at least 0.99", value=0.99),)),
+    # ---------------------------------------------------------------------------------------------- thesis ch. 3
+    Claim("thesis:table-3.3", "§3.1.1, Table 3.3", "Parameters of the Quanser DIP.", "the table", input=True),
+    Claim("thesis:claim-3.2.1-one-vector", "§3.2.1, 'P using one free basis vector could be found which were "
+          "stabilizing in a neighborhood of the origin for simulations'",
+          "The search with one free vector (singular value fixed at 1e6) finds P stabilising near upright in "
+          "simulation.", "s = 1e6", keys="fid-dip readings study", readings=True,
+          notes="Not attempted before issue 16."),
+    Claim("thesis:claim-3.2.1-search", "§3.2.1, 'J = 80 for a maximum of 1000 iterations ... gamma = 10'",
+          "The two-vector search finds a P (3.6) that stabilises the DIP model.", "J = 80, 1000 iterations",
+          exp="eki-dip", keys="eki-dip",
+          checks=(Check("eki-dip", "ge", "judge/stabilized_fraction", "RP (gamma 40) with the found P from random "
+                        "states, at least 0.95", value=0.95),
+                  Check("eki-dip", "le", "performance/failed", "failed held-out performance runs, none",
+                        value=0.0))),
+    Claim("thesis:eq-3.6", "§3.2.1, (3.6): v1, v2, s = [9.99e5, 3.37e4]",
+          "The published P with relaxed projection (2.14), gamma = 40, stabilises the DIP (Fig. 3.3 simulation, "
+          "Table 3.1 laboratory). Readings decide it by local (linearised) stability at upright.",
+          "stabilising (no eigenvalue printed)", exp="dip-controllers",
+          keys="dip-controllers: variant, Mw, published_P_order, published_P_flip, published_P_angles, "
+               "published_P_units, published_P_construction, rp_gamma",
+          checks=(Check("dip-controllers", "true", "published_P/linearised_stable", "linearised closed loop with "
+                        "(3.6) stable (default reading)"),), readings=True),
+    Claim("thesis:fig-3.3", "§3.2.2, Fig. 3.3 (simulation from x0 = [.0192, .0025, .0287, -.0392, -.004, -.0242])",
+          "All three controls stabilise the model from the thesis's x0; RP has the largest control effort.",
+          "visual", exp="dip-controllers", keys="dip-controllers",
+          checks=(*(Check("dip-controllers", "true", f"{c}/from_thesis_x0/stabilized", f"{c.upper()} stabilises "
+                          "from the thesis's x0") for c in ("lqr", "ps", "rp")),
+                  _below("dip-controllers", "lqr/from_thesis_x0/max_abs_u", "rp/from_thesis_x0/max_abs_u",
+                         "max |u| (V): LQR below RP (library P)")),
+          notes="RP here uses the library's P; the published P does not stabilise the model (thesis:eq-3.6)."),
+    Claim("thesis:table-3.1", "§3.2.2, Table 3.1 (laboratory, a typical 20 s)",
+          "RP keeps the smallest mean |state| and variance of every state; its mean |u| is almost twice the "
+          "LQR's and PS's, its variance more than twice.",
+          "mean/var LQR, PS, RP: |alpha| 3.4/3.03, 1.8/1.1, 1.4/.85; |theta| 1.9/.81, .9/.35, .46/.09; |xc| "
+          "29.4/410.7, 36.5/639.4, 23.4/285.1; |u| 1.7/1.5, 1.8/2.9, 2.5/5.0 (units not printed)",
+          exp="dip-controllers", keys="dip-controllers readings (state variances, the published P where stable)",
+          checks=(*(_below("dip-controllers", f"rp/states/{s}/mean_abs", f"lqr/states/{s}/mean_abs",
+                           f"mean |{s}|: RP below LQR") for s in ("alpha", "theta", "xc")),
+                  Check("dip-controllers", "ratio_ge", "rp/u/mean_abs", "mean |u|: RP at least 1.3x the LQR's "
+                        "(document 2.5/1.7 = 1.47)", value=1.3, other="lqr/u/mean_abs"),
+                  Check("dip-controllers", "ratio_ge", "rp/u/var", "var u: RP at least 2x the LQR's (document "
+                        "5.0/1.5 = 3.3)", value=2.0, other="lqr/u/var")),
+          readings=True, notes="Simulation with the library's P; laboratory magnitudes are not expected."),
+    Claim("thesis:table-3.2", "§3.3, Table 3.2 (= paper Table 1)", "As paper:table-1.", _TABLE1_NUMBERS,
+          exp="dip-cpx-ldf", keys="as paper:table-1", checks=_CPX_LDF, readings=True),
+    Claim("thesis:claim-3.3-gamma-oscillation", "§3.3, last paragraph (= paper §5)",
+          "As paper:claim-5-gamma-oscillation.", "gamma 24400 -> two orders lower", exp="dip-cpx-ldf",
+          keys="dip-cpx-ldf (gamma_sweep, velocity_trial)", checks=_GAMMA_OSC),
+    Claim("thesis:claim-3.3-ekf", "§3.3, 'an extended Kalman filter was not able to supply state estimates to a "
+          "power-series controller such that the system could be stabilized even in simulations'",
+          "Bernstein's EKF-fed power-series control fails on the noisy nonlinear DIP model.", "no number",
+          not_attempted="no EKF-fed DIP loop is built; the claim cites Bernstein's thesis, not this work's "
+                        "results"),
+    # ---------------------------------------------------------------------------------------------- thesis ch. 4
+    Claim("thesis:eq-4.4", "§4.3.1, (4.1)-(4.4)", "E[I] = R0 - integral of g over the protected set; R0 = "
+          "beta gamma/(eta (gamma + delta)).", "formulas (R0 = 3 with our parameters)", exp="ifn-protection",
+          keys="ifn-protection", checks=(
+              Check("ifn-protection", "true", "model/R0_in_ci", "R0 formula inside the Monte Carlo 95% interval"),
+              Check("ifn-protection", "true", "model/E_Z_in_ci", "E[Z] = beta/eta inside the interval"),
+              Check("ifn-protection", "true", "controls_mc/level set, uniform h/quadrature_in_ci",
+                    "E[I] of the uniform-cost level set: (4.4) inside the interval"))),
+    Claim("thesis:thm-4.4.1", "§4.4.1, Theorem 4.4.1", "The optimal protected set is the upper level set of g/h "
+          "at r-bar: no other set with the same E[I] costs less.", "a theorem", exp="ifn-protection",
+          keys="ifn-protection",
+          checks=tuple(Check("ifn-protection", "true", f"theorem/{h}/level_set_cheapest", f"{h} cost: level set "
+                             "cheaper than every tuned competitor") for h in ("uniform", "distance", "shell"))),
+    Claim("thesis:claim-4.4-F", "§4.4.1, (4.7)-(4.8)", "F(r) is nonincreasing (and upper semi-continuous); r-bar "
+          "is where it crosses V.", "properties", exp="ifn-protection", keys="ifn-protection",
+          checks=tuple(Check("ifn-protection", "true", f"F_properties/{h}/nonincreasing_within_brackets",
+                             f"F nonincreasing ({h} cost)") for h in ("uniform", "distance", "shell", "flat"))),
+    Claim("thesis:claim-4.4.2-corollary", "§4.4.1, Corollary 4.4.2 and the non-unique case",
+          "The level set is the unique optimum when F(r-bar) = V; otherwise many sets are optimal.",
+          "no number", exp="ifn-protection", keys="ifn-protection (flat_case)",
+          checks=(Check("ifn-protection", "false", "flat_case/unique", "the flat-ratio case is not unique"),
+                  Check("ifn-protection", "close", "flat_case/sets/flat set after t_c/h", "a second optimal set "
+                        "costs V/r-bar (1e-6 relative)", other="flat_case/optimal_cost_V_over_r_bar", tol=1e-6))),
+    Claim("thesis:claim-4.5-autonomous", "§4.5, biologically feasible (cell-autonomous) control",
+          "A cell-autonomous rule can realise the optimal protection as a threshold on the local signal.",
+          "no number", not_attempted="no scored metric: implemented in jaxdip.immune (docs/immune.md) without a "
+                                     "results key to compare"),
+    # ---------------------------------------------------------------------------------------------- Stumfoll
+    Claim("stumfoll:table-4.1", "§4.1, Table 4.1", "TWIP physical parameters.", "the table", input=True),
+    Claim("stumfoll:table-4.2", "§4.2.2, Table 4.2", "DC motor parameters.", "the table", input=True),
+    Claim("stumfoll:table-4.3", "§4.2.3, Table 4.3", "Gyroscope specifications.", "the table", input=True),
+    Claim("stumfoll:table-4.4", "§4.2.3, Table 4.4", "Accelerometer specifications.", "the table", input=True),
+    Claim("stumfoll:fig-5.5", "§5.3, Fig. 5.5 (stability test from theta = 10 deg)",
+          "Uncontrolled from 10 deg the pendulum swings about the hanging position with damped oscillation (motor "
+          "dynamics as friction) and the position settles at a positive offset proportional to the start angle.",
+          "10 deg start; visual", exp="twip-dmso", keys="fid-twip readings study", readings=True,
+          notes="Not attempted before issue 16."),
+    Claim("stumfoll:table-7.1", "§7.4, Table 7.1", "Noise parameters of the simulated sensors (white noise, "
+          "Gauss-Markov walking bias, encoder step 0.000147 m).", "the table", input=True),
+    Claim("stumfoll:fig-7.1", "§7.4, Fig. 7.1", "The Allan variance of the simulated gyroscope (Table 7.1 model) "
+          "follows the measured one closely, better than white noise alone.", "Table 7.1 parameters; visual",
+          exp="twip-dmso", keys="fid-twip readings study", readings=True, notes="Not attempted before issue 16."),
+    Claim("stumfoll:table-8.1", "§8.1.1, Table 8.1", "TWIP parameters of the simulations.", "the table",
+          input=True),
+    Claim("stumfoll:table-8.2", "§8.1.2, Table 8.2", "Modified (true) TWIP parameters.", "the table", input=True),
+    Claim("stumfoll:claim-8.1-15s", "§8.1.1, 'reaching the desired states in 15 seconds'",
+          "The LQR drives the TWIP from x0 to the desired states in 15 s.", "15 s", exp="twip-dmso",
+          keys="fid-twip readings study", readings=True, notes="Not attempted before issue 16."),
+    Claim("stumfoll:fig-8.2", "§8.1.1, Fig. 8.2 'In all cases the DMSO is able to capture the true system state "
+          "to a higher degree of accuracy in a shorter time period'",
+          "Without noise or uncertainty the DMSO converges faster than the KF in every state.", "visual",
+          exp="twip-dmso", keys="twip-dmso (kf, kf_printed, kf_posterior)",
+          checks=tuple(Check("twip-dmso", "true", f"findings/nominal/kf/dmso_converges_first/{s}",
+                             f"DMSO converges before the KF ({s})") for s in ("x", "x_dot", "phi", "phi_dot")),
+          notes="Against the KF's prediction (`kf`, dead-beat here); the full run also scores `kf_printed`, (170) "
+                "as printed, against which it holds in every state."),
+    Claim("stumfoll:fig-8.3", "§8.1.1, Fig. 8.3", "After the DMSO's early convergence, the KF ends with the better "
+          "tilt-rate estimate (nominal case).", "visual", exp="twip-dmso", keys="twip-dmso",
+          checks=(Check("twip-dmso", "true", "findings/nominal/kf/kf_ends_better_tilt_rate",
+                        "tail RMS phi_dot: KF below DMSO"),)),
+    Claim("stumfoll:claim-8.1.1-25pct", "§8.1.1, Fig. 8.4 'errors up to 25%'",
+          "The DMSO's uncertainty estimate follows f (153) within about 25% (nominal case).", "25%",
+          exp="twip-dmso", keys="twip-dmso",
+          checks=tuple(Check("twip-dmso", "le", f"nominal/dmso/uncertainty_rel_error/{s}",
+                             f"relative RMS error of f-hat ({s} row) over the run, at most 0.25", value=0.25)
+                       for s in ("x_dot", "phi_dot"))),
+    Claim("stumfoll:claim-8.1.2-5deg", "§8.1.2, 'The tilt angle overshoots the desired value by 5 degrees'",
+          "With parameter uncertainty the tilt overshoots by 5 deg.", "5 deg", exp="twip-dmso",
+          keys="fid-twip readings study", readings=True, notes="Not attempted before issue 16."),
+    Claim("stumfoll:fig-8.6", "§8.1.2, Fig. 8.6 'an order of magnitude more accurate'",
+          "With parameter uncertainty the DMSO's estimates are better than the KF's in all states, on average an "
+          "order of magnitude.", "x10", exp="twip-dmso", keys="twip-dmso",
+          checks=(Check("twip-dmso", "ratio_ge", "param/kf/rms_error_first_1s/x_dot", "first-second RMS x_dot: KF / "
+                        "DMSO at least 10", value=10.0, other="param/dmso/rms_error_first_1s/x_dot"),
+                  Check("twip-dmso", "ratio_ge", "param/kf/rms_error_first_1s/phi_dot", "first-second RMS phi_dot: "
+                        "KF / DMSO at least 10", value=10.0, other="param/dmso/rms_error_first_1s/phi_dot"))),
+    Claim("stumfoll:fig-8.7", "§8.1.2, Fig. 8.7 'the Kalman filter does obtain a better estimate of the tilt rate "
+          "after five seconds'", "With parameter uncertainty the KF ends better on the tilt rate.", "after 5 s",
+          exp="twip-dmso", keys="twip-dmso",
+          checks=(Check("twip-dmso", "true", "findings/param/kf/kf_ends_better_tilt_rate",
+                        "tail RMS phi_dot: KF below DMSO"),)),
+    Claim("stumfoll:fig-8.9", "§8.1.2, Fig. 8.9 'converges to the true uncertainty in .1 seconds as compared to "
+          ".25 seconds'", "Gamma = 0.5 makes the uncertainty estimate converge faster and closer than Gamma = 0.1.",
+          "0.1 s vs 0.25 s", exp="twip-dmso", keys="twip-dmso (param_gamma_variant)",
+          checks=(_below("twip-dmso", "findings/gamma_variant/settled_rel_error/variant/phi_dot",
+                         "findings/gamma_variant/settled_rel_error/gamma/phi_dot",
+                         "settled relative error of f-hat (phi_dot row): Gamma 0.5 below Gamma 0.1"),)),
+    Claim("stumfoll:fig-8.10", "§8.1.2, Fig. 8.10 'on average one order of magnitude smaller'",
+          "At dt = 0.001 s both estimators' errors are about ten times smaller than at 0.01 s.", "x10",
+          exp="twip-dmso", keys="twip-dmso (param_dt_fine)",
+          checks=(Check("twip-dmso", "ge", "findings/dt_fine/geometric_mean_ratio/dmso", "DMSO error ratio coarse/"
+                        "fine, at least 5 (an order of magnitude, halved)", value=5.0),
+                  Check("twip-dmso", "ge", "findings/dt_fine/geometric_mean_ratio/kf", "KF error ratio coarse/fine, "
+                        "at least 5", value=5.0))),
+    Claim("stumfoll:fig-8.11", "§8.1.2, Fig. 8.11 'on average two orders of magnitude more accurate'",
+          "At dt = 0.001 s the uncertainty estimates are about a hundred times more accurate.", "x100",
+          exp="twip-dmso", keys="twip-dmso (param_dt_fine)",
+          checks=(Check("twip-dmso", "ge", "findings/dt_fine/uncertainty_rms_error_ratio_coarse_over_fine/phi_dot",
+                        "f-hat error ratio coarse/fine (phi_dot row), at least 50 (two orders, halved)",
+                        value=50.0),)),
+    Claim("stumfoll:fig-8.13", "§8.1.3, Fig. 8.13 'the Kalman filter takes 1.3 seconds ... the DMSO takes .15 "
+          "seconds'", "With noise and uncertainty the DMSO's tilt rate converges in 0.15 s, the KF's in 1.3 s.",
+          "DMSO 0.15 s, KF 1.3 s", exp="twip-dmso", keys="twip-dmso: kf, kf_printed, kf_posterior; fid-twip "
+          "readings", checks=(
+              Check("twip-dmso", "close", "noise/dmso/convergence_time_s/phi_dot", "DMSO phi_dot convergence "
+                    "time (s) within 30% of 0.15", value=0.15, tol=0.3, ci="noise/dmso/convergence_time_s_ci95/"
+                    "phi_dot"),
+              Check("twip-dmso", "close", "noise/kf/convergence_time_s/phi_dot", "KF phi_dot convergence time (s) "
+                    "within 30% of 1.3", value=1.3, tol=0.3, ci="noise/kf/convergence_time_s_ci95/phi_dot")),
+          readings=True),
+    Claim("stumfoll:claim-8.1.3-position", "§8.1.3, 'equal accuracy after 4 seconds in all states except the "
+          "position, where the DMSO provides an estimate error two orders of magnitude smaller'",
+          "With noise both filters end equal except in position, where the DMSO is 100x better.", "x100",
+          exp="twip-dmso", keys="twip-dmso", checks=(
+              Check("twip-dmso", "ratio_ge", "noise/kf/rms_error_tail/x", "tail RMS x: KF / DMSO at least 50",
+                    value=50.0, other="noise/dmso/rms_error_tail/x"),), readings=True),
+    Claim("stumfoll:table-8.3", "§8.2, Table 8.3 and 'on average 53.1% better than LQR control, and even 37.3% "
+          "better than the optimal LQR controller for the linear, or nominal, system'",
+          "LQR + extra control beats LQR alone in all four cases, by 53.1% on average, and the nominal system by "
+          "37.3%.", "LQR / LQR+extra / nominal: param 248.92 / 123.07 / 240.72; unmodeled 587.04 / 235.35 / "
+          "240.72; deadzone 358.42 / 181.53 / 326.10; deadzone+backlash 1451.9 / 688.17 / 1434.5; mean "
+          "improvement 53.1%", exp="twip-extra-control",
+          keys="twip-extra-control: virtual, nonlinear_truth, backlash, k1, gamma; fid-twip readings",
+          checks=(Check("twip-extra-control", "close", "mean_improvement_table_cases", "mean improvement over LQR "
+                        "(fraction) within 0.1 of 0.531", value=0.531, tol=0.1 / 0.531),
+                  Check("twip-extra-control", "close", "param/lqr/score_mean", "LQR score, parameter uncertainty, "
+                        "within 10% of 248.92", value=248.92, tol=0.1)),
+          readings=True),
+    Claim("stumfoll:fig-8.18", "§8.2.2, Fig. 8.18 (unmodeled gains 3/4 and 2/5)", "LQR alone goes unstable; LQR + "
+          "extra control keeps the TWIP up.", "visual", exp="twip-extra-control",
+          keys="twip-extra-control (unmodeled_unstable, variants k1)",
+          checks=(Check("twip-extra-control", "ge", "unmodeled_unstable/lqr_diverged_fraction", "LQR falls in at "
+                        "least 10% of the seeds", value=0.1),
+                  Check("twip-extra-control", "ge", "unmodeled_unstable/extra_bounded_fraction", "LQR + extra "
+                        "(thesis gains) keeps at least 95% up", value=0.95)), readings=True),
+    Claim("stumfoll:sec-8.3", "§8.3 and Figs. 8.24-8.27 (the robot)", "On the robot the DMSO is as accurate as the "
+          "KF, oscillations of about 1 deg remain, the position settles near -0.05 m.", "1 deg, -0.05 m",
+          not_attempted="laboratory hardware results; no model of the robot's deadzone, backlash and tilt bias"),
+    # ---------------------------------------------------------------------------------------------- Aranovskiy
+    Claim("aranovskiy:table-1", "§II, Table 1", "Parameters of the reaction-wheel pendulum.", "the table",
+          input=True),
+    Claim("aranovskiy:table-2", "§III-D, Table 2", "LQR gains K = [-582, -83, -1.2] and differentiator parameters "
+          "[5, 12, 0.9]; with B from (2)-(3) A - BK is Hurwitz.", "the table",
+          test="tests/test_rwp_theory.py (A - BK Hurwitz with the input column of (2)-(3))"),
+    Claim("aranovskiy:prop-1", "§III-B, Proposition 1", "The homogeneous differentiator (10)-(11) is finite-time "
+          "stable for alpha in (1/2, 1).", "a proposition", not_attempted="finite-time stability is not scored; "
+          "the differentiators are tested against their equations (tests/test_rwp_observers.py)"),
+    Claim("aranovskiy:fig-3", "§III-D, Fig. 3 'the homogeneous differentiators provide faster stabilization ... "
+          "if the initial position is increased to theta(0) = 0.15, the linearization-based observer does not "
+          "provide system stabilization'", "HOMD settles faster than the Luenberger observer from 0.1; from 0.15 the "
+          "Luenberger loop falls, the HOMD loop holds.", "theta(0) 0.1 and 0.15; visual", exp="rwp-bias",
+          keys="rwp-bias (theta0, current_limit)",
+          checks=(_below("rwp-bias", "no_bias/homd/0.1/settle_time", "no_bias/luenberger/0.1/settle_time",
+                         "settle time from 0.1 (s): HOMD below Luenberger"),
+                  Check("rwp-bias", "le", "no_bias/luenberger/0.15/stabilized_fraction", "Luenberger from 0.15: "
+                        "stabilised fraction at most 0.5", value=0.5),
+                  Check("rwp-bias", "ge", "no_bias/homd/0.15/stabilized_fraction", "HOMD from 0.15: stabilised "
+                        "fraction at least 0.95", value=0.95)), readings=True),
+    Claim("aranovskiy:eq-15", "§III-C/D, (15) and Fig. 4 'x_p2 = e_p2 = -1.43 is predicted by (15)'",
+          "With bias d = -0.08 the velocity estimate settles at e_p2 = -1.43 (measured), as (15) predicts.",
+          "-1.43 (measured)", exp="rwp-bias", keys="rwp-bias",
+          checks=(Check("rwp-bias", "close", "bias/ep2_sim", "simulated e_p2 (rad/s) within 3% of -1.43",
+                        value=-1.43, tol=0.03),
+                  Check("rwp-bias", "close", "bias/ep2_formula", "(15) within 3% of -1.43", value=-1.43,
+                        tol=0.03))),
+    Claim("aranovskiy:eq-16", "§III-D, (16) and Fig. 4 'theta_r-dot = 138 radians per second'",
+          "With d = -0.08 the wheel keeps spinning at about 138 rad/s, as (16) predicts.", "138 (measured)",
+          exp="rwp-bias", keys="rwp-bias",
+          checks=(Check("rwp-bias", "close", "bias/thetar_dot_sim", "simulated wheel speed (rad/s) within 3% of "
+                        "138", value=138.0, tol=0.03),
+                  Check("rwp-bias", "close", "bias/thetar_dot_formula", "(16) within 3% of 138", value=138.0,
+                        tol=0.03))),
+    Claim("aranovskiy:remark-3", "§III-C, Remark 3", "A constant bias on the wheel angle does not bias the wheel "
+          "velocity estimate at equilibrium (e_r2 = 0).", "e_r2 = 0", exp="rwp-bias",
+          keys="fid-twip readings study", readings=True, notes="Not attempted before issue 16."),
+    Claim("aranovskiy:prop-2", "§IV, Proposition 2", "With the low-pass bias observer (17) the loop is stable for "
+          "gamma_d below a limit gamma-bar_d and unstable above.", "no number printed", exp="rwp-bias",
+          keys="rwp-bias", checks=(
+              Check("rwp-bias", "true", "gamma_d_bar_detail/simulations/0.95/stable_sim", "simulated loop stable "
+                    "at 0.95 gamma-bar_d"),
+              Check("rwp-bias", "false", "gamma_d_bar_detail/simulations/1.05/stable_sim", "simulated loop "
+                    "unstable at 1.05 gamma-bar_d"),
+              Check("rwp-bias", "close", "gamma_d_bar_detail/routh", "gamma-bar_d: Routh route equals the "
+                    "eigenvalue route (1e-9 relative)", other="gamma_d_bar_detail/eig", tol=1e-9))),
+    Claim("aranovskiy:fig-5", "§V-C, Fig. 5 'for gamma_d = 0.05 the system is stabilized in approximately 60 "
+          "seconds, and for gamma_d = 0.5 transients are faster but closed-loop oscillations appear'",
+          "gamma_d = 0.05 settles in about 60 s; gamma_d = 0.5 settles faster and oscillates.", "~60 s",
+          exp="rwp-bias", keys="rwp-bias",
+          checks=(Check("rwp-bias", "close", "lowpass_0.05/settle_time", "settle time at gamma_d 0.05 (s) within "
+                        "20% of 60", value=60.0, tol=0.2),
+                  Check("rwp-bias", "ge", "lowpass_0.5/oscillation_amplitude_rel", "gamma_d 0.5: overshoot of "
+                        "d-hat at least 10% of |d|", value=0.1)),
+          notes="--quick runs too short a horizon for the 0.05 case (no settle time)."),
+    Claim("aranovskiy:fig-6", "§V-C, Fig. 6", "The reduced-order bias observer (21), L = 0.01, stabilises the "
+          "pendulum with fast transients.", "visual", exp="rwp-bias", keys="rwp-bias",
+          checks=(Check("rwp-bias", "true", "reduced_order/stabilized", "stabilised"),
+                  Check("rwp-bias", "le", "reduced_order/settle_time", "settle time (s) at most 15 (well below "
+                        "the low-pass 0.05's ~60)", value=15.0))),
+    Claim("aranovskiy:eq-27", "§V-C, 'the matrix inequalities (27) are feasible for mu <= -0.2 and gamma = 0.62 "
+          "yielding s_M = 0.36'", "For L = 0.01 the LMIs (27) are feasible at gamma 0.62, mu -0.2, and (28) gives "
+          "s_M of about 0.36.", "mu <= -0.2, gamma 0.62, s_M 0.36", exp="rwp-bias", keys="rwp-bias (lmi; c0)",
+          checks=(Check("rwp-bias", "true", "lmi/feasible", "LMIs feasible at mu -0.2"),
+                  Check("rwp-bias", "close", "lmi/s_M", "s_M within 5% of 0.36", value=0.36, tol=0.05))),
+]
+
+QUALITATIVE: list[Qualitative] = [
+    Qualitative("paper:fig-1", "diagram and photograph of the DIP"),
+    Qualitative("paper:fig-2", "laboratory CPX and LDF estimates of theta-dot (the two differ most there)"),
+    Qualitative("thesis:fig-3.1", "diagram of the DIP"),
+    Qualitative("thesis:fig-3.2", "photograph of the laboratory DIP"),
+    Qualitative("thesis:fig-3.4", "laboratory traces of RP, PS and LQR over 0.5 s (RP more oscillatory; numbers "
+                                  "in Table 3.1)"),
+    Qualitative("thesis:fig-3.5", "laboratory CPX and LDF estimates of theta-dot (= paper Fig. 2)"),
+    Qualitative("stumfoll:fig-4.1", "photograph of the TWIP robot"),
+    Qualitative("stumfoll:fig-5.1", "DC motor model diagram"),
+    Qualitative("stumfoll:fig-5.2", "wheel free-body diagram"),
+    Qualitative("stumfoll:fig-5.3", "pendulum free-body diagram"),
+    Qualitative("stumfoll:fig-5.4", "uncontrolled start at 180 deg stays put (an equilibrium check)"),
+    Qualitative("stumfoll:fig-7.2", "saturation nonlinearity"),
+    Qualitative("stumfoll:fig-7.3", "deadzone nonlinearity"),
+    Qualitative("stumfoll:fig-7.4", "deadzone with jumps"),
+    Qualitative("stumfoll:fig-7.5", "backlash nonlinearity"),
+    Qualitative("stumfoll:fig-8.1", "states, no noise, no uncertainty"),
+    Qualitative("stumfoll:fig-8.4", "uncertainty estimates, nominal (its 25% is stumfoll:claim-8.1.1-25pct)"),
+    Qualitative("stumfoll:fig-8.5", "states with parameter uncertainty (its 5 deg is stumfoll:claim-8.1.2-5deg)"),
+    Qualitative("stumfoll:fig-8.8", "uncertainty estimates with parameter uncertainty (anomaly at 1.5 s)"),
+    Qualitative("stumfoll:fig-8.12", "states with noise and uncertainty"),
+    Qualitative("stumfoll:fig-8.14", "uncertainty estimates with noise ('on the order of the measurement noise')"),
+    Qualitative("stumfoll:fig-8.15", "extra-control states, parameter uncertainty (scored in Table 8.3)"),
+    Qualitative("stumfoll:fig-8.16", "extra-control signals, parameter uncertainty"),
+    Qualitative("stumfoll:fig-8.17", "extra-control states, unmodeled dynamics (scored in Table 8.3)"),
+    Qualitative("stumfoll:fig-8.19", "extra-control signals, unmodeled dynamics"),
+    Qualitative("stumfoll:fig-8.20", "extra-control states, deadzone (scored in Table 8.3)"),
+    Qualitative("stumfoll:fig-8.21", "extra-control signals, deadzone"),
+    Qualitative("stumfoll:fig-8.22", "extra-control states, deadzone and backlash (scored in Table 8.3)"),
+    Qualitative("stumfoll:fig-8.23", "extra-control signals, deadzone and backlash"),
+    Qualitative("stumfoll:fig-8.24", "robot states (hardware; see stumfoll:sec-8.3)"),
+    Qualitative("stumfoll:fig-8.25", "robot states, close-up (hardware)"),
+    Qualitative("stumfoll:fig-8.26", "complementary filter against raw accelerometer tilt (hardware)"),
+    Qualitative("stumfoll:fig-8.27", "robot uncertainty estimates (hardware)"),
+    Qualitative("aranovskiy:fig-1", "the AnyWalker robot"),
+    Qualitative("aranovskiy:fig-2", "pendulum hardware and notation"),
+    Qualitative("aranovskiy:fig-4", "biased loop traces (its numbers are aranovskiy:eq-15 and eq-16)"),
+]
+
+
+def by_id() -> dict[str, Claim]:
+    out: dict[str, Claim] = {}
+    for c in CLAIMS:
+        if c.id in out:
+            raise ValueError(f"claim id {c.id} twice")
+        out[c.id] = c
+    return out
+
+
+def all_ids() -> set[str]:
+    """Every id the inventory knows (scored claims and qualitative figures)."""
+    ids = set(by_id())
+    q = {x.id for x in QUALITATIVE}
+    if ids & q:
+        raise ValueError(f"ids both scored and qualitative: {sorted(ids & q)}")
+    return ids | q

@@ -1,0 +1,335 @@
+"""Generate ``docs/fidelity.md``: every table, figure and numeric claim of the documents -> its status.
+
+    python experiments/fidelity_index.py --runs DIR [--readings docs/fidelity] [--out docs/fidelity.md]
+
+DIR holds one folder per experiment with its ``metrics.json`` (the output of ``jaxdip reproduce [--quick] --out
+DIR``, or of single ``jaxdip run <id> --out DIR/<id>`` runs). The claims are ``experiments/fidelity_claims.py``;
+the readings rows are every ``*.json`` in ``--readings`` (written by the ``experiments/fidelity*.py`` scripts).
+Nothing is run here: the numbers are the runs' and the rows'. Each claim's status, in this order:
+
+- rows under its id: **reproduced under reading X** when a row holds ("yes"), else **not reproduced under N
+  readings tried** (or **undecided under N readings** when none fails outright), the readings listed with their
+  numbers and commands in the section "Readings";
+- a claim that expects rows and has none: **readings pending** (with the default run's checks beside it);
+- checks on the runs' results: **reproduced** / **not reproduced** / **undecided** (default config, one reading);
+- a test, an input table, or **not attempted** with why.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import re
+import sys
+from dataclasses import dataclass
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import fidelity_claims as FC  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+HOLDS = ("yes", "no", "undecided", "n/a")
+KIND_LABELS = {"reproduced": "reproduced (default config)", "reading": "reproduced under a reading",
+               "not reproduced": "not reproduced", "undecided": "undecided", "pending": "readings pending",
+               "no run": "without a run", "test": "checked by a test", "input": "input tables",
+               "not attempted": "not attempted"}
+ROW_KEYS = ("claim", "reading", "what", "command", "ours", "document", "holds")
+
+
+@dataclass
+class Status:
+    status: str  # one line
+    kind: str  # reproduced | reading | not reproduced | undecided | pending | no run | test | input | not attempted
+    ours: str = ""
+    command: str = ""
+
+
+def get(results: dict, path: str):
+    """The value at ``a/b/c`` in nested dicts (an integer step indexes a list). KeyError when absent."""
+    cur = results
+    for step in path.split("/"):
+        if isinstance(cur, list):
+            try:
+                cur = cur[int(step)]
+            except (ValueError, IndexError):
+                raise KeyError(path) from None
+        elif isinstance(cur, dict) and step in cur:
+            cur = cur[step]
+        else:
+            raise KeyError(path)
+    return cur
+
+
+def _interval(results: dict, path: str, explicit: str | None):
+    try:
+        ci = get(results, explicit or f"{path}_ci95")
+    except KeyError:
+        return None
+    if (isinstance(ci, list) and len(ci) == 2 and all(isinstance(x, (int, float)) for x in ci)
+            and not any(math.isnan(x) for x in ci)):
+        return float(ci[0]), float(ci[1])
+    return None
+
+
+def fmt(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if v is None:
+        return "none"
+    if isinstance(v, (int, float)):
+        return f"{v:.4g}"
+    return str(v)
+
+
+def _with_ci(v, ci) -> str:
+    return fmt(v) + (f" [{ci[0]:.4g}, {ci[1]:.4g}]" if ci else "")
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v)
+
+
+def evaluate(check: FC.Check, results: dict) -> tuple[str, str]:
+    """(holds: yes/no/undecided, our number as text) of one check on a run's ``results``."""
+    try:
+        v = get(results, check.key)
+    except KeyError:
+        return "undecided", f"{check.label}: key {check.key} absent"
+    ci = _interval(results, check.key, check.ci)
+    ours = _with_ci(v, ci)
+    w = wci = None
+    if check.other is not None:
+        try:
+            w = get(results, check.other)
+        except KeyError:
+            return "undecided", f"{check.label}: key {check.other} absent"
+        wci = _interval(results, check.other, check.other_ci)
+        ours += " vs " + _with_ci(w, wci)
+    text = f"{check.label}: {ours}"
+    rule = check.rule
+    if rule in ("true", "false"):
+        if not isinstance(v, bool):
+            return "undecided", text
+        return ("yes" if v == (rule == "true") else "no"), text
+    if not _number(v) or (check.other is not None and not _number(w)):
+        return "undecided", text
+    if rule == "close":
+        target = check.value if check.other is None else w
+        return ("yes" if abs(v - target) <= check.tol * abs(target) else "no"), text
+    if rule == "in_ci":
+        if ci is None:
+            return "undecided", text
+        return ("yes" if ci[0] <= check.value <= ci[1] else "no"), text
+    if rule == "ge":
+        return ("yes" if v >= check.value else "no"), text
+    if rule == "le":
+        return ("yes" if v <= check.value else "no"), text
+    if rule == "ratio_ge":
+        if w == 0:
+            return "undecided", text
+        return ("yes" if v / w >= check.value else "no"), text + f" (ratio {v / w:.3g})"
+    # below: intervals where both have one, else the points
+    a = ci or (v, v)
+    b = wci or (w, w)
+    return ("yes" if a[1] < b[0] else "no" if a[0] > b[1] else "undecided"), text
+
+
+def combine(verdicts: list[str]) -> str:
+    if verdicts and all(v == "yes" for v in verdicts):
+        return "yes"
+    return "no" if "no" in verdicts else "undecided"
+
+
+def check_status(claim: FC.Claim, runs: dict[str, dict], quick: bool) -> Status:
+    m = runs.get(claim.exp)
+    command = f"`jaxdip run {claim.exp}{' --quick' if quick else ''}`"
+    if m is None:
+        return Status(f"no run of {claim.exp} in --runs", "no run", "", command)
+    verdicts, texts = [], []
+    for c in claim.checks:
+        h, t = evaluate(c, m["results"])
+        verdicts.append(h)
+        texts.append(f"{t} (**{h}**)")
+    v = combine(verdicts)
+    status = {"yes": "reproduced", "no": "not reproduced", "undecided": "undecided"}[v]
+    return Status(status + " (default config)", {"yes": "reproduced", "no": "not reproduced"}.get(v, "undecided"),
+                  "; ".join(texts), command + f" ({m['seeds']} seeds)")
+
+
+def readings_status(rows: list[dict]) -> Status:
+    """Status of a claim from its readings rows (rows with holds "n/a" are shown but not counted)."""
+    counted = [r for r in rows if r["holds"] != "n/a"]
+    yes = [r for r in counted if r["holds"] == "yes"]
+    if yes:
+        names = "; ".join(r["reading"] for r in yes)
+        return Status(f"reproduced under reading {names} ({len(yes)} of {len(counted)} readings hold)", "reading",
+                      "; ".join(r["ours"] for r in yes), "<br>".join(f"`{r['command']}`" for r in yes))
+    n = len(counted)
+    if not counted:
+        return Status("readings pending (rows hold no verdict)", "pending")
+    undecided = sum(r["holds"] == "undecided" for r in counted)
+    if undecided == n:
+        status, kind = f"undecided under {n} readings tried", "undecided"
+    else:
+        status, kind = f"not reproduced under {n} readings tried", "not reproduced"
+        if undecided:
+            status += f" ({undecided} undecided)"
+    return Status(status + " (listed below)", kind, "; ".join(f"{r['reading']}: {r['ours']}" for r in counted[:1])
+                  + (f"; ... {n - 1} more below" if n > 1 else ""), f"`{counted[0]['command']}` ...")
+
+
+def claim_status(claim: FC.Claim, rows: list[dict], runs: dict[str, dict], quick: bool) -> Status:
+    if rows:
+        return readings_status(rows)
+    if claim.readings:
+        if claim.checks:
+            s = check_status(claim, runs, quick)
+            return Status(f"readings pending; default run: {s.status}", "pending", s.ours, s.command)
+        return Status("readings pending", "pending")
+    if claim.checks:
+        return check_status(claim, runs, quick)
+    if claim.test:
+        return Status(f"checked by a test: {claim.test}", "test")
+    if claim.input:
+        return Status("input: the models use these values; nothing to reproduce", "input")
+    return Status(f"not attempted: {claim.not_attempted}", "not attempted")
+
+
+def load_rows(folder: str) -> tuple[dict[str, list[dict]], list[str]]:
+    """Rows of every ``*.json`` in ``folder`` by claim id (each row gets ``file``); and the files read."""
+    out: dict[str, list[dict]] = {}
+    files = sorted(f for f in os.listdir(folder) if f.endswith(".json")) if os.path.isdir(folder) else []
+    for name in files:
+        with open(os.path.join(folder, name)) as fh:
+            rows = json.load(fh)
+        if not isinstance(rows, list):
+            raise ValueError(f"{name}: not a list of rows")
+        for i, r in enumerate(rows):
+            missing = [k for k in ROW_KEYS if k not in r]
+            if missing or r["holds"] not in HOLDS:
+                raise ValueError(f"{name}: row {i}: missing {missing} or holds {r.get('holds')!r} not in {HOLDS}")
+            out.setdefault(r["claim"], []).append({**r, "file": name})
+    return out, files
+
+
+def load_runs(folder: str) -> tuple[dict[str, dict], bool]:
+    """experiment id -> metrics.json of the runs in ``folder``; whether they are --quick runs (from reproduce's
+    REPORT.md title; single runs are taken as full unless REPORT.md says quick)."""
+    runs = {}
+    for name in sorted(os.listdir(folder)):
+        p = os.path.join(folder, name, "metrics.json")
+        if os.path.isfile(p):
+            with open(p) as fh:
+                m = json.load(fh)
+            runs[m.get("experiment", name)] = m
+    quick = False
+    report = os.path.join(folder, "REPORT.md")
+    if os.path.isfile(report):
+        with open(report) as fh:
+            quick = "(quick)" in fh.readline()
+    return runs, quick
+
+
+def _cell(s: str) -> str:
+    return s.replace("|", "\\|").replace("\n", " ")
+
+
+def _anchor(cid: str) -> str:
+    return "readings-" + re.sub(r"[^a-z0-9-]", "", cid.lower().replace(":", "-").replace(".", "-"))
+
+
+def render(rows_by_claim: dict[str, list[dict]], files: list[str], runs: dict[str, dict], quick: bool,
+           runs_label: str) -> str:
+    claims = FC.CLAIMS
+    known = FC.all_ids()
+    statuses = {c.id: claim_status(c, rows_by_claim.get(c.id, []), runs, quick) for c in claims}
+    counts: dict[str, int] = {}
+    for s in statuses.values():
+        counts[s.kind] = counts.get(s.kind, 0) + 1
+    scale = ("`--quick` scale (each experiment's reduced run: few seeds, short horizons; see the `seeds` in the "
+             "command column)" if quick else "the runs' own scale (full unless stated in the command column)")
+    L = [
+        "# Fidelity: what the documents claim and what jaxdip finds",
+        "",
+        "Generated by `python experiments/fidelity_index.py --runs DIR` (do not edit by hand) from the inventory "
+        "`experiments/fidelity_claims.py`, the readings rows " + (", ".join(f"`docs/fidelity/{f}`" for f in files)
+        or "(none)") + f" and the `metrics.json` of the runs in `{runs_label}`.",
+        "",
+        f"**Scale.** Numbers decided by checks on runs come from {scale}. Numbers from readings rows come from "
+        "the readings studies at the scale stated in their own pages (`docs/fidelity/*.md`).",
+        "",
+        "**Status.** *reproduced (default config)*: every check of the claim holds on the default run; "
+        "*reproduced under reading X*: a readings row (one config variant) holds; *not reproduced under N "
+        "readings tried*: no row holds (all rows are listed under Readings with their numbers and commands); "
+        "*readings pending*: a readings study is expected and has written no row yet; *undecided*: the 95% "
+        "intervals overlap. Tolerances are ours (the documents state none) and are written into each check.",
+        "",
+        "Documents: " + "; ".join(f"**{k}** = {v}" for k, v in FC.DOCUMENTS.items()) + ".",
+        "",
+        "Summary: " + ", ".join(f"{v} {KIND_LABELS[k]}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
+        + f" ({len(claims)} claims; {len(FC.QUALITATIVE)} figures qualitative, not scored).",
+        "",
+    ]
+    for doc, title in FC.DOCUMENTS.items():
+        L += [f"## {doc}: {title}", "",
+              "| claim | where | the document claims | document's number | status | ours | command |",
+              "|---|---|---|---|---|---|---|"]
+        for c in claims:
+            if c.doc != doc:
+                continue
+            s = statuses[c.id]
+            status = s.status
+            if c.id in rows_by_claim:
+                status += f" ([readings](#{_anchor(c.id)}))"
+            L.append("| " + " | ".join(_cell(x) for x in (
+                f"`{c.id}`", c.where, c.claim + (f" *{c.notes}*" if c.notes else ""),
+                c.document, f"**{status}**", s.ours, s.command)) + " |")
+        L.append("")
+    L += ["## Qualitative figures, not scored", ""]
+    L += [f"- `{q.id}`: {q.what}" for q in FC.QUALITATIVE]
+    L += ["", "## Readings", ""]
+    for c in claims:
+        rows = rows_by_claim.get(c.id)
+        if not rows:
+            continue
+        L += [f'<a id="{_anchor(c.id)}"></a>', "", f"### {c.id}", "",
+              f"Document: {c.document}. Rows from " + ", ".join(sorted({f"`docs/fidelity/{r['file']}`" for r in rows}))
+              + ".", "", "| reading | what | ours | document | holds | command |", "|---|---|---|---|---|---|"]
+        L += ["| " + " | ".join(_cell(x) for x in (r["reading"], r["what"], r["ours"], r["document"],
+                                                  f"**{r['holds']}**", f"`{r['command']}`")) + " |" for r in rows]
+        L.append("")
+    unknown = sorted(k for k in rows_by_claim if k not in known)
+    if unknown:
+        L += ["## Rows whose claim id the inventory does not know", ""]
+        L += [f"- `{k}` ({len(rows_by_claim[k])} rows in "
+              + ", ".join(sorted({r['file'] for r in rows_by_claim[k]})) + ")" for k in unknown]
+        L.append("")
+    return "\n".join(L)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", required=True, help="folder of experiment runs (DIR/<id>/metrics.json)")
+    ap.add_argument("--readings", default=os.path.join(ROOT, "docs", "fidelity"), help="folder of readings json")
+    ap.add_argument("--out", default=os.path.join(ROOT, "docs", "fidelity.md"))
+    ap.add_argument("--runs-label", default=None, help="how the runs folder is named in the page (default: the "
+                    "reproduce command that makes it)")
+    args = ap.parse_args(argv)
+    if not os.path.isdir(args.runs):
+        ap.error(f"--runs: {args.runs} is not a folder")
+    runs, quick = load_runs(args.runs)
+    if not runs:
+        ap.error(f"--runs: no <id>/metrics.json under {args.runs}")
+    rows, files = load_rows(args.readings)
+    label = args.runs_label or f"jaxdip reproduce{' --quick' if quick else ''} --out DIR"
+    text = render(rows, files, runs, quick, label)
+    with open(args.out + ".tmp", "w") as fh:
+        fh.write(text)
+    os.replace(args.out + ".tmp", args.out)
+    print("wrote", os.path.relpath(args.out, ROOT) if args.out.startswith(ROOT) else args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
