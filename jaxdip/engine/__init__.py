@@ -2,6 +2,7 @@
 the ``monte_carlo`` driver. See docs/engine.md. Everything here is re-exported flat from ``jaxdip``."""
 
 from jaxdip.engine import metrics
+from jaxdip.engine.keys import split_lanes
 from jaxdip.engine.roles import (
     Actuator, Controller, DiscretePlant, Estimator, FanOut, FanOutAux, Identity, Legacy, LegacyPlant, Passthrough,
     Plant, Sensor, linearize, param,
@@ -14,7 +15,7 @@ from jaxdip.engine.driver import Ball, Gaussian, Rollout, device_mesh, monte_car
 __all__ = [
     "metrics", "Actuator", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux", "Identity",
     "Legacy", "LegacyPlant", "Passthrough", "Plant", "Sensor", "linearize", "param", "RESULTS", "Aux",
-    "KeySchedule", "Loop",
+    "KeySchedule", "Loop", "split_lanes",
     "Sample", "Solution", "State", "init_state", "simulate", "Ball", "Rollout", "device_mesh", "monte_carlo",
     "Gaussian",
 ]

@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine import metrics as _metrics
+from jaxdip.engine.keys import split_lanes
 from jaxdip.engine.roles import Identity, _as_float_array, param
 
 
@@ -49,15 +50,16 @@ class KeySchedule(eqx.Module):
 
     def init(self, key):
         """Keys of the sensor, estimator, controller and actuator ``init``."""
-        return jax.random.split(jax.random.fold_in(key, 1), 4)
+        return split_lanes(jax.random.fold_in(key, 1), 4)
 
     def base(self, key):
         """The per-trajectory key the period keys are folded from (computed once, outside the scan)."""
         return jax.random.fold_in(key, 2)
 
     def period(self, base, k):
-        """Keys of the sensor, estimator, controller, actuator and process noise at period ``k``."""
-        return jax.random.split(jax.random.fold_in(base, k), 5)
+        """Keys of the sensor, estimator, controller, actuator and process noise at period ``k``
+        (``split(fold_in(base, k), 5)``, as separate keys: see ``split_lanes``)."""
+        return split_lanes(jax.random.fold_in(base, k), 5)
 
 
 def _optional_array(v):

@@ -17,6 +17,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.keys import split_lanes
 from jaxdip.engine.roles import Sensor, param
 from jaxdip.sim.component import Component
 
@@ -88,7 +89,7 @@ class WhiteNoise(Sensor):
     std: jax.Array = param()
 
     def step(self, state, x, key, k):
-        k_white, _ = jax.random.split(key)
+        k_white = split_lanes(key, 2)[0]
         return state, x + self.std * jax.random.normal(k_white, jnp.shape(x)), None
 
 
