@@ -79,3 +79,31 @@ def test_resume_from_checkpoint_is_bit_identical(tmp_path):
     resumed, _ = run_eki(eki, restored, 40, chunk=10)
     np.testing.assert_array_equal(np.asarray(full.members), np.asarray(resumed.members))
     assert int(resumed.iteration) == 40
+
+
+SHARD_SCRIPT = """
+import jax, numpy as np
+import jaxdip
+from jaxdip import config as C
+from jaxdip.experiments import eki_dip as E
+from jaxdip.search.eki import run_eki
+assert len(jax.local_devices()) == 2
+cfg = C.load(E.EkiDipConfig, quick={"ensemble": 6, "T": 0.2, "t_star": 0.1})
+plant, scfg, eki, st, members0, v1 = E.build(cfg, jax.random.PRNGKey(0))
+out = [run_eki(eki._replace(shard=s), st, 3, chunk=3) for s in (False, True)]
+print(float(np.max(np.abs(np.asarray(out[0][0].members) - np.asarray(out[1][0].members)))),
+      float(np.max(np.abs(out[0][1] - out[1][1]))))
+"""
+
+
+def test_members_split_over_devices_give_the_same_search():
+    # every device runs the update itself on the gathered performances: bit-identical to one device
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    out = subprocess.run([sys.executable, "-c", SHARD_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    d_members, d_hist = map(float, out.stdout.split()[-2:])
+    assert d_members == 0.0 and d_hist == 0.0

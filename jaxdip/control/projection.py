@@ -34,7 +34,11 @@ from jaxdip.sim.component import stateless
 
 def _solve_gPg(P, g, rhs):
     g = g.reshape(P.shape[0], -1)
-    return jnp.linalg.solve(g.T @ P @ g, rhs)
+    gPg = g.T @ P @ g
+    if gPg.shape == (1, 1):
+        # one input: a division (a batched 1x1 LU is a LAPACK call per trajectory and period)
+        return rhs / gPg[0]
+    return jnp.linalg.solve(gPg, rhs)
 
 
 def projection(P, fx, gx):

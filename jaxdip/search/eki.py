@@ -85,6 +85,9 @@ class EKI(NamedTuple):
     failure: str = "penalty"  # "penalty" (thesis) or "resample" (failed members redrawn from the successful ones)
     min_success: int = 2  # resample mode: an iteration with fewer successes leaves the ensemble unchanged
     align: Optional[Callable] = None  # (J, p) flat ensemble -> (J, p), e.g. resolve v ~ -v sign symmetries
+    # run_eki evaluates the members split over this process's devices (one XLA device per core under the
+    # CLI); None: when there is more than one and they divide J
+    shard: Optional[bool] = None
 
     def unravel(self):
         return ravel_pytree(self.template)[1]
@@ -95,19 +98,28 @@ class EKI(NamedTuple):
             flat = self.align(flat)
         return EKIState(flat, key, jnp.zeros((), jnp.int32))
 
-    def evaluate(self, state: EKIState, key):
+    def evaluate(self, state: EKIState, key, axis: Optional[str] = None):
+        """Y (J, m). ``axis``: inside ``shard_map`` over that mesh axis, each device evaluates its block of
+        members and the blocks are gathered, so every device returns the whole Y."""
         unravel = self.unravel()
-        Y = jax.vmap(lambda v: self.G(unravel(v), key))(state.members)
+        V = state.members
+        if axis is not None:
+            n = jax.lax.psum(1, axis)
+            J = V.shape[0] // n
+            V = jax.lax.dynamic_slice_in_dim(V, jax.lax.axis_index(axis) * J, J)
+        Y = jax.vmap(lambda v: self.G(unravel(v), key))(V)
+        if axis is not None:
+            Y = jax.lax.all_gather(Y, axis, tiled=True)
         return sanitize(jnp.atleast_2d(Y.reshape(state.members.shape[0], -1)), self.penalty)
 
-    def step(self, state: EKIState):
+    def step(self, state: EKIState, axis: Optional[str] = None):
         """One iteration; returns (new state, performances of the members before the update).
 
         With ``failure="resample"``, a member is failed when any of its performances reaches ``penalty``; when
         fewer than two succeed the ensemble is left unchanged (``run_eki`` then stops with an error).
         """
         k_eval, k_obj, k_w, k_res = jax.random.split(jax.random.fold_in(state.key, state.iteration), 4)
-        Y = self.evaluate(state, k_eval)
+        Y = self.evaluate(state, k_eval, axis)
         J, m = Y.shape
         Lr = jnp.linalg.cholesky(self.R)
         Yhat = self.y_target + jax.random.normal(k_obj, (J, m)) @ Lr.T
@@ -145,13 +157,29 @@ def run_eki(eki: EKI, state: EKIState, iterations: int, *, chunk: int = 10, prog
     the ensemble-mean performance per iteration (numpy, (n, m)).
     """
 
-    @jax.jit
+    devices = jax.local_devices()
+    J = int(state.members.shape[0])
+    shard = eki.shard if eki.shard is not None else (len(devices) > 1 and J % len(devices) == 0)
+    if shard and J % len(devices):
+        raise ValueError(f"shard=True needs the ensemble size ({J}) to be a multiple of the number of devices "
+                         f"({len(devices)})")
+    axis = "members" if shard else None
+
     def advance(st, n_dummy):
         def body(s, _):
-            s, Y = eki.step(s)
+            s, Y = eki.step(s, axis)
             return s, (Y.mean(axis=0), jnp.sum(jnp.all(Y < eki.penalty, axis=1)))
 
         return jax.lax.scan(body, st, None, length=n_dummy.shape[0])
+
+    if shard:
+        from jax.sharding import Mesh, PartitionSpec
+
+        # every device holds the whole ensemble, evaluates its block of members and runs the (small) update
+        # itself on the gathered performances: one collective per iteration, the same numbers everywhere
+        advance = jax.shard_map(advance, mesh=Mesh(np.array(devices), (axis,)), in_specs=PartitionSpec(),
+                                out_specs=PartitionSpec(), check_vma=False)
+    advance = jax.jit(advance)
 
     history = []
     done = int(state.iteration)
