@@ -79,3 +79,21 @@ def test_resume_from_checkpoint_is_bit_identical(tmp_path):
     resumed, _ = run_eki(eki, restored, 40, chunk=10)
     np.testing.assert_array_equal(np.asarray(full.members), np.asarray(resumed.members))
     assert int(resumed.iteration) == 40
+
+
+def test_member_keys_give_each_member_its_own_draw():
+    """Procedure 1 draws x0 per member: with member_keys the j-th member sees fold_in(key, j), else the key."""
+
+    def G(v, key):  # a performance that is only the member's random draw plus its first entry
+        return v[:1] + jax.random.normal(key, (1,))
+
+    members = jnp.zeros((5, 2))
+    key = jax.random.PRNGKey(3)
+    eki = EKI(G=G, template=jnp.zeros(2), y_target=jnp.zeros(1), R=jnp.eye(1))
+    st = eki.init(members, key)
+    shared = np.asarray(eki.evaluate(st, key))[:, 0]
+    np.testing.assert_allclose(shared, float(jax.random.normal(key, (1,))[0]))
+    own = np.asarray(eki._replace(member_keys=True).evaluate(st, key))[:, 0]
+    want = [float(jax.random.normal(jax.random.fold_in(key, j), (1,))[0]) for j in range(5)]
+    np.testing.assert_allclose(own, want)
+    assert len(set(np.round(own, 12))) == 5

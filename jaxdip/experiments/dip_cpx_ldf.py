@@ -72,11 +72,12 @@ class DipCpxLdfConfig:
                                        doc="|x_i| above this counts as divergence")
     stabilized_tol: float = C.field(0.02, C.positive_finite,
                                     doc="stabilised: max |alpha|, |theta| over the last second below this (rad)")
-    sweep_points: int = C.field(11, C.positive, doc="gamma sweep: number of log-spaced points")
+    sweep_points: int = C.field(11, C.nonneg, doc="gamma sweep: number of log-spaced points (0: no sweep)")
     sweep_min: float = C.field(1.0, C.positive_finite, doc="gamma sweep: smallest gamma")
     sweep_max: float = C.field(1e5, C.positive_finite, doc="gamma sweep: largest gamma")
     sweep_seeds: int = C.field(100, C.positive, doc="gamma sweep: seeds per gamma")
     figure_seed: int = C.field(0, C.nonneg, doc="seed of the trial shown in the velocity-estimate figure")
+    velocity_trial: bool = C.field(True, doc="run the one-trial velocity-estimate comparison (Fig. 3.5)")
     cpx_weight: str = C.field("sqrt_gamma", C.one_of("sqrt_gamma", "printed"),
                               doc="reading of (3.7)'s top block: I/sqrt(gamma) (proximal weight gamma) or I/gamma "
                                   "as printed (weight gamma^2); the sweep's gammas are read the same way")
@@ -90,8 +91,9 @@ class DipCpxLdfConfig:
     def loads(self) -> list[Load]:
         n = steps_of(self.duration, self.dt)
         return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds, n),
-                Load("the gamma sweep", ("sweep_seeds", "duration"), self.sweep_seeds, n),
-                Load("the velocity-estimate trial", ("duration",), 1, n, saved=80 * n)]
+                Load("the gamma sweep", ("sweep_seeds", "duration"), self.sweep_seeds if self.sweep_points else 0, n),
+                Load("the velocity-estimate trial", ("duration",), 1 if self.velocity_trial else 0, n,
+                     saved=80 * n if self.velocity_trial else 0)]
 
     def validate(self):
         weight_matrix("Q", self.Q, 6)
@@ -265,15 +267,18 @@ def run(cfg: DipCpxLdfConfig, ctx: RunContext | None = None, progress: bool = Tr
                              desc=f"dip-cpx-ldf {name}")
         results[name] = summarize(cfg, sol)
     results["gamma_criterion"] = crit
-    results["gamma_sweep"] = gamma_sweep(cfg, rollouts["cpx"], progress)
-    tr = velocity_trial(cfg, crit["gamma"])
-    i = dip.STATE_NAMES.index("theta_dot")
-    rms = lambda e: float(np.sqrt(np.mean((e[:, i] - tr["x"][:, i]) ** 2)))
-    results["velocity_trial"] = {"seed": cfg.figure_seed, "diverged": tr["diverged"],
-                                 "theta_dot_rms_err_ldf": rms(tr["ldf"]), "theta_dot_rms_err_cpx": rms(tr["cpx"]),
-                                 "theta_dot_rms_err_cpx_criterion": rms(tr["cpx_crit"])}
-    figures = {"gamma_sweep": sweep_figure(cfg, results["gamma_sweep"], crit["gamma"]),
-               "velocity_estimates": velocity_figure(cfg, tr, crit["gamma"])}
+    figures = {}
+    if cfg.sweep_points:
+        results["gamma_sweep"] = gamma_sweep(cfg, rollouts["cpx"], progress)
+        figures["gamma_sweep"] = sweep_figure(cfg, results["gamma_sweep"], crit["gamma"])
+    if cfg.velocity_trial:
+        tr = velocity_trial(cfg, crit["gamma"])
+        i = dip.STATE_NAMES.index("theta_dot")
+        rms = lambda e: float(np.sqrt(np.mean((e[:, i] - tr["x"][:, i]) ** 2)))
+        results["velocity_trial"] = {"seed": cfg.figure_seed, "diverged": tr["diverged"],
+                                     "theta_dot_rms_err_ldf": rms(tr["ldf"]), "theta_dot_rms_err_cpx": rms(tr["cpx"]),
+                                     "theta_dot_rms_err_cpx_criterion": rms(tr["cpx_crit"])}
+        figures["velocity_estimates"] = velocity_figure(cfg, tr, crit["gamma"])
     return Outcome(results=results, report=report(cfg, results), figures=figures)
 
 
@@ -289,7 +294,7 @@ def _row(label, r):
 
 def report(cfg, r) -> str:
     crit = r["gamma_criterion"]
-    sw = r["gamma_sweep"]
+    sw = r.get("gamma_sweep")
     c, l = r["cpx"], r["ldf"]
     lines = [
         f"Printed DIP model, power-series control (3.5), Q = {cfg.Q} on [xc, alpha, theta, velocities], "
@@ -331,13 +336,15 @@ def report(cfg, r) -> str:
         f"(||Phi|| = {crit['K_max']:.6f}, lambda_min(G^T G) = {crit['lambda_min']:.4e}); the thesis gives "
         f"{THESIS_GAMMA_CRITERION:g}.",
         "",
-        "| gamma | var theta (deg^2) | theta_dot rms err (rad/s) | diverged fraction |",
-        "|---|---|---|---|",
     ]
-    for g, v, vci, e, f in zip(sw["gamma"], sw["theta_var"], sw["theta_var_ci95"], sw["theta_dot_rms_err"],
-                               sw["diverged_fraction"]):
-        lines.append(f"| {g:.4g} | {fmt_ci(v, vci, 3)} | {e:.3g} | {f:.3f} |")
-    vt = r["velocity_trial"]
+    if sw is not None:
+        lines += ["| gamma | var theta (deg^2) | theta_dot rms err (rad/s) | diverged fraction |", "|---|---|---|---|"]
+        for g, v, vci, e, f in zip(sw["gamma"], sw["theta_var"], sw["theta_var_ci95"], sw["theta_dot_rms_err"],
+                                   sw["diverged_fraction"]):
+            lines.append(f"| {g:.4g} | {fmt_ci(v, vci, 3)} | {e:.3g} | {f:.3f} |")
+    vt = r.get("velocity_trial")
+    if vt is None:
+        return "\n".join(lines)
     lines += [
         "",
         f"One trial (seed {vt['seed']}), estimates from the same readings: RMS error of theta_dot LDF "

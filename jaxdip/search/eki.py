@@ -75,7 +75,7 @@ def sanitize(Y, penalty):
 class EKI(NamedTuple):
     """An EKI process over members shaped like ``template`` (a pytree)."""
 
-    G: Callable  # G(member_pytree, key) -> (m,) performance; key shared by the ensemble in an iteration
+    G: Callable  # G(member_pytree, key) -> (m,) performance; key shared by the ensemble unless member_keys
     template: object
     y_target: jnp.ndarray
     R: jnp.ndarray
@@ -85,6 +85,7 @@ class EKI(NamedTuple):
     failure: str = "penalty"  # "penalty" (thesis) or "resample" (failed members redrawn from the successful ones)
     min_success: int = 2  # resample mode: an iteration with fewer successes leaves the ensemble unchanged
     align: Optional[Callable] = None  # (J, p) flat ensemble -> (J, p), e.g. resolve v ~ -v sign symmetries
+    member_keys: bool = False  # True: member j is evaluated with fold_in(key, j) (its own x0 and noise)
 
     def unravel(self):
         return ravel_pytree(self.template)[1]
@@ -97,7 +98,11 @@ class EKI(NamedTuple):
 
     def evaluate(self, state: EKIState, key):
         unravel = self.unravel()
-        Y = jax.vmap(lambda v: self.G(unravel(v), key))(state.members)
+        if self.member_keys:
+            keys = jax.vmap(lambda j: jax.random.fold_in(key, j))(jnp.arange(state.members.shape[0]))
+            Y = jax.vmap(lambda v, k: self.G(unravel(v), k))(state.members, keys)
+        else:
+            Y = jax.vmap(lambda v: self.G(unravel(v), key))(state.members)
         return sanitize(jnp.atleast_2d(Y.reshape(state.members.shape[0], -1)), self.penalty)
 
     def step(self, state: EKIState):
