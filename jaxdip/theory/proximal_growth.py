@@ -42,6 +42,8 @@ class GrowthResult(NamedTuple):
     growth: np.ndarray  # (trials,) the geometric growth factor used (>= every ratio Thm 1.3.2 asks for)
     tail_gap_growing: np.ndarray  # (trials,) max of the gap over the last quarter of the steps
     tail_gap_constant: np.ndarray
+    truth_err_growing: np.ndarray  # (trials,) mean ||p_k - x_k|| over the last quarter (error to the true state)
+    truth_err_constant: np.ndarray
 
 
 def _rk4(f, x, h):
@@ -113,14 +115,14 @@ def nonlinear_two_measurement(key, *, trials: int = 32, steps: int = 300, h: flo
                 w = (1.0 / gamma0) * rate ** (-k.astype(xhat.dtype))
                 p = _gauss_newton(lambda z: jnp.concatenate([fit(z, k), jnp.sqrt(w / 2) * (z - xhat)]), xhat,
                                   gn_iters)
-                return f(p), (phi(p, k) - phimin[k], jnp.linalg.norm(p - mins[k]))
+                return f(p), (phi(p, k) - phimin[k], jnp.linalg.norm(p - mins[k]), jnp.linalg.norm(p - xs[k]))
 
             return jax.lax.scan(body, xhat0, ks)[1]
 
-        gg, eg = run(rho)
-        gc, ec = run(jnp.ones(()))
+        gg, eg, tg = run(rho)
+        gc, ec, tc = run(jnp.ones(()))
         q = steps - steps // 4
-        return gg[-1], gc[-1], eg[-1], ec[-1], rho, gg[q:].max(), gc[q:].max()
+        return gg[-1], gc[-1], eg[-1], ec[-1], rho, gg[q:].max(), gc[q:].max(), tg[q:].mean(), tc[q:].mean()
 
     out = jax.jit(jax.vmap(trial))(jax.random.split(key, trials))
     return GrowthResult(*(np.asarray(o) for o in out))
@@ -156,14 +158,14 @@ def linear_least_squares(key, Phi, C, *, window: int = 3, trials: int = 32, step
                 w = (1.0 / gamma0) * rate ** (-k.astype(xhat.dtype))
                 p = jnp.linalg.solve(w * jnp.eye(d) + GtG, w * xhat + G.T @ qs[k])
                 r = G @ (p - mins[k])
-                return Phi @ p, (0.5 * r @ r, jnp.linalg.norm(p - mins[k]))
+                return Phi @ p, (0.5 * r @ r, jnp.linalg.norm(p - mins[k]), jnp.linalg.norm(p - xs[k]))
 
             return jax.lax.scan(body, xhat0, ks)[1]
 
-        gg, eg = run(rho)
-        gc, ec = run(jnp.ones(()))
+        gg, eg, tg = run(rho)
+        gc, ec, tc = run(jnp.ones(()))
         q = steps - steps // 4
-        return gg[-1], gc[-1], eg[-1], ec[-1], rho, gg[q:].max(), gc[q:].max()
+        return gg[-1], gc[-1], eg[-1], ec[-1], rho, gg[q:].max(), gc[q:].max(), tg[q:].mean(), tc[q:].mean()
 
     out = jax.jit(jax.vmap(trial))(jax.random.split(key, trials))
     return GrowthResult(*(np.asarray(o) for o in out))
