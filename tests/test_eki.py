@@ -90,9 +90,9 @@ from jaxdip.search.eki import run_eki
 assert len(jax.local_devices()) == 2
 cfg = C.load(E.EkiDipConfig, quick={"ensemble": 6, "T": 0.2, "t_star": 0.1})
 plant, scfg, eki, st, members0, v1 = E.build(cfg, jax.random.PRNGKey(0))
-out = [run_eki(eki._replace(shard=s), st, 3, chunk=3) for s in (False, True)]
-print(float(np.max(np.abs(np.asarray(out[0][0].members) - np.asarray(out[1][0].members)))),
-      float(np.max(np.abs(out[0][1] - out[1][1]))))
+out = [run_eki(eki._replace(shard=s, member_keys=m), st, 3, chunk=3) for m in (False, True) for s in (False, True)]
+print(max(float(np.max(np.abs(np.asarray(out[i][0].members) - np.asarray(out[i + 1][0].members)))) for i in (0, 2)),
+      max(float(np.max(np.abs(out[i][1] - out[i + 1][1]))) for i in (0, 2)))
 """
 
 
@@ -107,3 +107,21 @@ def test_members_split_over_devices_give_the_same_search():
     assert out.returncode == 0, out.stderr[-2000:]
     d_members, d_hist = map(float, out.stdout.split()[-2:])
     assert d_members == 0.0 and d_hist == 0.0
+
+
+def test_member_keys_give_each_member_its_own_draw():
+    """Procedure 1 draws x0 per member: with member_keys the j-th member sees fold_in(key, j), else the key."""
+
+    def G(v, key):  # a performance that is only the member's random draw plus its first entry
+        return v[:1] + jax.random.normal(key, (1,))
+
+    members = jnp.zeros((5, 2))
+    key = jax.random.PRNGKey(3)
+    eki = EKI(G=G, template=jnp.zeros(2), y_target=jnp.zeros(1), R=jnp.eye(1))
+    st = eki.init(members, key)
+    shared = np.asarray(eki.evaluate(st, key))[:, 0]
+    np.testing.assert_allclose(shared, float(jax.random.normal(key, (1,))[0]))
+    own = np.asarray(eki._replace(member_keys=True).evaluate(st, key))[:, 0]
+    want = [float(jax.random.normal(jax.random.fold_in(key, j), (1,))[0]) for j in range(5)]
+    np.testing.assert_allclose(own, want)
+    assert len(set(np.round(own, 12))) == 5

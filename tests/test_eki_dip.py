@@ -2,6 +2,9 @@
 
 import json
 
+import jax
+import jax.numpy as jnp
+import numpy as np
 import pytest
 
 from jaxdip import checkpoint
@@ -56,3 +59,20 @@ def test_resume_refuses_a_checkpoint_of_another_config(tmp_path, monkeypatch):
     other = C.load(exp.config_cls, quick={**TINY, "gamma": 11.0})
     with pytest.raises(ValueError, match="different config"):
         run_experiment(exp, other, str(tmp_path / "o"), resume=True)
+
+
+def test_one_free_vector_keeps_its_singular_value_and_per_member_keys_are_wired():
+    from jaxdip.experiments import eki_dip as E
+
+    cfg = C.from_dict(E.EkiDipConfig, {"free_vectors": 1, "x0_draw": "per_member", "ensemble": 4, "T": 0.2,
+                                            "t_star": 0.1})
+    base = jax.random.PRNGKey(0)
+    _, _, eki, state, members0, _ = E.build(cfg, base)
+    assert members0.V.shape == (4, 1, 6) and eki.member_keys
+    np.testing.assert_allclose(np.exp(np.asarray(members0.log_s)), cfg.init_s[0], rtol=1e-12)
+    st, _ = eki.step(state)
+    m = eki.unravel()(st.members[0])
+    np.testing.assert_allclose(float(np.exp(m.log_s[0])), cfg.init_s[0], rtol=1e-12)
+    np.testing.assert_allclose(float(jnp.linalg.norm(m.V[0])), 1.0, rtol=1e-12)
+    with pytest.raises(C.ConfigError):
+        C.from_dict(E.EkiDipConfig, {"free_vectors": 3})

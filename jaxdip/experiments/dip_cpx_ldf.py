@@ -72,17 +72,28 @@ class DipCpxLdfConfig:
                                        doc="|x_i| above this counts as divergence")
     stabilized_tol: float = C.field(0.02, C.positive_finite,
                                     doc="stabilised: max |alpha|, |theta| over the last second below this (rad)")
-    sweep_points: int = C.field(11, C.positive, doc="gamma sweep: number of log-spaced points")
+    sweep_points: int = C.field(11, C.nonneg, doc="gamma sweep: number of log-spaced points (0: no sweep)")
     sweep_min: float = C.field(1.0, C.positive_finite, doc="gamma sweep: smallest gamma")
     sweep_max: float = C.field(1e5, C.positive_finite, doc="gamma sweep: largest gamma")
     sweep_seeds: int = C.field(100, C.positive, doc="gamma sweep: seeds per gamma")
     figure_seed: int = C.field(0, C.nonneg, doc="seed of the trial shown in the velocity-estimate figure")
+    velocity_trial: bool = C.field(True, doc="run the one-trial velocity-estimate comparison (Fig. 3.5)")
+    cpx_weight: str = C.field("sqrt_gamma", C.one_of("sqrt_gamma", "printed"),
+                              doc="reading of (3.7)'s top block: I/sqrt(gamma) (proximal weight gamma) or I/gamma "
+                                  "as printed (weight gamma^2); the sweep's gammas are read the same way")
+    deadzone: list[float] = C.field([0.0, 0.0], C.finite, C.length(2),
+                                    doc="deadzone (160) [d_minus, d_plus] on the applied input (V); [0, 0]: none")
+    backlash: float = C.field(0.0, C.nonneg_finite, doc="backlash (161) half-width on the applied input (V); 0: none")
+    cart_coulomb: float = C.field(0.0, C.nonneg_finite, doc="Coulomb friction force on the cart (N); 0: none")
+    coulomb_smoothing: float = C.field(1e-3, C.positive_finite,
+                                       doc="the friction's sign smoothed as tanh(xc_dot / this) (m/s)")
 
     def loads(self) -> list[Load]:
         n = steps_of(self.duration, self.dt)
         return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds, n),
-                Load("the gamma sweep", ("sweep_seeds", "duration"), self.sweep_seeds, n),
-                Load("the velocity-estimate trial", ("duration",), 1, n, saved=80 * n)]
+                Load("the gamma sweep", ("sweep_seeds", "duration"), self.sweep_seeds if self.sweep_points else 0, n),
+                Load("the velocity-estimate trial", ("duration",), 1 if self.velocity_trial else 0, n,
+                     saved=80 * n if self.velocity_trial else 0)]
 
     def validate(self):
         weight_matrix("Q", self.Q, 6)
@@ -90,6 +101,8 @@ class DipCpxLdfConfig:
             raise C.ConfigError("duration", f"must be at least one period (dt = {self.dt})")
         if self.sweep_max < self.sweep_min:
             raise C.ConfigError("sweep_max", "must be at least sweep_min")
+        if not self.deadzone[0] <= 0.0 <= self.deadzone[1]:
+            raise C.ConfigError("deadzone", f"must be [d_minus, d_plus] with d_minus <= 0 <= d_plus, got {self.deadzone}")
 
 
 # ---- construction -------------------------------------------------------------------------------------------
@@ -101,7 +114,9 @@ def scenario(cfg: DipCpxLdfConfig) -> S.DipCpxLdf:
         R=cfg.R, cpx_gamma=cfg.cpx_gamma, cpx_output=cfg.cpx_output, ldf_cart_cutoff=cfg.ldf_cart_cutoff,
         ldf_angle_cutoff=cfg.ldf_angle_cutoff, ldf_zeta=cfg.ldf_zeta, encoder_quanta=tuple(cfg.encoder_quanta),
         noise_counts=cfg.noise_counts, input_offset_std=cfg.input_offset_std, input_noise_std=cfg.input_noise_std,
-        init_radius=cfg.init_radius, state_bound=tuple(cfg.state_bound))
+        init_radius=cfg.init_radius, state_bound=tuple(cfg.state_bound), cpx_weight=cfg.cpx_weight,
+        deadzone=tuple(cfg.deadzone), backlash=cfg.backlash, cart_coulomb=cfg.cart_coulomb,
+        coulomb_smoothing=cfg.coulomb_smoothing)
 
 
 def build(cfg: DipCpxLdfConfig) -> dict:
@@ -145,8 +160,9 @@ def summarize(cfg, sol: jd.Solution) -> dict:
 
 def gamma_sweep(cfg, rollout: jd.Rollout, progress=True) -> dict:
     gammas = np.geomspace(cfg.sweep_min, cfg.sweep_max, cfg.sweep_points)
+    weights = np.asarray(scenario(cfg).effective_gamma(gammas))  # the leaf is the proximal weight
     sol = jd.monte_carlo(rollout, jax.random.PRNGKey(cfg.seed), cfg.sweep_seeds, progress=progress,
-                         desc="dip-cpx-ldf gamma sweep", sweep=(S.gamma_leaf, jnp.asarray(gammas)))
+                         desc="dip-cpx-ldf gamma sweep", sweep=(S.gamma_leaf, jnp.asarray(weights)))
     m = jax.tree_util.tree_map(np.asarray, sol.metrics)  # (gamma, seed, ...)
     divs = np.asarray(sol.result) != jd.RESULTS.ok
     i_th, i_thd = dip.STATE_NAMES.index("theta"), dip.STATE_NAMES.index("theta_dot")
@@ -251,15 +267,18 @@ def run(cfg: DipCpxLdfConfig, ctx: RunContext | None = None, progress: bool = Tr
                              desc=f"dip-cpx-ldf {name}")
         results[name] = summarize(cfg, sol)
     results["gamma_criterion"] = crit
-    results["gamma_sweep"] = gamma_sweep(cfg, rollouts["cpx"], progress)
-    tr = velocity_trial(cfg, crit["gamma"])
-    i = dip.STATE_NAMES.index("theta_dot")
-    rms = lambda e: float(np.sqrt(np.mean((e[:, i] - tr["x"][:, i]) ** 2)))
-    results["velocity_trial"] = {"seed": cfg.figure_seed, "diverged": tr["diverged"],
-                                 "theta_dot_rms_err_ldf": rms(tr["ldf"]), "theta_dot_rms_err_cpx": rms(tr["cpx"]),
-                                 "theta_dot_rms_err_cpx_criterion": rms(tr["cpx_crit"])}
-    figures = {"gamma_sweep": sweep_figure(cfg, results["gamma_sweep"], crit["gamma"]),
-               "velocity_estimates": velocity_figure(cfg, tr, crit["gamma"])}
+    figures = {}
+    if cfg.sweep_points:
+        results["gamma_sweep"] = gamma_sweep(cfg, rollouts["cpx"], progress)
+        figures["gamma_sweep"] = sweep_figure(cfg, results["gamma_sweep"], crit["gamma"])
+    if cfg.velocity_trial:
+        tr = velocity_trial(cfg, crit["gamma"])
+        i = dip.STATE_NAMES.index("theta_dot")
+        rms = lambda e: float(np.sqrt(np.mean((e[:, i] - tr["x"][:, i]) ** 2)))
+        results["velocity_trial"] = {"seed": cfg.figure_seed, "diverged": tr["diverged"],
+                                     "theta_dot_rms_err_ldf": rms(tr["ldf"]), "theta_dot_rms_err_cpx": rms(tr["cpx"]),
+                                     "theta_dot_rms_err_cpx_criterion": rms(tr["cpx_crit"])}
+        figures["velocity_estimates"] = velocity_figure(cfg, tr, crit["gamma"])
     return Outcome(results=results, report=report(cfg, results), figures=figures)
 
 
@@ -275,7 +294,7 @@ def _row(label, r):
 
 def report(cfg, r) -> str:
     crit = r["gamma_criterion"]
-    sw = r["gamma_sweep"]
+    sw = r.get("gamma_sweep")
     c, l = r["cpx"], r["ldf"]
     lines = [
         f"Printed DIP model, power-series control (3.5), Q = {cfg.Q} on [xc, alpha, theta, velocities], "
@@ -285,7 +304,7 @@ def report(cfg, r) -> str:
         f"of {cfg.noise_counts} count; input disturbance: per-trial offset std {cfg.input_offset_std} V and white "
         f"noise std {cfg.input_noise_std} V per period. CPX: gamma = {cfg.cpx_gamma:g}, hands the controller its "
         f"{cfg.cpx_output}; LDF: cut-offs {cfg.ldf_cart_cutoff:.4g} / {cfg.ldf_angle_cutoff:.4g} rad/s, "
-        f"damping {cfg.ldf_zeta}.",
+        f"damping {cfg.ldf_zeta}." + _readings_text(cfg),
         "",
         "Per-trial signed time mean, |time mean| and time variance, averaged over the non-diverged seeds (95% "
         "intervals); xc in cm (variance cm^2), angles in degrees (variance deg^2):",
@@ -317,13 +336,15 @@ def report(cfg, r) -> str:
         f"(||Phi|| = {crit['K_max']:.6f}, lambda_min(G^T G) = {crit['lambda_min']:.4e}); the thesis gives "
         f"{THESIS_GAMMA_CRITERION:g}.",
         "",
-        "| gamma | var theta (deg^2) | theta_dot rms err (rad/s) | diverged fraction |",
-        "|---|---|---|---|",
     ]
-    for g, v, vci, e, f in zip(sw["gamma"], sw["theta_var"], sw["theta_var_ci95"], sw["theta_dot_rms_err"],
-                               sw["diverged_fraction"]):
-        lines.append(f"| {g:.4g} | {fmt_ci(v, vci, 3)} | {e:.3g} | {f:.3f} |")
-    vt = r["velocity_trial"]
+    if sw is not None:
+        lines += ["| gamma | var theta (deg^2) | theta_dot rms err (rad/s) | diverged fraction |", "|---|---|---|---|"]
+        for g, v, vci, e, f in zip(sw["gamma"], sw["theta_var"], sw["theta_var_ci95"], sw["theta_dot_rms_err"],
+                                   sw["diverged_fraction"]):
+            lines.append(f"| {g:.4g} | {fmt_ci(v, vci, 3)} | {e:.3g} | {f:.3f} |")
+    vt = r.get("velocity_trial")
+    if vt is None:
+        return "\n".join(lines)
     lines += [
         "",
         f"One trial (seed {vt['seed']}), estimates from the same readings: RMS error of theta_dot LDF "
@@ -331,6 +352,19 @@ def report(cfg, r) -> str:
         f"CPX at the criterion's gamma {vt['theta_dot_rms_err_cpx_criterion']:.3g} rad/s.",
     ]
     return "\n".join(lines)
+
+
+def _readings_text(cfg) -> str:
+    parts = []
+    if cfg.cpx_weight == "printed":
+        parts.append(f"(3.7) read as printed (I/gamma): CPX's proximal weight is gamma^2 = {cfg.cpx_gamma**2:g}")
+    if tuple(cfg.deadzone) != (0.0, 0.0):
+        parts.append(f"deadzone {list(cfg.deadzone)} V on the applied input")
+    if cfg.backlash > 0:
+        parts.append(f"backlash of half-width {cfg.backlash} V on the applied input")
+    if cfg.cart_coulomb > 0:
+        parts.append(f"Coulomb friction {cfg.cart_coulomb} N on the cart (smoothed at {cfg.coulomb_smoothing} m/s)")
+    return (" Readings: " + "; ".join(parts) + ".") if parts else ""
 
 
 def _closer(c, l):

@@ -106,6 +106,12 @@ class EkiDipConfig:
     grad_clip: float = C.field(1.0, C.positive_finite, doc="gradient clipping (global norm)")
     grad_common_states: bool = C.field(True, doc="the same training states at every step (else fresh ones)")
     eval_states: int = C.field(64, C.positive, doc="common initial states scoring both searches")
+    x0_draw: str = C.field("shared", C.one_of("shared", "per_member"),
+                           doc="initial state (and noise) of an iteration: one shared by the ensemble, or drawn per "
+                               "member as Procedure 1's steps 1-2 say")
+    free_vectors: int = C.field(2, C.one_of(1, 2),
+                                doc="free basis vectors: 2 (V and s searched) or 1 (the thesis's first search: v1 "
+                                    "alone, its singular value fixed at init_s[0])")
 
     def loads(self) -> list[Load]:
         n = steps_of(self.T, self.dt)
@@ -118,6 +124,19 @@ class EkiDipConfig:
     def validate(self):
         if self.t_star >= self.T:
             raise C.ConfigError("t_star", f"must be below T = {self.T}")
+
+
+def projection(cfg):
+    """Procedure 1 step 8 (re-orthonormalise), and with one free vector the singular value held at init_s[0]."""
+    if cfg.free_vectors == 2:
+        return project_member
+    log_s1 = float(np.log(cfg.init_s[0]))
+
+    def project(m: BasisMember) -> BasisMember:
+        m = project_member(m)
+        return BasisMember(m.V, jnp.full_like(m.log_s, log_s1))
+
+    return project
 
 
 def _search_cfg(cfg):
@@ -137,8 +156,8 @@ def initial_ensemble(cfg, A, B, key):
     V1 = v1 + cfg.init_v_std * jax.random.normal(k2, (J, 6))
     V2 = v2_dir + cfg.init_v2_std * jax.random.normal(k3, (J, 6))
     log_s = jnp.log(jnp.asarray(cfg.init_s)) + cfg.init_log_s_std * jax.random.normal(k4, (J, 2))
-    members = BasisMember(jnp.stack([V1, V2], axis=1), log_s)
-    return jax.vmap(project_member)(members), v1
+    members = BasisMember(jnp.stack([V1, V2], axis=1)[:, : cfg.free_vectors], log_s[:, : cfg.free_vectors])
+    return jax.vmap(projection(cfg))(members), v1
 
 
 def judge(cfg, member, key_seed):
@@ -171,9 +190,10 @@ def build(cfg: EkiDipConfig, base):
     G0 = continuous_performance(plant, scfg, n_x0=cfg.n_x0)
     G = (lambda m, k: jnp.log(G0(m, k))) if cfg.log_performance else G0
     eki = EKI(G=G, template=jax.tree_util.tree_map(lambda a: a[0], members0), y_target=jnp.array([cfg.y_target]),
-              R=jnp.array([[cfg.R]]), sigma_w=cfg.sigma_w, project=project_member, failure=cfg.failure,
+              R=jnp.array([[cfg.R]]), sigma_w=cfg.sigma_w, project=projection(cfg), failure=cfg.failure,
               min_success=cfg.min_success, penalty=float(np.log(scfg.penalty)) if cfg.log_performance else scfg.penalty,
-              align=lambda V: align_signs(V, member_blocks(2, 6)))
+              align=lambda V: align_signs(V, member_blocks(cfg.free_vectors, 6)),
+              member_keys=cfg.x0_draw == "per_member")
     return plant, scfg, eki, eki.init(members0, jax.random.fold_in(base, 2)), members0, v1_lqr
 
 
@@ -215,7 +235,7 @@ def gradient_search(cfg: EkiDipConfig, plant, scfg, start, key):
     trajectory that fails, whose NaN derivatives count as 0."""
     return tune(GradientLoss(plant, scfg, cfg.grad_x0), start, key, steps=cfg.grad_steps, lr=cfg.grad_lr,
                 clip=cfg.grad_clip, common_random_numbers=cfg.grad_common_states, mode="reverse",
-                project=project_member, zero_nonfinite_grads=True, desc="eki-dip gradient search")
+                project=projection(cfg), zero_nonfinite_grads=True, desc="eki-dip gradient search")
 
 
 def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
@@ -229,7 +249,7 @@ def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
         y = np.asarray(performances(plant, scfg, m, jax.random.fold_in(base, 3), cfg.eval_states))
         return {"mean": float(y.mean()), "median": float(np.median(y)), "failed": int((y >= scfg.penalty).sum())}
 
-    start_mean = project_member(jax.tree_util.tree_map(lambda a: a.mean(0), members0))
+    start_mean = projection(cfg)(jax.tree_util.tree_map(lambda a: a.mean(0), members0))
     perf_start = eval_perf(start_mean)
     perf_eki = eval_perf(found)
 
@@ -289,7 +309,10 @@ def report(cfg, r, timing):
         f"Ensemble Kalman search on the printed DIP: J = {cfg.ensemble}, up to {cfg.iterations} iterations "
         f"(stopped at {r['iterations']}), T = {cfg.T} s, t* = {cfg.t_star} s, gamma = {cfg.gamma}, state noise std "
         f"{cfg.noise_std} every {cfg.dt * 1e3:g} ms. Wall time of the search: **{timing['search_wall_s']:.1f} s** on this "
-        f"machine ({r['simulations']} closed-loop simulations of {cfg.T} s; the thesis used a 12-core cluster).",
+        f"machine ({r['simulations']} closed-loop simulations of {cfg.T} s; the thesis used a 12-core cluster)."
+        + (" Initial states drawn per member (Procedure 1)." if cfg.x0_draw == "per_member" else "")
+        + (f" One free basis vector, its singular value fixed at {cfg.init_s[0]:g}." if cfg.free_vectors == 1
+           else ""),
         "",
         f"- found P: basis rows {np.round(r['P_basis'], 4).tolist()}, singular values "
         f"{np.round(r['P_singular_values'], 1).tolist()}",

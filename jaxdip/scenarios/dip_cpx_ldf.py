@@ -26,7 +26,9 @@ import numpy as np
 import jaxdip as jd
 from jaxdip.estimators import CPX, LDF
 from jaxdip.plants import dip
+from jaxdip.plants.dip_friction import CartFriction
 from jaxdip.sim import dip_sensors
+from jaxdip.sim.actuators import Chain, Deadzone, InputBacklash
 from jaxdip.sim.disturbance import InputDisturbance
 
 INF = float("inf")
@@ -71,13 +73,37 @@ class DipCpxLdf:
     state_bound: Sequence = (0.5, 0.7854, 0.7854, INF, INF, INF)
     tail: float = 1.0  # the last ``tail`` seconds decide "stabilised" (the ``tail`` metric)
     straight_through: bool = False
+    cpx_weight: str = "sqrt_gamma"  # "printed": (3.7)'s I/gamma, i.e. the proximal weight gamma^2
+    deadzone: Sequence = (0.0, 0.0)  # (d_minus, d_plus) of (160) on the applied input (V)
+    backlash: float = 0.0  # half-width d of (161) on the applied input (V), slope 1
+    cart_coulomb: float = 0.0  # Coulomb friction on the cart (N)
+    coulomb_smoothing: float = 1e-3  # its sign smoothed as tanh(xc_dot / this) (m/s)
 
     @property
     def steps(self) -> int:
         return int(round(self.duration / self.dt))
 
     def plant(self) -> dip.DIP:
+        """The model every controller and estimator designs on."""
         return dip.DIP(variant=self.variant)
+
+    def truth(self):
+        """The simulated plant: the model, with Coulomb friction on the cart when ``cart_coulomb`` > 0."""
+        p = self.plant()
+        return CartFriction(p, self.cart_coulomb, self.coulomb_smoothing) if self.cart_coulomb > 0 else p
+
+    def actuator(self):
+        """The input disturbance, then (when set) the deadzone and the backlash."""
+        stages = [InputDisturbance(self.input_offset_std, self.input_noise_std)]
+        if tuple(self.deadzone) != (0.0, 0.0):
+            stages.append(Deadzone(self.deadzone[0], self.deadzone[1]))
+        if self.backlash > 0:
+            stages.append(InputBacklash(jnp.ones(1), -self.backlash * jnp.ones(1), self.backlash * jnp.ones(1)))
+        return stages[0] if len(stages) == 1 else Chain(*stages)
+
+    def effective_gamma(self, gamma):
+        """The proximal weight the configured gamma stands for under the ``cpx_weight`` reading."""
+        return gamma**2 if self.cpx_weight == "printed" else gamma
 
     def weight(self) -> np.ndarray:
         Q = np.asarray(self.Q, dtype=np.float64)
@@ -89,9 +115,11 @@ class DipCpxLdf:
         return jd.zoh(*jd.linearize(plant), self.dt), dip_sensors.output_matrix(plant.state_names)
 
     def cpx(self, gamma=None, output: Optional[str] = None) -> CPX:
+        """CPX at the configured gamma (through the ``cpx_weight`` reading), or at the proximal weight
+        ``gamma`` when one is given."""
         model, C = self.model()
-        return CPX(gamma=self.cpx_gamma if gamma is None else gamma, model=model, C=C, xhat0=jnp.zeros(6),
-                   output=output or self.cpx_output)
+        g = self.effective_gamma(self.cpx_gamma) if gamma is None else gamma
+        return CPX(gamma=g, model=model, C=C, xhat0=jnp.zeros(6), output=output or self.cpx_output)
 
     def ldf(self) -> LDF:
         return LDF.dip(self.dt, self.ldf_cart_cutoff, self.ldf_angle_cutoff, self.ldf_zeta)
@@ -107,11 +135,11 @@ class DipCpxLdf:
         """The closed loop around ``estimator`` (a name, or any estimator Module such as a ``jd.FanOut``)."""
         plant = self.plant()
         est = self.estimator(estimator) if isinstance(estimator, str) else estimator
-        return jd.Loop(plant=plant,
+        return jd.Loop(plant=self.truth(),
                        sensor=dip_sensors.encoders(self.dt, plant.state_names, self.encoder_quanta,
                                                    self.noise_counts, straight_through=self.straight_through),
                        estimator=est, controller=jd.control.PowerSeries.design(plant, self.weight(), self.R),
-                       actuator=InputDisturbance(self.input_offset_std, self.input_noise_std), dt=self.dt,
+                       actuator=self.actuator(), dt=self.dt,
                        substeps=self.substeps, state_bound=jnp.asarray(self.state_bound))
 
     def metrics(self) -> dict:

@@ -75,7 +75,7 @@ def sanitize(Y, penalty):
 class EKI(NamedTuple):
     """An EKI process over members shaped like ``template`` (a pytree)."""
 
-    G: Callable  # G(member_pytree, key) -> (m,) performance; key shared by the ensemble in an iteration
+    G: Callable  # G(member_pytree, key) -> (m,) performance; key shared by the ensemble unless member_keys
     template: object
     y_target: jnp.ndarray
     R: jnp.ndarray
@@ -88,6 +88,7 @@ class EKI(NamedTuple):
     # run_eki evaluates the members split over this process's devices (one XLA device per core under the
     # CLI); None: when there is more than one and they divide J
     shard: Optional[bool] = None
+    member_keys: bool = False  # True: member j is evaluated with fold_in(key, j) (its own x0 and noise)
 
     def unravel(self):
         return ravel_pytree(self.template)[1]
@@ -103,11 +104,17 @@ class EKI(NamedTuple):
         members and the blocks are gathered, so every device returns the whole Y."""
         unravel = self.unravel()
         V = state.members
+        first = jnp.zeros((), jnp.int32)
         if axis is not None:
             n = jax.lax.psum(1, axis)
             J = V.shape[0] // n
-            V = jax.lax.dynamic_slice_in_dim(V, jax.lax.axis_index(axis) * J, J)
-        Y = jax.vmap(lambda v: self.G(unravel(v), key))(V)
+            first = jax.lax.axis_index(axis) * J
+            V = jax.lax.dynamic_slice_in_dim(V, first, J)
+        if self.member_keys:
+            keys = jax.vmap(lambda j: jax.random.fold_in(key, j))(first + jnp.arange(V.shape[0]))
+            Y = jax.vmap(lambda v, k: self.G(unravel(v), k))(V, keys)
+        else:
+            Y = jax.vmap(lambda v: self.G(unravel(v), key))(V)
         if axis is not None:
             Y = jax.lax.all_gather(Y, axis, tiled=True)
         return sanitize(jnp.atleast_2d(Y.reshape(state.members.shape[0], -1)), self.penalty)

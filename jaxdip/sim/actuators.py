@@ -114,3 +114,46 @@ class OutputBacklash(Sensor):
         u = x[self.channel:self.channel + 1]
         psi = backlash(psi, u_prev, u, self.m, self.d_minus, self.d_plus)
         return (psi, u), x.at[self.channel].set(psi[0]), psi[0]
+
+
+class InputBacklash(Actuator):
+    """The backlash (161) on the input signal (standard form, see ``backlash``), starting engaged at zero.
+
+    Slope ``m``, dead band [d_minus, d_plus] in input units; d_minus = d_plus = 0 with m = 1 passes u. ``aux``
+    is the output."""
+
+    m: jax.Array = param(1.0)
+    d_minus: jax.Array = param(0.0)
+    d_plus: jax.Array = param(0.0)
+
+    def init(self, key, x0):
+        z = jnp.zeros(jnp.shape(self.m) or (1,))
+        return (z, z)
+
+    def step(self, state, u, key, k):
+        psi, u_prev = state
+        psi = backlash(psi, u_prev, u, self.m, self.d_minus, self.d_plus)
+        return (psi, u), psi, psi
+
+
+class Chain(Actuator):
+    """Actuators applied one after the other (the first sees the controller's u). Each stage gets its own key
+    (``split(key, n)``) and keeps its own state; ``aux`` is the tuple of the stages' aux."""
+
+    stages: tuple
+
+    def __init__(self, *stages: Actuator):
+        self.stages = tuple(stages)
+
+    def init(self, key, x0):
+        keys = jax.random.split(key, len(self.stages))
+        return tuple(s.init(k, x0) for s, k in zip(self.stages, keys))
+
+    def step(self, state, u, key, k):
+        keys = jax.random.split(key, len(self.stages))
+        new, aux = [], []
+        for s, st, kk in zip(self.stages, state, keys):
+            st, u, a = s.step(st, u, kk, k)
+            new.append(st)
+            aux.append(a)
+        return tuple(new), u, tuple(aux)
