@@ -369,18 +369,21 @@ def eki(args, workdir):
         holds = "yes" if ci[0] > 0.5 else "no" if ci[1] < 0.5 else "undecided"
         perf = f"{r['performance_start']['mean']:.3g} -> {r['performance']['mean']:.3g}"
         L.append(f"| {name} | {r['iterations']} | {_ci(f, ci)} | {perf} | `{shlex.join(cmd)}` |")
-        claim = "thesis:sec-3.2.1-one-vector" if "free_vectors=1" in sets else "thesis:procedure-1"
+        claim = "thesis:claim-3.2.1-one-vector" if "free_vectors=1" in sets else "thesis:procedure-1"
         rows.append(_row(claim, name, "the ensemble search finds a P that stabilises the model in simulation; "
                          + what, cmd, f"stabilised fraction {_ci(f, ci)} after "
                          f"{r['iterations']} iterations (J = 40)", "stabilising P found (no number printed)", holds))
     L += ["", "| reading | meaning |", "|---|---|"]
     L += [f"| {n} | {w} |" for n, w, _ in EKI_READINGS]
-    L += ["", "Note. The starting ensemble mean is the LQR-derived v1 (and v2, s = [1e6, 1e4]): where its "
+    L += ["", "Note. The starting ensemble has v1 from the LQR Riccati solution, a random v2 in v1-perp and B-perp, "
+          "and s = [1e6, 1e4]: where its mean's "
           "performance (2.24) above is finite (below the failure value 1000), it already stabilised the "
           "evaluation states, and the row checks that the search keeps and improves a stabilising P, not that it "
-          "finds one from an unstable start. Where both numbers are 1000 every evaluation failed: with the state "
-          "noise read as a variance (std 7.07e-3 per state per 1 ms period) the starting mean and the "
-          "found P fail every evaluation state and no judging trial stays up: that noise level is beyond what "
+          "finds one from an unstable start. Where both numbers are 1000, the starting mean and the found P "
+          "scored the failure value on every evaluation state (the members' own histories were not checked): "
+          "with the state "
+          "noise read as a variance (std 7.07e-3 per state per 1 ms period) no judging trial stays up either: "
+          "that noise level is beyond what "
           "these P (or the search from them) tolerate."]
     return L, rows
 
@@ -466,7 +469,7 @@ def theory(args, workdir):
              "with the two-measurement functional (1.9) and gamma_k growing as the theorem asks", THEORY_CMD,
              f"max phi_k(p_k) - min phi_k over the last quarter {mx(nl.tail_gap_growing)} ({len(nl.growth)} trials; "
              f"constant gamma: {mx(nl.tail_gap_constant)})", "phi_k(p_k) -> 0", h_nl),
-        _row("thesis:eq-1.9", "growing gamma_k, Lorenz", "the two-measurement functional (1.9) used in (1.10)",
+        _row("thesis:thm-1.3.2", "growing gamma_k, Lorenz", "the two-measurement functional (1.9) used in (1.10)",
              THEORY_CMD, f"error to the truth (median) {md(nl.truth_err_growing)} growing vs "
              f"{md(nl.truth_err_constant)} constant gamma", "no number printed", "n/a"),
         _row("thesis:prop-1.4.1", "growing gamma_k, DIP linearisation", "||p_k - (x_k + zeta_k)|| -> 0 under "
