@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from jaxdip.sim.allan import (allan_variance, avar_differenced_quantised, avar_gauss_markov, avar_white)
+from jaxdip.sim.allan import (allan_variance, avar_differenced_quantised, avar_gauss_markov,
+                              avar_sampled_white_gauss_markov, avar_white)
 
 
 def allan_loop(y, m):
@@ -27,6 +28,8 @@ def test_white_noise_law_sigma2_over_tau():
     ms = np.array([1, 4, 32, 256])
     # relative standard error of the overlapping estimate is about sqrt(1 / (N / m)) at these sizes
     np.testing.assert_allclose(allan_variance(y, ms), avar_white(s**2, ms), rtol=0.06)
+    np.testing.assert_allclose(avar_sampled_white_gauss_markov(s**2, 0.0, 1.0, 0.1, ms), avar_white(s**2, ms),
+                               rtol=1e-12)
 
 
 def test_gauss_markov_law():
@@ -42,6 +45,14 @@ def test_gauss_markov_law():
     # the closed form is for continuous averages; point samples differ by O(dt / tau) (at m = 1 by a factor
     # 3/2: (1/2) E[(b_{k+1} - b_k)^2] = q dt / 2 against q tau / 3), so m starts at 10
     np.testing.assert_allclose(allan_variance(b, ms), avar_gauss_markov(q, T, ms * dt), rtol=0.1)
+    # the exact law of the samples, m = 1 included
+    ms = np.array([1, 3, 10, 50, 200, 1000])
+    np.testing.assert_allclose(allan_variance(b, ms), avar_sampled_white_gauss_markov(0.0, q, T, dt, ms), rtol=0.06)
+    np.testing.assert_allclose(avar_sampled_white_gauss_markov(0.0, q, T, dt, 1), q * T / 2 * (1 - np.exp(-dt / T)),
+                               rtol=1e-12)  # (1/2) E[(b1 - b0)^2] = Var b (1 - a)
+    # far above dt the sampled and the continuous forms meet
+    np.testing.assert_allclose(avar_sampled_white_gauss_markov(0.0, q, T, 1e-3, 20_000),
+                               avar_gauss_markov(q, T, 20.0), rtol=1e-3)
     # limits: tau << T gives the random walk q tau / 3, tau >> T gives white noise q T^2 / tau
     np.testing.assert_allclose(avar_gauss_markov(q, T, 1e-3), q * 1e-3 / 3, rtol=1e-3)
     np.testing.assert_allclose(avar_gauss_markov(q, T, 1e5), q * T**2 / 1e5, rtol=1e-3)

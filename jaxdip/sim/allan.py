@@ -9,13 +9,21 @@ Table 7.1 / Fig. 7.1):
 
 * white noise of variance s^2 per sample: AVAR(m dt) = s^2 / m (the law sigma^2 / tau with sigma^2 = s^2 dt);
 * first-order Gauss-Markov bias b' = -b / T + w, E[w(t) w(s)] = q delta(t - s) (stationary variance q T / 2):
-  AVAR(tau) = q T^2 / tau [1 - T / (2 tau) (3 - 4 e^{-tau/T} + e^{-2 tau/T})];
+  AVAR(tau) = q T^2 / tau [1 - T / (2 tau) (3 - 4 e^{-tau/T} + e^{-2 tau/T})] for averages over continuous time;
+  a sensor *samples* b, and for samples the exact law follows from the autocovariance R(k) of any stationary
+  sequence (``avar_stationary``): with ybar_1, ybar_2 adjacent means of m samples,
+      AVAR(m) = Var(ybar) - Cov(ybar_1, ybar_2)
+              = m^-2 sum_{|k|<m} (m - |k|) (R(k) - R(m + k)),
+  which for the sampled Gauss-Markov bias (R(k) = q T / 2 a^|k|, a = e^{-dt/T}) differs from the continuous
+  form by O(dt / tau) (a factor 3/2 at m = 1);
 * a rate obtained by differencing a quantised position (quantum Q) that moves across many quanta: the
   quantisation errors e_k are close to independent U(-Q/2, Q/2), the cluster mean is (e_{k+m} - e_k) / tau plus
   the true rate, so AVAR(tau) = (1/2) E[(e_{k+2m} - 2 e_{k+m} + e_k)^2] / tau^2 = Q^2 / (4 tau^2).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -53,3 +61,22 @@ def avar_gauss_markov(q: float, T: float, tau) -> np.ndarray:
 def avar_differenced_quantised(quantum: float, tau) -> np.ndarray:
     """Rate from differences of a position quantised to ``quantum``, the position sweeping many quanta."""
     return quantum**2 / (4.0 * np.asarray(tau, dtype=np.float64) ** 2)
+
+
+def avar_stationary(R, m) -> np.ndarray:
+    """Exact Allan variance at cluster sizes ``m`` of a stationary sequence with autocovariance ``R`` (a
+    function of an integer-lag array, even in the lag)."""
+    out = []
+    for mi in np.atleast_1d(np.asarray(m)).astype(int):
+        k = np.arange(-(mi - 1), mi)
+        w = (mi - np.abs(k)).astype(np.float64)
+        out.append(float(np.sum(w * (R(k) - R(mi + k))) / mi**2))
+    return np.asarray(out)
+
+
+def avar_sampled_white_gauss_markov(white_var: float, q: float, T: float, dt: float, m) -> np.ndarray:
+    """White noise of variance ``white_var`` per sample plus a Gauss-Markov bias (intensity ``q``, time
+    constant ``T``) sampled every ``dt``: the exact Allan variance of the samples at cluster sizes ``m``."""
+    a = math.exp(-dt / T)
+    R = lambda k: white_var * (k == 0) + 0.5 * q * T * a ** np.abs(k)  # noqa: E731
+    return avar_stationary(R, m)
