@@ -275,3 +275,28 @@ def test_flat_law_keeps_unmodeled_unstable_up_where_lqr_falls():
     d_lqr, d_k10, d_pr = (np.asarray(S.scores_at(lp, x0, 0.1, 2000, jax.random.PRNGKey(0), range(16))[1])
                           for lp in loops)
     assert 0 < d_lqr.sum() < 16 and d_k10.sum() == 0 and d_pr.all()
+
+
+def test_virtual_sign_reverses_only_the_inverted_gain_and_is_validated():
+    from jaxdip import config as C
+    from jaxdip.experiments import twip_extra_control as X
+
+    d = twip_dlqr(twip.default_params(), Q=(1.0, 1.0, 0.1, 0.1), R=1.0, dt=0.01)
+    A1, A2, A3, A4, B1, B2 = ec.model_coefficients(d.A, d.B)
+    for virtual, gain in (("printed", A2), ("effective", A2 - B1 * A4 / B2)):
+        for sign in (1.0, -1.0):
+            p = ec.extra_control_params(d.K, d.A, d.B, virtual=virtual, virtual_sign=sign)
+            np.testing.assert_allclose(float(p.a_virtual), sign * float(gain), rtol=1e-14)
+    # the tilt counted the other way (x3, x4 -> -x3, -x4) flips A2 and the effective gain together: the
+    # printed law's wrong sign is not a coordinate convention
+    flip = np.diag([1.0, 1.0, -1.0, -1.0])
+    Af, Bf = flip @ np.asarray(d.A) @ flip, flip @ np.asarray(d.B)
+    a1, a2, a3, a4, b1, b2 = ec.model_coefficients(jnp.asarray(Af), jnp.asarray(Bf))
+    assert np.sign(float(a2 - b1 * a4 / b2)) / np.sign(float(a2)) == np.sign(float(A2 - B1 * A4 / B2)) / np.sign(float(A2))
+    with pytest.raises(C.ConfigError) as e:
+        C.load(X.TwipExtraControlConfig, sets=["virtual_sign=0.5"])
+    assert e.value.key == "virtual_sign"
+    cfg = C.load(X.TwipExtraControlConfig, sets=['variants=["virtual=printed; virtual_sign=-1.0"]'])
+    assert X.variant_config(cfg, cfg.variants[0]).virtual_sign == -1.0
+    with pytest.raises(C.ConfigError):
+        C.load(X.TwipExtraControlConfig, sets=["backlash_law=other"])

@@ -333,3 +333,38 @@ def eqx_tree_at_ideal(s):
     import equinox as eqx
 
     return eqx.tree_at(lambda m: m.ideal, s, jnp.asarray(1.0))
+
+
+def backlash_printed_python(u_seq, m, d_minus, d_plus, psi0=0.0, u0=0.0):
+    """(161) exactly as printed: direction from u(k+1) - u(k), engaged value m u(k) - m d at the old input."""
+    psi, u_prev, out = psi0, u0, []
+    for u in u_seq:
+        up, down = m * u_prev - m * d_plus, m * u_prev - m * d_minus
+        if u - u_prev > 0 and psi <= up:
+            psi = up
+        elif u - u_prev < 0 and psi >= down:
+            psi = down
+        out.append(psi)
+        u_prev = u
+    return np.array(out)
+
+
+def test_printed_backlash_law_is_161_as_written_and_lags_the_standard_by_one_sample():
+    from jaxdip.sim.actuators import OutputBacklash
+
+    m, dm, dp = 1.0, -0.1, 0.1
+    u = _triangle(step=0.02)
+    sens = OutputBacklash(m, dm, dp, law="printed")
+    xs = jnp.zeros((len(u), 4)).at[:, 2].set(jnp.asarray(u))
+    state = sens.init(None, None)
+    _, (y, psi) = jax.lax.scan(lambda s, x: (lambda r: (r[0], (r[1], r[2])))(sens.step(s, x, None, 0)), state, xs)
+    ref = backlash_printed_python(u, m, dm, dp)
+    np.testing.assert_allclose(np.asarray(psi), ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(y[:, 2]), ref, rtol=0, atol=1e-12)
+    # where engaged in both (input moving on the same side), printed = standard one sample later
+    std = backlash_python(u, m, dm, dp)
+    engaged = np.nonzero((np.abs(np.diff(std)) > 0) & (np.abs(np.diff(ref)) > 0))[0][5:-5]
+    assert engaged.size > 50
+    np.testing.assert_allclose(ref[engaged + 1], std[engaged], atol=1e-12)
+    with pytest.raises(ValueError):
+        backlash(0.0, 0.0, 1.0, 1.0, -0.1, 0.1, law="nonsense")

@@ -1,6 +1,7 @@
 """jaxdip.tune: transforms, the tuner (quadratic convergence, checkpoint/resume), and the gradients of every
 target (cpx, rwp, dmso, rp, extra) against central finite differences."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -285,3 +286,50 @@ def test_extra_quick_cli_under_a_minute(tmp_path):
     t0 = time.perf_counter()
     res, _ = _cli(tmp_path, "--quick", "--set", "target=extra")
     assert time.perf_counter() - t0 < 60 and np.isfinite(res["extra"]["loss_tuned"])
+
+
+class _Probe(eqx.Module):
+    """A trial that returns its scaled leaf and a draw from its own key (to see both streams)."""
+
+    a: jax.Array
+
+    def __call__(self, key):
+        return self.a, jax.random.normal(key)
+
+
+def test_scenario_draw_is_uniform_per_entry_and_keeps_the_trials_noise():
+    from scipy import stats as sps
+
+    import jaxdip as jd
+
+    a, s, n = jnp.array([2.0, -0.5]), 0.4, 4000
+    plain = jd.monte_carlo(_Probe(a), jax.random.PRNGKey(3), n)
+    drawn = jd.monte_carlo(T.with_scenarios(_Probe(a), {"x0": [lambda p: p.a]}, {"x0": s}),
+                           jax.random.PRNGKey(3), n)
+    np.testing.assert_array_equal(np.asarray(plain[1]), np.asarray(drawn[1]))  # the trial's noise unchanged
+    f = np.asarray(drawn[0]) / np.asarray(a)
+    for j in range(2):  # factor 1 + U(-s, s), each entry on its own
+        assert sps.kstest(f[:, j], sps.uniform(loc=1 - s, scale=2 * s).cdf).pvalue > 1e-3
+    assert abs(np.corrcoef(f[:, 0], f[:, 1])[0, 1]) < 0.1
+    # a spread of 0 (or a kind the trial lacks) leaves the trial itself
+    p = _Probe(a)
+    assert T.with_scenarios(p, {"x0": [lambda q: q.a]}, {"x0": 0.0, "bias": 0.3}) is p
+
+
+def test_heldout_spreads_are_validated():
+    with pytest.raises(C.ConfigError) as e:
+        C.load(T.TuneConfig, sets=["heldout_bias_spread=1.0"])
+    assert e.value.key == "heldout_bias_spread"
+
+
+@pytest.mark.parametrize("target", ["rwp", "rp"])
+def test_heldout_scenarios_change_each_seed_and_spread_zero_is_the_tuning_scenario(target):
+    cfg = C.load(T.TuneConfig, sets=[f"target={target}", "duration=0.2", "substeps=2"])
+    tg = T.make_target(cfg, **({"quantize": False} if target == "rwp" else {}))
+    key, seeds = jax.random.PRNGKey(0), np.arange(4)
+    nominal = np.asarray(tg.objective(seeds, smooth=False).per_seed(tg.paper, key))
+    zero = {k: 0.0 for k in T.SCENARIO_KINDS}
+    same = np.asarray(tg.objective(seeds, smooth=False, scenarios=zero).per_seed(tg.paper, key))
+    np.testing.assert_array_equal(nominal, same)
+    varied = np.asarray(tg.objective(seeds, smooth=False, scenarios=cfg.scenario_spreads()).per_seed(tg.paper, key))
+    assert np.all(np.isfinite(varied)) and np.all(np.abs(varied - nominal) > 1e-6 * np.abs(nominal))

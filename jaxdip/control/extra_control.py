@@ -155,16 +155,18 @@ def model_coefficients(A, B):
 
 def extra_control_params(K, A, B, *, dt=0.01, v_d=0.1, x1d0=0.0, k1=2.5, k2=2.5, n_hidden=10, b=1.0,
                          gamma=0.1, sigma=0.01, u_max=11.1, extra=1.0, v_scale=1.0, ff=1.0,
-                         tau_d=0.05, virtual="printed") -> ExtraControlParams:
+                         tau_d=0.05, virtual="printed", virtual_sign=1.0) -> ExtraControlParams:
     """The §8.2 values by default: k1 = k2 = 2.5, B1 = B2 = ones(10), all gamma = 0.1, all sigma = 0.01.
 
     ``virtual``: "printed" (93) as printed; "effective" inverts A2 - B1 A4 / B2 instead of A2; "flat" also
-    measures e1, e2 on the flat output (see the module doc)."""
+    measures e1, e2 on the flat output (see the module doc). ``virtual_sign`` = -1 reverses the sign in front
+    of the inverted gain in (93) (the reading "(93) carries a sign slip"; flipping the tilt's orientation does not
+    do this: it reverses A2 and A2 - B1 A4 / B2 together)."""
     if virtual not in VIRTUAL:
         raise ValueError(f"virtual must be one of {VIRTUAL}, got {virtual!r}")
     A1, A2, A3, A4, B1, B2 = model_coefficients(jnp.asarray(A), jnp.asarray(B))
     ones = jnp.ones(n_hidden)
-    a_virtual = A2 if virtual == "printed" else A2 - B1 * A4 / B2
+    a_virtual = _f(virtual_sign) * (A2 if virtual == "printed" else A2 - B1 * A4 / B2)
     beta = B1 / B2 if virtual == "flat" else jnp.zeros_like(B1)
     return ExtraControlParams(
         K=jnp.reshape(_f(K), (1, 4)), dt=_f(dt), A1=A1, A2=A2, A3=A3, A4=A4, B1=B1, B2=B2, v_d=_f(v_d),

@@ -16,13 +16,21 @@ rwp, dmso, rp, extra: see ``RWPTarget``, ``DMSOTarget`` (Gamma and diag K_MSO on
 ``twip-dmso``; ``smoothing`` picks that experiment's ``encoder_gradient``), ``RPTarget`` (gamma of (2.14) on the
 DIP with a fixed LQR-derived P), ``ExtraTarget`` (k1, k2 and the four learning rates of the TWIP extra control on
 the ``unmodeled`` case, Table 8.3's score); ``smoothing`` does not apply to rp and extra: no quantiser.
+
+Held-out scenarios. The tuning seeds run the target's nominal scenario; every held-out seed draws its own
+(``ScenarioDraw``): the initial state, the constant sensor bias and the disturbance's size are each scaled by
+1 + U(-s, s) with s = ``heldout_x0_spread``, ``heldout_bias_spread``, ``heldout_disturbance_spread`` (default
+0.5 each; 0 everywhere gives the tuning scenario with new noise only, the behaviour before these keys). Which
+leaves each kind scales is the target's ``scenario_leaves``; a kind a target lacks is not drawn.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any, Optional
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -39,6 +47,11 @@ from jaxdip.tune import Bounded, Log, Objective, random_search, tune
 
 IMPLEMENTED = ("cpx", "rwp", "dmso", "rp", "extra")
 HELDOUT_OFFSET = 1_000_000  # held-out seed i is base seed HELDOUT_OFFSET + i; tuning seeds are 0 .. seeds-1
+# the held-out scenario of seed i is drawn from fold_in(key_i, SCENARIO_TAG): a stream none of the trial's own
+# draws uses (they take fold_in(key_i, 0) and splits of key_i), so a seed's noise is the same with or without
+# scenario variation, and the paper's, tuned and random-search values meet the same scenarios (paired)
+SCENARIO_TAG = 0x5CE9A410
+SCENARIO_KINDS = ("x0", "bias", "disturbance")
 
 
 @dataclass
@@ -71,6 +84,18 @@ class TuneConfig:
                                        "x/÷ this")
     wheel_weight: float = C.field(1e-3, C.nonneg_finite,
                                   doc="rwp: weight of the integrated squared wheel speed ((rad/s)^2 s) in the loss")
+    heldout_x0_spread: float = C.field(
+        0.5, C.nonneg_finite,
+        doc="held-out seeds: each scales its initial state by (1 + U(-s, s)) per entry (cpx, rp: the radius / std of "
+            "the initial-state draw; rwp: theta0; dmso, extra: x0); 0: the tuning scenario")
+    heldout_bias_spread: float = C.field(
+        0.5, C.nonneg_finite,
+        doc="held-out seeds: each scales the constant sensor bias by (1 + U(-s, s)) (rwp: d = -0.08 rad; the other "
+            "targets have none)")
+    heldout_disturbance_spread: float = C.field(
+        0.5, C.nonneg_finite,
+        doc="held-out seeds: each scales the disturbance's size by (1 + U(-s, s)) (cpx: the white input "
+            "disturbance's std; rp: the state noise's std; extra: the gains of d1, d2 (185); rwp, dmso: none)")
 
     def loads(self) -> list[Load]:
         n = steps_of(self.duration, 0.001)  # the finest period of the targets (the DIP's 1 ms)
@@ -82,6 +107,45 @@ class TuneConfig:
             raise C.ConfigError("target", f"must be one of {', '.join(map(repr, IMPLEMENTED))}")
         if self.search_high <= self.search_low:
             raise C.ConfigError("search_high", "must exceed search_low")
+        for kind in SCENARIO_KINDS:
+            if getattr(self, f"heldout_{kind}_spread") >= 1.0:  # a factor 1 + U(-s, s) must stay positive
+                raise C.ConfigError(f"heldout_{kind}_spread", "must be below 1 (the factor 1 + U(-s, s) keeps its sign)")
+
+    def scenario_spreads(self) -> dict:
+        """{kind: spread} of the held-out scenario draw."""
+        return {k: getattr(self, f"heldout_{k}_spread") for k in SCENARIO_KINDS}
+
+
+class ScenarioDraw(eqx.Module):
+    """A Monte Carlo trial ``fn(key, *rest)`` whose scenario is drawn per seed: every leaf that a ``where``
+    selects is multiplied by 1 + U(-s, s) (independently per entry), from ``fold_in(key, SCENARIO_TAG)``; the
+    trial then runs with its own key unchanged."""
+
+    fn: Any
+    wheres: tuple = eqx.field(static=True)
+    spreads: tuple = eqx.field(static=True)
+
+    def __call__(self, key, *rest):
+        ks = jax.random.split(jax.random.fold_in(key, SCENARIO_TAG), len(self.wheres))
+        fn = self.fn
+        for where, s, k in zip(self.wheres, self.spreads, ks):
+            leaf = where(fn)
+            fn = eqx.tree_at(where, fn, leaf * scenario_factor(k, s, jnp.shape(leaf)))
+        return fn(key, *rest)
+
+
+def scenario_factor(key, spread: float, shape=()):
+    """1 + U(-spread, spread), per entry of ``shape``."""
+    return 1.0 + spread * jax.random.uniform(key, shape, minval=-1.0, maxval=1.0)
+
+
+def with_scenarios(fn, leaves: dict, spreads: Optional[dict]):
+    """``fn`` drawing its scenario per seed (``ScenarioDraw``) over the ``leaves`` ({kind: [where, ...]}) whose
+    kind has a positive spread; ``fn`` itself when none has (the tuning scenario, unchanged)."""
+    pairs = [(w, float(spreads[k])) for k, ws in leaves.items() for w in ws if spreads and spreads.get(k, 0.0) > 0]
+    if not pairs:
+        return fn
+    return ScenarioDraw(fn, tuple(w for w, _ in pairs), tuple(s for _, s in pairs))
 
 
 # ---- targets ------------------------------------------------------------------------------------------------
@@ -93,7 +157,13 @@ class Target:
     name: str
     param: str  # the parameter drawn in the landscape
 
-    def objective(self, seeds, smooth: bool):
+    # {kind: [where, ...]}: the leaves of the object that ``objective`` runs through ``monte_carlo`` which a
+    # held-out scenario draw scales (``SCENARIO_KINDS``); a kind a target lacks is absent
+    scenario_leaves: dict = {}
+
+    def objective(self, seeds, smooth: bool, scenarios: Optional[dict] = None):
+        """J(theta, key) on ``seeds``; ``scenarios`` ({kind: spread}) draws each seed's scenario
+        (``with_scenarios``)."""
         raise NotImplementedError
 
     def log_uniform_around(self, names, keys):
@@ -137,7 +207,9 @@ class CPXTarget(Target):
         var = sol.metrics["x"]["var"]
         return self.deg2 * (var[..., 1] + var[..., 2]) + self.penalty * (sol.result != RESULTS.ok)
 
-    def objective(self, seeds, smooth: bool):
+    scenario_leaves = {"x0": [lambda r: r.x0.radius], "disturbance": [lambda r: r.loop.actuator.white_std]}
+
+    def objective(self, seeds, smooth: bool, scenarios: Optional[dict] = None):
         from jaxdip.engine import monte_carlo
 
         seeds = np.asarray(seeds)
@@ -147,7 +219,8 @@ class CPXTarget(Target):
         base = self.rollouts[bool(smooth)]
 
         def per_seed(theta, key):
-            return self.loss(monte_carlo(self.with_gamma(base, theta["gamma"]), key, n, offset=offset, shard=False))
+            r = with_scenarios(self.with_gamma(base, theta["gamma"]), self.scenario_leaves, scenarios)
+            return self.loss(monte_carlo(r, key, n, offset=offset, shard=False))
 
         return Objective(per_seed)
 
@@ -194,9 +267,9 @@ class RWPTarget(Target):
         e = r.loop.estimator
         return e.homd.pend.k1, e.homd.pend.k2, e.homd.pend.alpha, e.L0
 
-    def objective(self, seeds, smooth: bool):
-        import equinox as eqx
+    scenario_leaves = {"x0": [lambda r: r.x0.theta0], "bias": [lambda r: r.loop.sensor.const_bias]}
 
+    def objective(self, seeds, smooth: bool, scenarios: Optional[dict] = None):
         import jaxdip as jd
 
         seeds = np.asarray(seeds)
@@ -206,7 +279,7 @@ class RWPTarget(Target):
 
         def per_seed(theta, key):
             r = eqx.tree_at(self._where, rollout, (theta["k_p1"], theta["k_p2"], theta["alpha_p"], theta["L0"]))
-            sol = jd.monte_carlo(r, key, n, offset=offset)
+            sol = jd.monte_carlo(with_scenarios(r, self.scenario_leaves, scenarios), key, n, offset=offset)
             x2 = sol.metrics["x2"]
             return self.dt * (x2[:, 0] + self.w * x2[:, 3]) + self.penalty * (sol.result != jd.RESULTS.ok)
 
@@ -253,14 +326,16 @@ class DMSOTarget(Target):
         return eqx.tree_at(lambda r: (r.rollout.loop.estimator.Gamma, r.rollout.loop.estimator.K), run,
                            (theta["Gamma"], jnp.diag(theta["K"])))
 
-    def objective(self, seeds, smooth: bool):
+    scenario_leaves = {"x0": [lambda run: run.rollout.x0.x0]}
+
+    def objective(self, seeds, smooth: bool, scenarios: Optional[dict] = None):
         import jaxdip as jd
         from jaxdip.scenarios.twip_initial import seed_runs
 
         runs = seed_runs(np.asarray(seeds))
 
         def per_seed(theta, key):
-            run = self.make_run(theta, smooth)
+            run = with_scenarios(self.make_run(theta, smooth), self.scenario_leaves, scenarios)
             parts = [jd.monte_carlo(run, key, n, offset=off) for off, n in runs]
             return jnp.concatenate([e + self.penalty * d for e, d in parts])
 
@@ -280,6 +355,8 @@ class RPTarget(Target):
     value gamma = 40 (thesis §3.2.2, the value eki-dip judges with)."""
 
     name, param = "rp", "gamma"
+    # drawn in ``objective`` itself (the trial is a function, not a Module): the setup's x0_std and noise_std
+    scenario_leaves = {"x0": [], "disturbance": []}
 
     def __init__(self, cfg: TuneConfig):
         from jaxdip.control.spd import P_Vs
@@ -294,7 +371,7 @@ class RPTarget(Target):
         self.spec = {"gamma": Log()}
         self.factor = cfg.search_factor
 
-    def objective(self, seeds, smooth: bool):
+    def objective(self, seeds, smooth: bool, scenarios: Optional[dict] = None):
         from jaxdip.search.p_search import BasisMember, continuous_performance
 
         seeds = np.asarray(seeds)
@@ -304,10 +381,22 @@ class RPTarget(Target):
         # a one-vector member whose P_{V,s} is self.P (member_P re-derives it from V and log s)
         member = BasisMember(self.v1[None, :], jnp.log(jnp.asarray([1e6])))
 
+        sx = float((scenarios or {}).get("x0", 0.0))
+        sd = float((scenarios or {}).get("disturbance", 0.0))
+
         def per_seed(theta, key):
-            G = continuous_performance(self.plant, self.scfg._replace(gamma=theta["gamma"]))
+            base = self.scfg._replace(gamma=theta["gamma"])
+
+            def trial(k):
+                cfg = base
+                if sx > 0 or sd > 0:  # the held-out scenario: ScenarioDraw's rule on the setup's two stds
+                    kx, kd = jax.random.split(jax.random.fold_in(k, SCENARIO_TAG))
+                    cfg = base._replace(x0_std=base.x0_std * scenario_factor(kx, sx, jnp.shape(base.x0_std)),
+                                        noise_std=base.noise_std * scenario_factor(kd, sd))
+                return jnp.log(continuous_performance(self.plant, cfg)(member, k)[0])
+
             # seed i's key is fold_in(key, i), the driver's convention
-            return jd.monte_carlo(lambda k: jnp.log(G(member, k)[0]), key, n, offset=offset, shard=False)
+            return jd.monte_carlo(trial, key, n, offset=offset, shard=False)
 
         return Objective(per_seed)
 
@@ -359,11 +448,23 @@ class ExtraTarget(Target):
                                                      "gamma22", "sigma11", "sigma12", "sigma21", "sigma22",
                                                      "u_max", "v_scale", "a_virtual", "beta", "tau_d", "ff")}}}
 
-    def objective(self, seeds, smooth: bool):
+    scenario_leaves = {"x0": [lambda s: s.rollout.x0.x0],
+                       "disturbance": [lambda s: s.rollout.loop.plant.g1, lambda s: s.rollout.loop.plant.g2]}
+
+    def objective(self, seeds, smooth: bool, scenarios: Optional[dict] = None):
+        import jaxdip as jd
+        from jaxdip.scenarios.twip_initial import seed_runs
+
         seeds = np.asarray(seeds)
 
         def score_div(theta, key):
-            return self.S.scores_at(self.make_loop(theta), self.x0, self.SPREAD, self.n_steps, key, seeds)
+            if not scenarios:
+                return self.S.scores_at(self.make_loop(theta), self.x0, self.SPREAD, self.n_steps, key, seeds)
+            # scores_at's runs with each seed's scenario drawn (seed 0 would start at its drawn x0)
+            run = with_scenarios(self.S.scored(self.make_loop(theta), self.x0, self.SPREAD, self.n_steps),
+                                 self.scenario_leaves, scenarios)
+            parts = [jd.monte_carlo(run, key, n, offset=off, index=True) for off, n in seed_runs(seeds)]
+            return jnp.concatenate([p[0] for p in parts]), jnp.concatenate([p[1] for p in parts])
 
         def per_seed(theta, key):
             s, d = score_div(theta, key)
@@ -397,7 +498,7 @@ def run(cfg: TuneConfig, ctx: RunContext | None = None, progress: bool = True) -
     held_seeds = HELDOUT_OFFSET + np.arange(cfg.heldout_seeds)
     J_tune = tg.objective(tune_seeds, smooth=cfg.smoothing == "straight_through")
     J_eval = jax.jit(tg.objective(tune_seeds, smooth=False))  # forward values are the same; no gradient needed
-    held_obj = tg.objective(held_seeds, smooth=False)
+    held_obj = tg.objective(held_seeds, smooth=False, scenarios=cfg.scenario_spreads())
     held = jax.jit(held_obj.per_seed)
     held_div = jax.jit(held_obj.diverged) if held_obj.diverged is not None else None
 
@@ -442,6 +543,7 @@ def run(cfg: TuneConfig, ctx: RunContext | None = None, progress: bool = True) -
         "loss_tuned": evals["tuned"][0], "loss_tuned_ci95": tuned_ci,
         "loss_random_search": evals["random_search"][0], "loss_random_search_ci95": evals["random_search"][1],
         **({f"heldout_diverged_{n}": evals[n][2] for n in evals} if held_div is not None else {}),
+        "heldout_scenario_spreads": {k: v for k, v in cfg.scenario_spreads().items() if k in tg.scenario_leaves},
         "tuned_below_paper_nonoverlapping": bool(tuned_ci[1] < paper_ci[0]),
         "loss_tuned_minus_paper": diff[0], "loss_tuned_minus_paper_ci95": diff[1],
         "simulations_used": sims_grad, "random_search_simulations": int(res.steps * cfg.seeds),
@@ -513,7 +615,11 @@ def report(cfg, r, timing) -> str:
         f"{'common random numbers' if cfg.crn else 'resampled keys'}, {'Adam lr' if cfg.optimizer == 'adam' else 'Rprop initial step'} {cfg.lr} on "
         f"log-parameters, clip {cfg.clip}, {cfg.mode}-mode derivatives, quantiser derivative: "
         f"{cfg.smoothing if cfg.target in ('cpx', 'rwp', 'dmso') else 'n/a, no quantiser'}); {r['steps']} steps"
-        f"{' (stopped early)' if r['stopped_early'] else ''}. Held-out: {cfg.heldout_seeds} disjoint seeds.",
+        f"{' (stopped early)' if r['stopped_early'] else ''}. Held-out: {cfg.heldout_seeds} disjoint seeds, "
+        + (("each drawing its scenario: " + ", ".join(f"{k} x (1 + U(-{v:g}, {v:g}))"
+                                                    for k, v in r["heldout_scenario_spreads"].items() if v > 0)
+            + " (the tuning seeds keep the nominal scenario).")
+           if any(v > 0 for v in r["heldout_scenario_spreads"].values()) else "in the tuning scenario."),
         "",
         "| | value | held-out loss (95% interval) |",
         "|---|---|---|",

@@ -74,7 +74,7 @@ THESIS = {
     "deadzone_backlash": {"lqr": 1451.9, "extra": 688.17, "nominal": 1434.5},
 }
 # the controller's own keys: a variant changes numbers in ExtraControlParams only (no recompilation)
-VARIANT_KEYS = ("virtual", "k1", "k2", "gamma", "sigma", "b", "v_scale", "tau_d")
+VARIANT_KEYS = ("virtual", "virtual_sign", "k1", "k2", "gamma", "sigma", "b", "v_scale", "tau_d")
 DEFAULT_VARIANTS = ("virtual=printed", "gamma=[0.0, 0.0, 0.0, 0.0]", "k1=10.0")
 FIGS = {"param": ("8.15", "8.16"), "unmodeled": ("8.17", "8.19"), "unmodeled_unstable": ("8.18", "8.19"),
         "deadzone": ("8.20", "8.21"), "deadzone_backlash": ("8.22", "8.23")}
@@ -110,6 +110,8 @@ class TwipExtraControlConfig:
     virtual: str = C.field("flat", C.one_of("printed", "effective", "flat"),
                            doc="virtual tilt (93): printed (A2), effective (A2 - B1 A4/B2), flat (that gain, flat-output "
                                "errors; see jaxdip.control.extra_control)")
+    virtual_sign: float = C.field(1.0, doc="sign in front of the inverted gain of (93): 1 as printed, -1 reversed "
+                                               "(the reading of a sign slip in (93))")
     tau_d: float = C.field(0.05, C.nonneg_finite,
                            doc="time constant (s) of the filtered difference giving xbar4 = d xbar3/dt (0: raw)")
     d_gains: list[float] = C.field([0.5, 0.25], C.finite, C.length(2), doc="coefficients of d1, d2 (185)")
@@ -118,6 +120,9 @@ class TwipExtraControlConfig:
     d1_freq: float = C.field(180.0 / math.pi, C.finite, doc="d1 = g1 x' sin(d1_freq x) (185; printed 180/pi)")
     deadzone: float = C.field(0.5, C.nonneg_finite, doc="deadzone half-width (V), d- = -d, d+ = d (160)")
     backlash_deg: float = C.field(0.1, C.nonneg_finite, doc="backlash half-width on the tilt (deg), m = 1 (162)")
+    backlash_law: str = C.field("standard", C.one_of("standard", "printed"),
+                                doc="backlash (161): standard (engaged output at the new input) or printed (at the "
+                                    "previous input u(k), as (161) is written)")
     nonlinear_truth: str = C.field("table_8_2", C.one_of("table_8_1", "table_8_2"),
                                    doc="perturbed truth of the deadzone cases (see the module doc)")
     tilt_bound_deg: float = C.field(90.0, C.positive_finite, doc="|phi| above this counts as a fall (diverged)")
@@ -134,6 +139,8 @@ class TwipExtraControlConfig:
                      state=64 * self.n_hidden + 256)]
 
     def validate(self):
+        if self.virtual_sign not in (1.0, -1.0):
+            raise C.ConfigError("virtual_sign", "must be 1 or -1")
         for i, spec in enumerate(self.variants):
             try:
                 variant_config(self, spec)
@@ -169,13 +176,14 @@ def variant_config(cfg, spec: str):
 def controller(cfg: TwipExtraControlConfig) -> ExtraControl:
     return S.controller(dt=cfg.dt, lqr_Q=cfg.lqr_Q, lqr_R=cfg.lqr_R, v_d=cfg.v_d, k1=cfg.k1, k2=cfg.k2,
                         n_hidden=cfg.n_hidden, b=cfg.b, gamma=cfg.gamma, sigma=cfg.sigma, u_max=cfg.u_max,
-                        v_scale=cfg.v_scale, feedforward=cfg.feedforward, tau_d=cfg.tau_d, virtual=cfg.virtual)
+                        v_scale=cfg.v_scale, feedforward=cfg.feedforward, tau_d=cfg.tau_d, virtual=cfg.virtual,
+                        virtual_sign=cfg.virtual_sign)
 
 
 def build_loop(cfg: TwipExtraControlConfig, case: str, system: str) -> jd.Loop:
     return S.loop(case, system, controller(cfg), dt=cfg.dt, substeps=cfg.substeps, d_gains=cfg.d_gains,
                   d_gains_unstable=cfg.d_gains_unstable, d1_freq=cfg.d1_freq, deadzone=cfg.deadzone,
-                  backlash_deg=cfg.backlash_deg, nonlinear_truth=cfg.nonlinear_truth,
+                  backlash_deg=cfg.backlash_deg, nonlinear_truth=cfg.nonlinear_truth, backlash_law=cfg.backlash_law,
                   tilt_bound_deg=cfg.tilt_bound_deg, state_bound=cfg.state_bound)
 
 

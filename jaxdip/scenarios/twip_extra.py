@@ -38,13 +38,13 @@ SYSTEMS = ("lqr", "extra", "nominal")
 
 def controller(*, dt=0.01, lqr_Q=(1.0, 1.0, 0.1, 0.1), lqr_R=1.0, v_d=0.1, k1=2.5, k2=2.5, n_hidden=10, b=1.0,
                gamma=(0.1, 0.1, 0.1, 0.1), sigma=(0.01, 0.01, 0.01, 0.01), u_max=11.1, v_scale=1.0,
-               feedforward=True, tau_d=0.05, virtual="flat", extra=1.0) -> ExtraControl:
+               feedforward=True, tau_d=0.05, virtual="flat", virtual_sign=1.0, extra=1.0) -> ExtraControl:
     """The LQR (180)-(181) on the nominal model (79), Table 8.1, plus the extra control (module doc of
     ``jaxdip.control.extra_control``); ``gamma``, ``sigma``: [11, 12, 21, 22] of (111)-(114)."""
     d = twip_dlqr(twip.default_params(), Q=tuple(lqr_Q), R=lqr_R, dt=dt)
     c = ExtraControl.design(d.K, d.A, d.B, dt=dt, v_d=v_d, k1=k1, k2=k2, n_hidden=n_hidden, b=b, gamma=0.0,
                             sigma=0.0, u_max=u_max, extra=extra, v_scale=v_scale, ff=1.0 if feedforward else 0.0,
-                            tau_d=tau_d, virtual=virtual)
+                            tau_d=tau_d, virtual=virtual, virtual_sign=virtual_sign)
     g = [jnp.asarray(v, jnp.float64) for v in gamma]
     s = [jnp.asarray(v, jnp.float64) for v in sigma]
     names = ("gamma11", "gamma12", "gamma21", "gamma22", "sigma11", "sigma12", "sigma21", "sigma22")
@@ -53,7 +53,8 @@ def controller(*, dt=0.01, lqr_Q=(1.0, 1.0, 0.1, 0.1), lqr_R=1.0, v_d=0.1, k1=2.
 
 def loop(case: str, system: str, ctrl: ExtraControl, *, dt=0.01, substeps=10, d_gains=(0.5, 0.25),
          d_gains_unstable=(0.75, 0.4), d1_freq=180.0 / math.pi, deadzone=0.5, backlash_deg=0.1,
-         nonlinear_truth="table_8_2", tilt_bound_deg=90.0, state_bound=(100.0, 50.0, 1000.0, 1000.0)) -> jd.Loop:
+         nonlinear_truth="table_8_2", tilt_bound_deg=90.0, state_bound=(100.0, 50.0, 1000.0, 1000.0),
+         backlash_law="standard") -> jd.Loop:
     """One case and system; ``ctrl``'s ``extra`` is set by the system (1 for ``extra``, else 0)."""
     if case not in CASES or system not in SYSTEMS:
         raise ValueError(f"unknown case/system {case!r}/{system!r}")
@@ -72,7 +73,7 @@ def loop(case: str, system: str, ctrl: ExtraControl, *, dt=0.01, substeps=10, d_
     bl = backlash_deg * DEG if case == "deadzone_backlash" else 0.0
     ctrl = eqx.tree_at(lambda c: c.extra, ctrl, jnp.asarray(1.0 if system == "extra" else 0.0))
     bound = [state_bound[0], state_bound[1], tilt_bound_deg * DEG, state_bound[3]]
-    return jd.Loop(plant=plant, sensor=OutputBacklash(1.0, -bl, bl), estimator=jd.Passthrough(),
+    return jd.Loop(plant=plant, sensor=OutputBacklash(1.0, -bl, bl, law=backlash_law), estimator=jd.Passthrough(),
                    controller=ctrl, actuator=Deadzone(-dz, dz), dt=dt, substeps=substeps, state_bound=bound)
 
 

@@ -21,15 +21,23 @@ def deadzone(u, d_minus, d_plus):
     return jnp.where((u >= d_minus) & (u < d_plus), 0.0, u)
 
 
-def backlash(psi, u_prev, u, m, d_minus, d_plus):
+BACKLASH_LAWS = ("standard", "printed")
+
+
+def backlash(psi, u_prev, u, m, d_minus, d_plus, law: str = "standard"):
     """One step of backlash (161) with output psi driven by input u.
 
     The printed law evaluates the engaged branches at u(k) while testing the direction with u(k+1) - u(k);
     that makes the output lag the input by a whole sample even when the gears are engaged, which is not what
-    backlash does. We use the standard form: when engaged the output is m (u_{k+1} - d) with the new input.
+    backlash does. ``law="standard"`` (the default): when engaged the output is m (u_{k+1} - d) with the new
+    input. ``law="printed"``: (161) as printed, the engaged branches m (u_k - d) at the previous input (the
+    reading test of Table 8.3's backlash row).
     """
-    up = m * (u - d_plus)
-    down = m * (u - d_minus)
+    if law not in BACKLASH_LAWS:
+        raise ValueError(f"backlash law must be one of {BACKLASH_LAWS}, got {law!r}")
+    at = u if law == "standard" else u_prev
+    up = m * (at - d_plus)
+    down = m * (at - d_minus)
     rising = (u - u_prev > 0) & (psi <= up)
     falling = (u - u_prev < 0) & (psi >= down)
     return jnp.where(rising, up, jnp.where(falling, down, psi))
@@ -104,6 +112,7 @@ class OutputBacklash(Sensor):
     d_minus: jax.Array = param(0.0)
     d_plus: jax.Array = param(0.0)
     channel: int = eqx.field(default=2, static=True)
+    law: str = eqx.field(default="standard", static=True)  # ``backlash``'s law: "standard" or "printed"
 
     def init(self, key, x0):
         z = jnp.zeros(1)
@@ -112,7 +121,7 @@ class OutputBacklash(Sensor):
     def step(self, state, x, key, k):
         psi, u_prev = state
         u = x[self.channel:self.channel + 1]
-        psi = backlash(psi, u_prev, u, self.m, self.d_minus, self.d_plus)
+        psi = backlash(psi, u_prev, u, self.m, self.d_minus, self.d_plus, self.law)
         return (psi, u), x.at[self.channel].set(psi[0]), psi[0]
 
 
