@@ -363,7 +363,8 @@ def _reproduce_parallel(args, reg, jobs: int) -> int:
                            time.perf_counter())
 
     try:
-        while pending or running:
+        # after a failure nothing new starts, and the loop ends once the running ones have finished
+        while running or (pending and not failed):
             while pending and len(running) < jobs and not failed:
                 launch(pending.pop(0)[0])
             time.sleep(0.2)

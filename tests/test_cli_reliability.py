@@ -231,3 +231,26 @@ def test_console_script_one_line(tmp_path):
                        capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and r.stderr.startswith("error: --out: "), r.stderr
     assert os.listdir(tmp_path) == ["mine.txt"]
+
+
+def test_parallel_reproduce_stops_after_a_failing_child(tmp_path):
+    """A failing experiment stops the parallel reproduce with its error line (it used to wait forever for the
+    experiments it would no longer start)."""
+    import subprocess
+    import sys
+
+    fake = tmp_path / "fake-python"
+    fake.write_text('#!/bin/sh\ncase "$*" in *eki-linear*) echo "error: boom"; exit 1;; esac\nexit 0\n')
+    fake.chmod(0o755)
+    code = (
+        "import sys, types\n"
+        "from jaxdip import cli\n"
+        f"sys.executable = {str(fake)!r}\n"
+        f"args = types.SimpleNamespace(out={str(tmp_path / 'o')!r}, quick=True, force=False, no_compile_cache=False)\n"
+        "reg = [(i, None) for i in ('eki-linear', 'dip-lqr', 'lorenz-mhe')]\n"
+        "sys.exit(cli._reproduce_parallel(args, reg, 1))\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1, r.stderr
+    assert "error: eki-linear: boom" in r.stderr
+    assert "dip-lqr done" not in r.stderr  # started after the failure: never launched
