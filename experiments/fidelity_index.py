@@ -179,7 +179,51 @@ def readings_status(rows: list[dict]) -> Status:
                   + (f"; ... {n - 1} more below" if n > 1 else ""), f"`{counted[0]['command']}` ...")
 
 
-def claim_status(claim: FC.Claim, rows: list[dict], runs: dict[str, dict], quick: bool) -> Status:
+def parent_of(row_id: str, known) -> str | None:
+    """The inventory claim a row id names: itself, or the longest known id it extends with "-<part>" (a claim
+    with several numbers is scored per part, e.g. ``stumfoll:table-8.3-param-lqr`` of ``stumfoll:table-8.3``)."""
+    if row_id in known:
+        return row_id
+    best = None
+    for k in known:
+        if row_id.startswith(k + "-") and (best is None or len(k) > len(best)):
+            best = k
+    return best
+
+
+def group_rows(rows_by_id: dict[str, list[dict]], known) -> tuple[dict[str, dict[str, list[dict]]], list[str]]:
+    """claim -> {row id (the claim's own or a part's) -> rows}; and the row ids that name no known claim."""
+    out: dict[str, dict[str, list[dict]]] = {}
+    unknown = []
+    for rid, rows in rows_by_id.items():
+        parent = parent_of(rid, known)
+        if parent is None:
+            unknown.append(rid)
+        else:
+            out.setdefault(parent, {})[rid] = rows
+    return out, sorted(unknown)
+
+
+def parts_status(parts: dict[str, list[dict]]) -> Status:
+    """A claim scored in parts holds only if every part holds under some reading."""
+    if len(parts) == 1:
+        return readings_status(next(iter(parts.values())))
+    sts = {pid: readings_status(rows) for pid, rows in parts.items()}
+    held = [pid for pid, st in sts.items() if st.kind == "reading"]
+    n_rows = sum(len([r for r in rows if r["holds"] != "n/a"]) for rows in parts.values())
+    if len(held) == len(sts):
+        return Status(f"reproduced: all {len(sts)} parts hold, each under its reading(s) (listed below)", "reading",
+                      "; ".join(f"{pid.split(':')[1]}: {sts[pid].ours}" for pid in held[:3]), "see Readings")
+    kind = "undecided" if all(st.kind in ("undecided", "pending") for st in sts.values()) else "not reproduced"
+    part_names = ", ".join(pid.split(":")[1] for pid in held) or "none"
+    return Status(f"not reproduced: {len(held)} of {len(sts)} parts hold under some reading ({part_names}); "
+                  f"{n_rows} readings rows tried (listed below)", kind, "", "see Readings")
+
+
+def claim_status(claim: FC.Claim, rows, runs: dict[str, dict], quick: bool) -> Status:
+    """``rows``: a list of rows of the claim, or {row id: rows} for a claim scored in parts."""
+    if isinstance(rows, dict):
+        return parts_status(rows) if rows else claim_status(claim, [], runs, quick)
     if rows:
         return readings_status(rows)
     if claim.readings:
@@ -243,7 +287,8 @@ def render(rows_by_claim: dict[str, list[dict]], files: list[str], runs: dict[st
            runs_label: str) -> str:
     claims = FC.CLAIMS
     known = FC.all_ids()
-    statuses = {c.id: claim_status(c, rows_by_claim.get(c.id, []), runs, quick) for c in claims}
+    grouped, unknown = group_rows(rows_by_claim, known)
+    statuses = {c.id: claim_status(c, grouped.get(c.id, {}), runs, quick) for c in claims}
     counts: dict[str, int] = {}
     for s in statuses.values():
         counts[s.kind] = counts.get(s.kind, 0) + 1
@@ -280,7 +325,7 @@ def render(rows_by_claim: dict[str, list[dict]], files: list[str], runs: dict[st
                 continue
             s = statuses[c.id]
             status = s.status
-            if c.id in rows_by_claim:
+            if c.id in grouped:
                 status += f" ([readings](#{_anchor(c.id)}))"
             L.append("| " + " | ".join(_cell(x) for x in (
                 f"`{c.id}`", c.where, c.claim + (f" *{c.notes}*" if c.notes else ""),
@@ -290,16 +335,20 @@ def render(rows_by_claim: dict[str, list[dict]], files: list[str], runs: dict[st
     L += [f"- `{q.id}`: {q.what}" for q in FC.QUALITATIVE]
     L += ["", "## Readings", ""]
     for c in claims:
-        rows = rows_by_claim.get(c.id)
-        if not rows:
+        parts = grouped.get(c.id)
+        if not parts:
             continue
+        rows = [r for pr in parts.values() for r in pr]
         L += [f'<a id="{_anchor(c.id)}"></a>', "", f"### {c.id}", "",
               f"Document: {c.document}. Rows from " + ", ".join(sorted({f"`docs/fidelity/{r['file']}`" for r in rows}))
-              + ".", "", "| reading | what | ours | document | holds | command |", "|---|---|---|---|---|---|"]
-        L += ["| " + " | ".join(_cell(x) for x in (r["reading"], r["what"], r["ours"], r["document"],
-                                                  f"**{r['holds']}**", f"`{r['command']}`")) + " |" for r in rows]
-        L.append("")
-    unknown = sorted(k for k in rows_by_claim if k not in known)
+              + ".", ""]
+        for pid, prs in parts.items():
+            if len(parts) > 1 or pid != c.id:
+                L += [f"Part `{pid}`: **{readings_status(prs).status}**", ""]
+            L += ["| reading | what | ours | document | holds | command |", "|---|---|---|---|---|---|"]
+            L += ["| " + " | ".join(_cell(x) for x in (r["reading"], r["what"], r["ours"], r["document"],
+                                                      f"**{r['holds']}**", f"`{r['command']}`")) + " |" for r in prs]
+            L.append("")
     if unknown:
         L += ["## Rows whose claim id the inventory does not know", ""]
         L += [f"- `{k}` ({len(rows_by_claim[k])} rows in "

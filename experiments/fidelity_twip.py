@@ -220,9 +220,9 @@ def table_8_3(args, workdir: str):
             h1 = h2 = "no"
         L.append(f"| {name} | {LAW_NAMES[law]} | {a} | 53.1% | {h1} | {b} | 37.3% | {h2} |")
         tag = "" if law == "main" else f" / {law}"
-        rows.append(_row("stumfoll:claim-8.2-53pct", f"{name}{tag}", "mean improvement of LQR + extra over LQR, "
+        rows.append(_row("stumfoll:table-8.3-53pct", f"{name}{tag}", "mean improvement of LQR + extra over LQR, "
                          "Table 8.3's four cases", shlex.join(cmd), a, "53.1%", h1))
-        rows.append(_row("stumfoll:claim-8.2-37pct", f"{name}{tag}", "mean improvement of LQR + extra over the "
+        rows.append(_row("stumfoll:table-8.3-37pct", f"{name}{tag}", "mean improvement of LQR + extra over the "
                          "nominal system", shlex.join(cmd), b, "37.3%", h2))
     return L, rows
 
@@ -279,7 +279,7 @@ def kf(args, workdir: str):
         t, ci = dm["convergence_time_s"]["phi_dot"], dm["convergence_time_s_ci95"]["phi_dot"]
         h = _inside(0.15, ci)
         L.append(f"| {bname} | {sname} | DMSO | {_ci(t, ci, 3)} | 0.15 | {h} | — | — | — | `{c}` |")
-        rows.append(_row("stumfoll:claim-8.1.3-dmso-0.15s", f"{bname}; {sname}", "DMSO tilt-rate convergence "
+        rows.append(_row("stumfoll:fig-8.13-dmso-0.15s", f"{bname}; {sname}", "DMSO tilt-rate convergence "
                          "time, noisy case", c, _ci(t, ci, 3) + " s", "0.15 s", h))
         for k in ("kf", "kf_printed", "kf_posterior"):
             if k not in r:
@@ -294,15 +294,15 @@ def kf(args, workdir: str):
                      + " / ".join(_g(ratio[s], 3) for s in ("x", "x_dot", "phi", "phi_dot"))
                      + f" | {equal} | {pos} | `{c}` |")
             rd = f"{k}; {bname}; {sname}"
-            rows.append(_row("stumfoll:claim-8.1.3-kf-1.3s", rd, "KF tilt-rate convergence time, noisy case", c,
+            rows.append(_row("stumfoll:fig-8.13-kf-1.3s", rd, "KF tilt-rate convergence time, noisy case", c,
                              _ci(t, ci, 3) + " s", "1.3 s", h))
             both = "yes" if h == "yes" and _inside(0.15, dm["convergence_time_s_ci95"]["phi_dot"]) == "yes" else "no"
-            rows.append(_row("stumfoll:claim-8.1.3-both-times", rd, "DMSO 0.15 s and KF 1.3 s tilt-rate "
+            rows.append(_row("stumfoll:fig-8.13-both-times", rd, "DMSO 0.15 s and KF 1.3 s tilt-rate "
                              "convergence under the same reading", c,
                              f"DMSO {_ci(dm['convergence_time_s']['phi_dot'], dm['convergence_time_s_ci95']['phi_dot'], 3)}"
                              f" s, KF {_ci(t, ci, 3)} s", "0.15 s and 1.3 s", both))
             if bname == BANDS[0][0]:  # the tail ratios do not depend on the band
-                rows.append(_row("stumfoll:claim-8.1.3-equal-after-4s", f"{k}; {sname}", "RMS error KF/DMSO over "
+                rows.append(_row("stumfoll:claim-8.1.3-position-equal-after-4s", f"{k}; {sname}", "RMS error KF/DMSO over "
                                  "the last 16 s, x_dot / phi / phi_dot", c,
                                  " / ".join(_g(ratio[s], 3) for s in ("x_dot", "phi", "phi_dot")), "equal (ratio 1)",
                                  equal))
@@ -514,7 +514,7 @@ def allan(args):
           f"m/s for {tt[-1]:.0f} s: largest |position error| {perr:.3g} m (half a quantum is {q / 2:.3g} m), "
           f"velocity readings on a grid of {_g(float(np.min(vq)), 4)} m/s (q/dt = {q / dt:.4g} m/s)."]
     ok = perr <= q / 2 + 1e-12 and abs(float(np.min(vq)) - q / dt) < 1e-9 * q / dt
-    rows.append(_row("stumfoll:table-7.1-encoder", "quantised position, velocity by difference", "encoder errors "
+    rows.append(_row("stumfoll:fig-7.1-encoder", "quantised position, velocity by difference", "encoder errors "
                      "of the simulated sensor", cmd, f"max |position error| {perr:.3g} m; velocity step "
                      f"{_g(float(np.min(vq)), 4)} m/s", f"{q} m; {q}/dt = {q / dt:.4g} m/s", "yes" if ok else "no"))
     del steps

@@ -104,10 +104,27 @@ def test_inventory_ids_unique_and_every_committed_row_names_a_known_claim():
     known = FC.all_ids()  # raises on duplicates
     rows, files = FI.load_rows(READINGS)
     assert "lorenz.json" in files and "published_p.json" in files
-    unknown = sorted(k for k in rows if k not in known)
+    grouped, unknown = FI.group_rows(rows, known)
     assert not unknown, f"rows name claims the inventory does not know: {unknown}"
     scored = FC.by_id()
-    assert all(scored[k].readings or scored[k].checks for k in rows), "rows for a claim decided otherwise"
+    assert all(scored[k].readings or scored[k].checks for k in grouped), "rows for a claim decided otherwise"
+
+
+def test_a_claim_in_parts_holds_only_when_every_part_holds():
+    def row(cid, reading, holds):
+        return {"claim": cid, "reading": reading, "what": "w", "command": "c", "ours": "1", "document": "1",
+                "holds": holds}
+
+    known = {"stumfoll:table-8.3", "stumfoll:table-8.3x"}
+    assert FI.parent_of("stumfoll:table-8.3-param-lqr", known) == "stumfoll:table-8.3"
+    assert FI.parent_of("stumfoll:table-8.3x-a", known) == "stumfoll:table-8.3x"
+    assert FI.parent_of("stumfoll:table-8.4-a", known) is None
+    parts = {"stumfoll:table-8.3-a": [row("stumfoll:table-8.3-a", "r1", "yes")],
+             "stumfoll:table-8.3-b": [row("stumfoll:table-8.3-b", "r1", "no"), row("stumfoll:table-8.3-b", "r2", "no")]}
+    s = FI.parts_status(parts)
+    assert s.kind == "not reproduced" and "1 of 2 parts" in s.status
+    parts["stumfoll:table-8.3-b"][1]["holds"] = "yes"
+    assert FI.parts_status(parts).kind == "reading"
 
 
 def test_lorenz_rows_agree_with_their_own_intervals_and_with_lorenz_md():
