@@ -196,9 +196,6 @@ def test_monte_carlo_over_two_processes_equals_one_process(tmp_path):
 
 # ---- the CLI over two processes -------------------------------------------------------------------------------
 
-RUN = ["run", "dip-lqr", "--quick", "--seeds", "24", "--set", "duration=0.5", "--no-compile-cache"]
-
-
 def compare_results(a, b, path="results"):
     """Largest relative difference between two metrics.json result trees (structure and non-floats equal)."""
     if isinstance(a, dict):
@@ -213,15 +210,17 @@ def compare_results(a, b, path="results"):
     return 0.0
 
 
-def test_cli_run_on_two_processes_equals_one_process(tmp_path):
-    """The acceptance check: ``jaxdip run dip-lqr --quick --distributed`` on two processes (4 devices) against
-    one process; 20-40 s on a 2-core machine, most of it compiling the partitioned programs."""
-    dist, p1_out, single = tmp_path / "dist", tmp_path / "p1", tmp_path / "single"
+def test_cli_run_on_two_processes_equals_one_process(tmp_path, dip_lqr_uncached):
+    """The acceptance check: ``jaxdip run dip-lqr --quick --distributed`` on two processes (4 devices, 6 seeds:
+    padded to 8) against one process (the conftest's run of the same command without ``--distributed``); most of
+    the time goes to compiling the partitioned programs."""
+    dist, p1_out, single = tmp_path / "dist", tmp_path / "p1", dip_lqr_uncached.out
+    run = [*dip_lqr_uncached.args, "--no-compile-cache"]
     env = {"JAXDIP_NO_PROGRESS": ""}  # progress bars on, to see that only process 0 draws one
 
     def cmd(i, port):
         # process 1 gets its own --out only to show that it writes nothing
-        return [sys.executable, "-m", "jaxdip.cli", *RUN, "--out", str(dist if i == 0 else p1_out),
+        return [sys.executable, "-m", "jaxdip.cli", *run, "--out", str(dist if i == 0 else p1_out),
                 "--distributed", "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2",
                 "--process-id", str(i)]
 
@@ -231,12 +230,11 @@ def test_cli_run_on_two_processes_equals_one_process(tmp_path):
     assert "wrote" in out0 and "wrote" not in out1  # (gloo logs its connections on stdout)
     assert "dip-lqr [" in err0 and "dip-lqr [" not in err1
     assert not p1_out.exists()
-    r = subprocess.run([sys.executable, "-m", "jaxdip.cli", *RUN, "--out", str(single)], cwd=ROOT,
-                       env=clean_env(JAXDIP_NO_PROGRESS="1"), capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr[-3000:]
+    assert dip_lqr_uncached.proc.returncode == 0, dip_lqr_uncached.proc.stderr[-3000:]
     m_dist = json.loads((dist / "metrics.json").read_text())
     m_one = json.loads((single / "metrics.json").read_text())
     assert m_dist["processes"] == 2 and m_dist["devices"] == 4 and "processes" not in m_one
+    assert m_dist["seeds"] == m_one["seeds"] == 6
     worst = compare_results(m_dist["results"], m_one["results"])
     print(f"largest relative difference of results: {worst:.3g}")
     assert worst <= 1e-12
