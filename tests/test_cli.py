@@ -57,14 +57,17 @@ def test_list_and_unknown_experiment():
 
 @pytest.fixture(scope="module")
 def cached_runs(dip_lqr_uncached):
-    """The shared uncached run's command twice more with the compilation cache on, in the same (so far unmade)
-    cache folder: ``b`` compiles and fills it, ``c`` should find every loop there. The cache's entries after each."""
+    """The shared uncached run's command twice more with the compilation cache on, in a so far unmade folder:
+    ``b`` (beside the uncached run, which has a cache folder of its own) compiles and fills it, then ``c`` should
+    find every loop there. The cache's entries after each."""
     d = dip_lqr_uncached
+    cache = d.root / "xla"
+    env = dict(os.environ, JAXDIP_NO_PROGRESS="1", JAXDIP_CACHE_DIR=str(cache))
     procs, entries = {}, {}
     for name in ("b", "c"):
-        procs[name] = subprocess.run([sys.executable, "-m", "jaxdip.cli", *d.args, "--out", str(d.root / name)],
-                                     capture_output=True, text=True, cwd=ROOT, env=d.env, timeout=600)
-        entries[name] = sorted(os.listdir(d.cache)) if d.cache.exists() else []
+        procs[name] = d.Child([*d.args, "--out", str(d.root / name)], env).wait()
+        entries[name] = sorted(os.listdir(cache)) if cache.exists() else []
+    d.proc.wait()
     return procs, entries
 
 
@@ -72,7 +75,7 @@ def test_run_writes_contract_and_is_reproducible(dip_lqr_uncached, cached_runs):
     """Two independent runs (each compiles its loops afresh: one with the cache off, one filling an empty cache)
     write the whole folder and the same results."""
     d, (procs, _) = dip_lqr_uncached, cached_runs
-    assert d.proc.returncode == 0, d.proc.stderr
+    assert d.proc.wait().returncode == 0, d.proc.stderr
     assert procs["b"].returncode == 0, procs["b"].stderr
     a, b = d.out, d.root / "b"
     for out in (a, b):
@@ -132,8 +135,8 @@ def test_compilation_cache_is_written_and_reused(dip_lqr_uncached, cached_runs):
     """A second run of the same experiment finds its compiled loops on disk (and the results are unchanged);
     --no-compile-cache leaves the folder alone."""
     d, (procs, entries) = dip_lqr_uncached, cached_runs
-    assert d.proc.returncode == 0, d.proc.stderr
-    assert not d.cache_existed  # the --no-compile-cache run did not make the folder
+    assert d.proc.wait().returncode == 0, d.proc.stderr
+    assert not d.cache_off.exists()  # the --no-compile-cache run did not make its folder
     for name in ("b", "c"):
         assert procs[name].returncode == 0, procs[name].stderr
     assert entries["b"]

@@ -230,7 +230,7 @@ def test_cli_run_on_two_processes_equals_one_process(tmp_path, dip_lqr_uncached)
     assert "wrote" in out0 and "wrote" not in out1  # (gloo logs its connections on stdout)
     assert "dip-lqr [" in err0 and "dip-lqr [" not in err1
     assert not p1_out.exists()
-    assert dip_lqr_uncached.proc.returncode == 0, dip_lqr_uncached.proc.stderr[-3000:]
+    assert dip_lqr_uncached.proc.wait().returncode == 0, dip_lqr_uncached.proc.stderr[-3000:]
     m_dist = json.loads((dist / "metrics.json").read_text())
     m_one = json.loads((single / "metrics.json").read_text())
     assert m_dist["processes"] == 2 and m_dist["devices"] == 4 and "processes" not in m_one
