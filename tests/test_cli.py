@@ -30,12 +30,14 @@ def jaxdip(*args, cwd=None):
         ("seeds=many", "seeds"),
     ],
 )
-def test_bad_config_exits_2_with_one_line_and_writes_nothing(tmp_path, setting, key):
+def test_bad_config_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys, setting, key):
+    # in this process: the config is refused before anything runs (the child-process path: the tests below)
     out = tmp_path / "out"
-    r = jaxdip("run", "dip-lqr", "--quick", "--out", str(out), "--set", setting)
-    assert r.returncode == 2
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"error: {key}:"), r.stderr
+    code = cli.main(["run", "dip-lqr", "--quick", "--out", str(out), "--set", setting])
+    err = capsys.readouterr().err
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {key}:"), err
     assert not out.exists()
     assert os.listdir(tmp_path) == []
 

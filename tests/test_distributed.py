@@ -84,24 +84,49 @@ def jaxdip_cli(*args, **env):
                           capture_output=True, text=True, timeout=300)
 
 
+def cli_in_process(argv, monkeypatch, capsys, **env):
+    """``jaxdip`` in this process (no JAX start-up per case), with clean_env's variables: (exit code, stderr)."""
+    from jaxdip import cli
+
+    for k in list(os.environ):
+        if k.startswith(CLUSTER_VARS):
+            monkeypatch.delenv(k)
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    capsys.readouterr()
+    code = cli.main(argv)
+    return code, capsys.readouterr().err
+
+
 @pytest.mark.parametrize("args, env, start", [
     (["--distributed", "--num-processes", "0"], {}, "error: --distributed: --num-processes: must be >= 1"),
     (["--distributed", "--coordinator", "localhost"], {}, "error: --distributed: --coordinator: expected HOST:PORT"),
     (["--distributed"], {"JAXDIP_PROCESS_ID": "x"}, "error: --distributed: JAXDIP_PROCESS_ID: expected an integer"),
-    (["--distributed"], {}, "error: --distributed: no cluster detected"),
     (["--process-id", "1"], {}, "error: --process-id: only with --distributed"),
 ])
-def test_cli_errors_are_one_line_exit_2_and_write_nothing(tmp_path, args, env, start):
+def test_cli_errors_are_one_line_exit_2_and_write_nothing(tmp_path, monkeypatch, capsys, args, env, start):
+    """Values refused before ``jax.distributed`` is called, so checked in this process."""
     out = tmp_path / "o"
-    r = jaxdip_cli("run", "dip-lqr", "--quick", "--out", str(out), *args, **env)
-    lines = r.stderr.strip().splitlines()
-    assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith(start), r.stderr
+    code, err = cli_in_process(["run", "dip-lqr", "--quick", "--out", str(out), *args], monkeypatch, capsys, **env)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and lines[0].startswith(start), err
     assert not out.exists()
 
 
-def test_reproduce_distributed_runs_experiments_in_turn(tmp_path):
-    r = jaxdip_cli("reproduce", "--quick", "--out", str(tmp_path / "o"), "--distributed", "--jobs", "2")
-    assert r.returncode == 2 and r.stderr.startswith("error: --jobs: --distributed runs"), r.stderr
+def test_cli_no_cluster_detected_is_one_line_exit_2(tmp_path):
+    """Found out by ``jax.distributed.initialize`` itself, which must run before any JAX computation: a child."""
+    out = tmp_path / "o"
+    r = jaxdip_cli("run", "dip-lqr", "--quick", "--out", str(out), "--distributed")
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("error: --distributed: no cluster detected"), \
+        r.stderr
+    assert not out.exists()
+
+
+def test_reproduce_distributed_runs_experiments_in_turn(tmp_path, monkeypatch, capsys):
+    code, err = cli_in_process(["reproduce", "--quick", "--out", str(tmp_path / "o"), "--distributed", "--jobs", "2"],
+                               monkeypatch, capsys)
+    assert code == 2 and err.startswith("error: --jobs: --distributed runs"), err
     assert not (tmp_path / "o").exists()
 
 
