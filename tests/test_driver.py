@@ -243,7 +243,7 @@ def run_sharded(rollout):
 
 def test_sharded_over_8_host_devices_equals_single_device():
     """Seeds split over 8 devices, over calls (padded) and over time chunks, and a sweep over 8 devices, give the
-    one-device numbers; on a cheap loop (the DIP version below is the same check at 3x the compile time)."""
+    one-device numbers; on a cheap loop (the DIP version below is the same check at about 2.5x the time)."""
     run_sharded("lorenz")
 
 
