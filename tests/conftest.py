@@ -1,9 +1,65 @@
 import os
-
+import subprocess
+import sys
 import tempfile
+from types import SimpleNamespace
+
+import pytest
 
 os.environ.setdefault("JAXDIP_NO_PROGRESS", "1")
 # the CLI's on-disk compilation cache goes to a throwaway folder, not the user's ~/.cache
 os.environ.setdefault("JAXDIP_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"jaxdip-test-xla-{os.getuid()}"))
 
 import jaxdip  # noqa: E402,F401  (enables float64 before any test builds an array)
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+# The smallest dip-lqr run that still exercises the whole CLI path: 6 seeds (not a multiple of 4 devices, so the
+# distributed run pads), 200 periods, every period recorded.
+TINY_DIP_LQR = ["run", "dip-lqr", "--quick", "--seeds", "6", "--set", "duration=0.2", "--set", "record_every=1"]
+
+
+class Child:
+    """A ``jaxdip`` child process started now and waited for when its result is first needed, so that tests can
+    overlap independent runs (each is mostly single-threaded tracing and compilation)."""
+
+    def __init__(self, argv, env, cwd=ROOT):
+        self.proc = subprocess.Popen([sys.executable, "-m", "jaxdip.cli", *argv], cwd=cwd, env=env,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.stdout = self.stderr = None
+
+    def wait(self, timeout=600) -> "Child":
+        if self.stdout is None:
+            try:
+                self.stdout, self.stderr = self.proc.communicate(timeout=timeout)
+            finally:
+                self.kill()
+        return self
+
+    @property
+    def returncode(self) -> int:
+        return self.wait().proc.returncode
+
+    def kill(self):
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
+@pytest.fixture(scope="session")
+def dip_lqr_uncached(tmp_path_factory):
+    """``jaxdip run dip-lqr`` (TINY_DIP_LQR) in a child process with ``--no-compile-cache`` and JAXDIP_CACHE_DIR
+    pointed at a folder (``cache_off``) that does not exist.
+
+    One child process (JAX import plus a cold compilation) shared by the tests that need this run: the CLI's
+    output contract, the compilation-cache test and the one-process reference of the two-process
+    ``--distributed`` run. ``proc`` is a started :class:`Child`; ``proc.wait()`` before reading ``out``; ``Child`` starts
+    more runs.
+    """
+    root = tmp_path_factory.mktemp("dip-lqr-tiny")
+    cache_off = root / "xla-off"
+    env = dict(os.environ, JAXDIP_NO_PROGRESS="1", JAXDIP_CACHE_DIR=str(cache_off))
+    child = Child([*TINY_DIP_LQR, "--no-compile-cache", "--out", str(root / "a")], env)
+    yield SimpleNamespace(args=list(TINY_DIP_LQR), root=root, cache_off=cache_off, out=root / "a", proc=child,
+                          Child=Child)
+    child.kill()

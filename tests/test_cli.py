@@ -12,7 +12,6 @@ from jaxdip import config as C
 from jaxdip.experiments import dip_lqr, registry
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-TINY = ["--quick", "--seeds", "4", "--set", "duration=0.2"]
 
 
 def jaxdip(*args, cwd=None):
@@ -31,12 +30,14 @@ def jaxdip(*args, cwd=None):
         ("seeds=many", "seeds"),
     ],
 )
-def test_bad_config_exits_2_with_one_line_and_writes_nothing(tmp_path, setting, key):
+def test_bad_config_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys, setting, key):
+    # in this process: the config is refused before anything runs (the child-process path: the tests below)
     out = tmp_path / "out"
-    r = jaxdip("run", "dip-lqr", "--quick", "--out", str(out), "--set", setting)
-    assert r.returncode == 2
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"error: {key}:"), r.stderr
+    code = cli.main(["run", "dip-lqr", "--quick", "--out", str(out), "--set", setting])
+    err = capsys.readouterr().err
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {key}:"), err
     assert not out.exists()
     assert os.listdir(tmp_path) == []
 
@@ -56,22 +57,41 @@ def test_list_and_unknown_experiment():
     assert r.returncode == 2 and r.stderr.startswith("error: dip-lqq: unknown experiment")
 
 
-def test_run_writes_contract_and_is_reproducible(tmp_path):
-    a, b = tmp_path / "a", tmp_path / "b"
+@pytest.fixture(scope="module")
+def cached_runs(dip_lqr_uncached):
+    """The shared uncached run's command twice more with the compilation cache on, in a so far unmade folder:
+    ``b`` (beside the uncached run, which has a cache folder of its own) compiles and fills it, then ``c`` should
+    find every loop there. The cache's entries after each."""
+    d = dip_lqr_uncached
+    cache = d.root / "xla"
+    env = dict(os.environ, JAXDIP_NO_PROGRESS="1", JAXDIP_CACHE_DIR=str(cache))
+    procs, entries = {}, {}
+    for name in ("b", "c"):
+        procs[name] = d.Child([*d.args, "--out", str(d.root / name)], env).wait()
+        entries[name] = sorted(os.listdir(cache)) if cache.exists() else []
+    d.proc.wait()
+    return procs, entries
+
+
+def test_run_writes_contract_and_is_reproducible(dip_lqr_uncached, cached_runs):
+    """Two independent runs (each compiles its loops afresh: one with the cache off, one filling an empty cache)
+    write the whole folder and the same results."""
+    d, (procs, _) = dip_lqr_uncached, cached_runs
+    assert d.proc.wait().returncode == 0, d.proc.stderr
+    assert procs["b"].returncode == 0, procs["b"].stderr
+    a, b = d.out, d.root / "b"
     for out in (a, b):
-        r = jaxdip("run", "dip-lqr", *TINY, "--out", str(out))
-        assert r.returncode == 0, r.stderr
-    for name in ("metrics.json", "report.md", "config.toml", "band_alpha_theta.png"):
-        assert (a / name).is_file(), name
-    ma, mb = (json.loads((d / "metrics.json").read_text()) for d in (a, b))
+        for name in ("metrics.json", "report.md", "config.toml", "band_alpha_theta.png"):
+            assert (out / name).is_file(), (out, name)
+    ma, mb = (json.loads((o / "metrics.json").read_text()) for o in (a, b))
     for k in ("experiment", "seeds", "dtype", "backend", "jax_version", "wall_s", "results"):
         assert k in ma
-    assert ma["dtype"] == "float64" and ma["seeds"] == 4
+    assert ma["dtype"] == "float64" and ma["seeds"] == 6
     assert json.dumps(ma["results"], sort_keys=True) == json.dumps(mb["results"], sort_keys=True)
     # the resolved config reproduces the run's settings
     cfg = C.load(dip_lqr.DipLqrConfig, path=str(a / "config.toml"))
-    assert cfg.seeds == 4 and cfg.duration == 0.2
-    assert not [p for p in os.listdir(tmp_path) if p.startswith(".")]  # no temporary folders left
+    assert cfg.seeds == 6 and cfg.duration == 0.2 and cfg.record_every == 1
+    assert not [p for p in os.listdir(d.root) if p.startswith(".")]  # no temporary folders left
 
 
 @pytest.mark.parametrize("exp_id", sorted(registry()))
@@ -113,25 +133,17 @@ def test_all_seeds_diverged_is_reported_not_averaged(tmp_path):
     assert "all 8 seeds diverged" in report and "nan" not in report.lower()
 
 
-def test_compilation_cache_is_written_and_reused(tmp_path):
+def test_compilation_cache_is_written_and_reused(dip_lqr_uncached, cached_runs):
     """A second run of the same experiment finds its compiled loops on disk (and the results are unchanged);
     --no-compile-cache leaves the folder alone."""
-    cache = tmp_path / "xla"
-    env = dict(os.environ, JAXDIP_NO_PROGRESS="1", JAXDIP_CACHE_DIR=str(cache))
-    args = ["run", "dip-lqr", "--quick", "--seeds", "4", "--set", "duration=0.2", "--set", "record_every=1"]
-    off = subprocess.run([sys.executable, "-m", "jaxdip.cli", *args, "--no-compile-cache", "--out",
-                          str(tmp_path / "a")], capture_output=True, text=True, env=env, timeout=300)
-    assert off.returncode == 0, off.stderr
-    assert not cache.exists()
-    for out in ("b", "c"):
-        r = subprocess.run([sys.executable, "-m", "jaxdip.cli", *args, "--out", str(tmp_path / out)],
-                           capture_output=True, text=True, env=env, timeout=300)
-        assert r.returncode == 0, r.stderr
-        if out == "b":
-            entries = sorted(os.listdir(cache))
-            assert entries
-    assert sorted(os.listdir(cache)) == entries  # the second run added nothing: every loop came from disk
-    res = [json.loads((tmp_path / o / "metrics.json").read_text())["results"] for o in "abc"]
+    d, (procs, entries) = dip_lqr_uncached, cached_runs
+    assert d.proc.wait().returncode == 0, d.proc.stderr
+    assert not d.cache_off.exists()  # the --no-compile-cache run did not make its folder
+    for name in ("b", "c"):
+        assert procs[name].returncode == 0, procs[name].stderr
+    assert entries["b"]
+    assert entries["c"] == entries["b"]  # the second run added nothing: every loop came from disk
+    res = [json.loads((o / "metrics.json").read_text())["results"] for o in (d.out, d.root / "b", d.root / "c")]
     assert res[0] == res[1] == res[2]
 
 

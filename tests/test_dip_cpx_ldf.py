@@ -5,9 +5,6 @@ CLI run."""
 
 import json
 import math
-import os
-import subprocess
-import sys
 
 import jax
 import jax.numpy as jnp
@@ -25,8 +22,6 @@ from jaxdip.scenarios import dip_cpx_ldf as S
 from jaxdip.sim import dip_sensors, linearize
 from jaxdip.sim.disturbance import input_disturbance, input_disturbance_params
 from jaxdip.theory import mhe
-
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _analytic_H(w, wc, zeta):
@@ -191,12 +186,12 @@ def test_fanout_beside_cpx_changes_nothing_and_equals_offline_filtering():
 
 
 def test_cli_tiny_run_writes_results(tmp_path):
+    # in this process (the CLI's child-process path is tested in test_cli.py): no second JAX start-up
+    from jaxdip import cli
+
     out = tmp_path / "o"
-    r = subprocess.run([sys.executable, "-m", "jaxdip.cli", "run", "dip-cpx-ldf", "--quick", "--seeds", "4",
-                        "--set", "duration=0.2", "--set", "sweep_points=2", "--set", "sweep_seeds=2",
-                        "--out", str(out)], capture_output=True, text=True, cwd=ROOT,
-                       env=dict(os.environ, JAXDIP_NO_PROGRESS="1"), timeout=600)
-    assert r.returncode == 0, r.stderr
+    assert cli.main(["run", "dip-cpx-ldf", "--quick", "--seeds", "4", "--set", "duration=0.2", "--set",
+                     "sweep_points=2", "--set", "sweep_seeds=2", "--out", str(out)]) == 0
     m = json.loads((out / "metrics.json").read_text())["results"]
     for est in ("cpx", "ldf"):
         for k in ("xc_mean_cm", "xc_var", "alpha_mean_deg", "alpha_var", "theta_mean_deg", "theta_var"):

@@ -84,24 +84,49 @@ def jaxdip_cli(*args, **env):
                           capture_output=True, text=True, timeout=300)
 
 
+def cli_in_process(argv, monkeypatch, capsys, **env):
+    """``jaxdip`` in this process (no JAX start-up per case), with clean_env's variables: (exit code, stderr)."""
+    from jaxdip import cli
+
+    for k in list(os.environ):
+        if k.startswith(CLUSTER_VARS):
+            monkeypatch.delenv(k)
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    capsys.readouterr()
+    code = cli.main(argv)
+    return code, capsys.readouterr().err
+
+
 @pytest.mark.parametrize("args, env, start", [
     (["--distributed", "--num-processes", "0"], {}, "error: --distributed: --num-processes: must be >= 1"),
     (["--distributed", "--coordinator", "localhost"], {}, "error: --distributed: --coordinator: expected HOST:PORT"),
     (["--distributed"], {"JAXDIP_PROCESS_ID": "x"}, "error: --distributed: JAXDIP_PROCESS_ID: expected an integer"),
-    (["--distributed"], {}, "error: --distributed: no cluster detected"),
     (["--process-id", "1"], {}, "error: --process-id: only with --distributed"),
 ])
-def test_cli_errors_are_one_line_exit_2_and_write_nothing(tmp_path, args, env, start):
+def test_cli_errors_are_one_line_exit_2_and_write_nothing(tmp_path, monkeypatch, capsys, args, env, start):
+    """Values refused before ``jax.distributed`` is called, so checked in this process."""
     out = tmp_path / "o"
-    r = jaxdip_cli("run", "dip-lqr", "--quick", "--out", str(out), *args, **env)
-    lines = r.stderr.strip().splitlines()
-    assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith(start), r.stderr
+    code, err = cli_in_process(["run", "dip-lqr", "--quick", "--out", str(out), *args], monkeypatch, capsys, **env)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and lines[0].startswith(start), err
     assert not out.exists()
 
 
-def test_reproduce_distributed_runs_experiments_in_turn(tmp_path):
-    r = jaxdip_cli("reproduce", "--quick", "--out", str(tmp_path / "o"), "--distributed", "--jobs", "2")
-    assert r.returncode == 2 and r.stderr.startswith("error: --jobs: --distributed runs"), r.stderr
+def test_cli_no_cluster_detected_is_one_line_exit_2(tmp_path):
+    """Found out by ``jax.distributed.initialize`` itself, which must run before any JAX computation: a child."""
+    out = tmp_path / "o"
+    r = jaxdip_cli("run", "dip-lqr", "--quick", "--out", str(out), "--distributed")
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("error: --distributed: no cluster detected"), \
+        r.stderr
+    assert not out.exists()
+
+
+def test_reproduce_distributed_runs_experiments_in_turn(tmp_path, monkeypatch, capsys):
+    code, err = cli_in_process(["reproduce", "--quick", "--out", str(tmp_path / "o"), "--distributed", "--jobs", "2"],
+                               monkeypatch, capsys)
+    assert code == 2 and err.startswith("error: --jobs: --distributed runs"), err
     assert not (tmp_path / "o").exists()
 
 
@@ -196,9 +221,6 @@ def test_monte_carlo_over_two_processes_equals_one_process(tmp_path):
 
 # ---- the CLI over two processes -------------------------------------------------------------------------------
 
-RUN = ["run", "dip-lqr", "--quick", "--seeds", "24", "--set", "duration=0.5", "--no-compile-cache"]
-
-
 def compare_results(a, b, path="results"):
     """Largest relative difference between two metrics.json result trees (structure and non-floats equal)."""
     if isinstance(a, dict):
@@ -213,15 +235,17 @@ def compare_results(a, b, path="results"):
     return 0.0
 
 
-def test_cli_run_on_two_processes_equals_one_process(tmp_path):
-    """The acceptance check: ``jaxdip run dip-lqr --quick --distributed`` on two processes (4 devices) against
-    one process; 20-40 s on a 2-core machine, most of it compiling the partitioned programs."""
-    dist, p1_out, single = tmp_path / "dist", tmp_path / "p1", tmp_path / "single"
+def test_cli_run_on_two_processes_equals_one_process(tmp_path, dip_lqr_uncached):
+    """The acceptance check: ``jaxdip run dip-lqr --quick --distributed`` on two processes (4 devices, 6 seeds:
+    padded to 8) against one process (the conftest's run of the same command without ``--distributed``); most of
+    the time goes to compiling the partitioned programs."""
+    dist, p1_out, single = tmp_path / "dist", tmp_path / "p1", dip_lqr_uncached.out
+    run = [*dip_lqr_uncached.args, "--no-compile-cache"]
     env = {"JAXDIP_NO_PROGRESS": ""}  # progress bars on, to see that only process 0 draws one
 
     def cmd(i, port):
         # process 1 gets its own --out only to show that it writes nothing
-        return [sys.executable, "-m", "jaxdip.cli", *RUN, "--out", str(dist if i == 0 else p1_out),
+        return [sys.executable, "-m", "jaxdip.cli", *run, "--out", str(dist if i == 0 else p1_out),
                 "--distributed", "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2",
                 "--process-id", str(i)]
 
@@ -231,12 +255,11 @@ def test_cli_run_on_two_processes_equals_one_process(tmp_path):
     assert "wrote" in out0 and "wrote" not in out1  # (gloo logs its connections on stdout)
     assert "dip-lqr [" in err0 and "dip-lqr [" not in err1
     assert not p1_out.exists()
-    r = subprocess.run([sys.executable, "-m", "jaxdip.cli", *RUN, "--out", str(single)], cwd=ROOT,
-                       env=clean_env(JAXDIP_NO_PROGRESS="1"), capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr[-3000:]
+    assert dip_lqr_uncached.proc.wait().returncode == 0, dip_lqr_uncached.proc.stderr[-3000:]
     m_dist = json.loads((dist / "metrics.json").read_text())
     m_one = json.loads((single / "metrics.json").read_text())
     assert m_dist["processes"] == 2 and m_dist["devices"] == 4 and "processes" not in m_one
+    assert m_dist["seeds"] == m_one["seeds"] == 6
     worst = compare_results(m_dist["results"], m_one["results"])
     print(f"largest relative difference of results: {worst:.3g}")
     assert worst <= 1e-12

@@ -14,8 +14,9 @@ import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
-# small enough to run in seconds, long enough (many checkpoints) that a kill lands inside the search
-EKI = ["run", "eki-dip", "--quick", "--seeds", "4", "--set", "ensemble=8", "--set", "iterations=150",
+# small enough to run in seconds, long enough (20 checkpoints; the judging after the search takes seconds more)
+# that a kill at the first checkpoint lands inside the search
+EKI = ["run", "eki-dip", "--quick", "--seeds", "4", "--set", "ensemble=8", "--set", "iterations=40",
        "--set", "chunk=2", "--set", "T=0.4", "--set", "t_star=0.1", "--set", "grad_steps=0",
        "--set", "eval_states=2", "--set", "judge_duration=0.2", "--set", "early_stop=false",
        "--set", "min_success=2"]
@@ -38,8 +39,22 @@ def _results(folder):
 
 
 def kill_and_resume(tmp_path, argv, sig):
-    ref = _run([*argv, "--out", "ref"], tmp_path)
-    assert ref.returncode == 0, ref.stderr
+    # the uninterrupted reference runs beside the interrupted one (its own folder and checkpoint file)
+    ref = subprocess.Popen([sys.executable, "-m", "jaxdip.cli", *argv, "--out", "ref"], cwd=tmp_path, env=_env(),
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        _kill_and_resume(tmp_path, argv, sig)
+        _, ref_err = ref.communicate(timeout=600)
+    finally:
+        if ref.poll() is None:
+            ref.kill()
+            ref.wait()
+    assert ref.returncode == 0, ref_err
+    assert json.dumps(_results(tmp_path / "run"), sort_keys=True) == json.dumps(_results(tmp_path / "ref"),
+                                                                              sort_keys=True)
+
+
+def _kill_and_resume(tmp_path, argv, sig):
     ckpt = tmp_path / ".run.ckpt.npz"
     p = subprocess.Popen([sys.executable, "-m", "jaxdip.cli", *argv, "--out", "run"], cwd=tmp_path, env=_env(),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -59,8 +74,6 @@ def kill_and_resume(tmp_path, argv, sig):
     res = _run([*argv, "--out", "run", "--resume"], tmp_path)
     assert res.returncode == 0, res.stderr
     assert not ckpt.exists()  # removed once the folder is complete
-    assert json.dumps(_results(tmp_path / "run"), sort_keys=True) == json.dumps(_results(tmp_path / "ref"),
-                                                                              sort_keys=True)
 
 
 def test_eki_dip_sigkill_then_resume(tmp_path):
