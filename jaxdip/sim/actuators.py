@@ -8,6 +8,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine.keys import split_lanes
 from jaxdip.engine.roles import Actuator, Sensor, param
 from jaxdip.sim.component import Component, stateless
 
@@ -147,7 +148,8 @@ class InputBacklash(Actuator):
 
 class Chain(Actuator):
     """Actuators applied one after the other (the first sees the controller's u). Each stage gets its own key
-    (``split(key, n)``) and keeps its own state; ``aux`` is the tuple of the stages' aux."""
+    (``split(key, n)``, computed lane by lane: ``split_lanes``) and keeps its own state; ``aux`` is the tuple of
+    the stages' aux."""
 
     stages: tuple
 
@@ -155,11 +157,11 @@ class Chain(Actuator):
         self.stages = tuple(stages)
 
     def init(self, key, x0):
-        keys = jax.random.split(key, len(self.stages))
+        keys = split_lanes(key, len(self.stages))
         return tuple(s.init(k, x0) for s, k in zip(self.stages, keys))
 
     def step(self, state, u, key, k):
-        keys = jax.random.split(key, len(self.stages))
+        keys = split_lanes(key, len(self.stages))
         new, aux = [], []
         for s, st, kk in zip(self.stages, state, keys):
             st, u, a = s.step(st, u, kk, k)
