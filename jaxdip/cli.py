@@ -94,7 +94,8 @@ def _parser():
     rp.add_argument("--jobs", type=int, default=None,
                     help="experiments run side by side, each in its own process (default: one per CPU core, "
                          "at most 2; compilation is single-threaded, so a second job uses the idle core)")
-    rp.add_argument("--only", default=None, metavar="ID,ID", help="run these experiments only")
+    rp.add_argument("--only", default=None, metavar="ID,ID", help="run these experiments only (default: every "
+                    "experiment but the fidelity readings' supporting runs, which `jaxdip list` marks)")
     for q in (r, b, rp):
         q.add_argument("--no-compile-cache", action="store_true",
                        help="do not read or write the on-disk cache of compiled code (see JAXDIP_CACHE_DIR)")
@@ -257,7 +258,9 @@ def cmd_reproduce(args, argv=None) -> int:
     from jaxdip.outdir import OutputError
 
     reg = sorted(registry().items())
-    if args.only is not None:
+    if args.only is None:
+        reg = [(i, e) for i, e in reg if e.reproduce]
+    else:
         want = [w.strip() for w in args.only.split(",") if w.strip()]
         unknown = [w for w in want if w not in dict(reg)]
         if unknown or not want:
@@ -435,8 +438,9 @@ def main(argv=None) -> int:
     if args.cmd == "list":
         from jaxdip.experiments import registry
 
-        for exp_id in sorted(registry()):
-            print(exp_id)
+        for exp_id, exp in sorted(registry().items()):
+            # the readings' supporting runs are marked: a plain `reproduce` leaves them out
+            print(exp_id if exp.reproduce else f"{exp_id}  (fidelity readings; reproduce --only {exp_id})")
         return 0
     if args.cmd == "config":
         from jaxdip import config as C

@@ -55,6 +55,9 @@ class Experiment:
     run: Callable[[Any, RunContext | None], Outcome]  # run(cfg, ctx): ctx says where to checkpoint
     quick: dict = field(default_factory=dict)  # overrides applied by --quick
     source: str = ""  # which document, table or figure it reproduces
+    # False for the supporting runs of the fidelity readings (docs/fidelity.md): `jaxdip run` and
+    # `reproduce --only` run them, a plain `reproduce` (the headline reproduction) leaves them out
+    reproduce: bool = True
 
 
 def _jsonable(o):
