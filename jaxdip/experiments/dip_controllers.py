@@ -42,7 +42,7 @@ class DipControllersConfig:
     seeds: int = C.field(1000, C.positive, doc="Monte Carlo seeds")
     seed: int = C.field(0, C.nonneg, doc="base PRNG key")
     dt: float = C.field(0.001, C.positive_finite, doc="control period (s)")
-    substeps: int = C.field(10, C.positive, doc="RK4 sub-steps per period")
+    substeps: int = C.field(1, C.positive, doc="RK4 sub-steps per period (one: measured, docs/integration.md)")
     duration: float = C.field(5.0, C.positive_finite, doc="simulated time (s)")
     Q: list[float] | list[list[float]] = C.field([30.0, 350.0, 100.0, 0.0, 0.0, 0.0],
                                                 doc="LQR/PS state weight on [xc, alpha, theta, velocities]")

@@ -49,7 +49,7 @@ class DipCpxLdfConfig:
     seed: int = C.field(0, C.nonneg, doc="base PRNG key")
     variant: str = C.field("printed", C.one_of("printed", "lagrangian"), doc="DIP equations of motion")
     dt: float = C.field(0.001, C.positive_finite, doc="control period (s)")
-    substeps: int = C.field(10, C.positive, doc="RK4 sub-steps per period")
+    substeps: int = C.field(1, C.positive, doc="RK4 sub-steps per period (one: measured, docs/integration.md)")
     duration: float = C.field(6.5, C.positive_finite, doc="simulated time (s), Table 1's 6.5 s interval")
     Q: list[float] | list[list[float]] = C.field(
         list(S.PAPER_Q),
