@@ -146,9 +146,14 @@ class TwipDmsoConfig:
     chunk_seeds: int = C.field(64, C.positive, doc="seeds per compiled batch")
 
     def loads(self) -> list[Load]:
-        n = max(steps_of(self.duration, self.dt), steps_of(self.duration_fine, self.dt_fine))
-        return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds, n, saved=48 * n),
-                Load("the deterministic cases", ("det_seeds", "duration"), self.det_seeds, n, saved=48 * n)]
+        # only the cases that run count: the noisy case at dt, the noiseless ones up to the small-step variant
+        n = steps_of(self.duration, self.dt)
+        nd = max(n, steps_of(self.duration_fine, self.dt_fine)) if "param" in self.cases else n
+        det = {"nominal", "param"} & set(self.cases)
+        return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds if "noise" in self.cases else 0, n,
+                     saved=48 * n),
+                Load("the deterministic cases", ("det_seeds", "duration"), self.det_seeds if det else 0, nd,
+                     saved=48 * nd)]
 
     def validate(self):
         for i, c in enumerate(self.cases):
