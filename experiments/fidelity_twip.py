@@ -1,18 +1,22 @@
 """Fidelity readings for the TWIP (Stumfoll MS thesis) and the reaction-wheel pendulum (Aranovskiy et al.).
 
     python experiments/fidelity_twip.py [--quick] [--seeds N] [--dmso-seeds N]
-                                        [--only table_8_3,kf,transients,allan,rwp] [--runs DIR] [--docs DIR]
+                                        [--only table_8_3,kf,dmso,transients,allan,rwp] [--runs DIR]
+                                        [--docs DIR]
 
-Writes ``docs/fidelity/twip.md`` (Stumfoll Table 8.3, §8.1.3 / Fig. 8.13, §8.1's "15 s" and "5 deg", Fig. 5.5,
-Fig. 7.1 against Table 7.1), ``docs/fidelity/rwp.md`` (Aranovskiy Remark 3) and the machine-readable rows of both,
-``docs/fidelity/twip.json``. Rows of ``table_8_3`` and ``kf`` are ``jaxdip run`` commands, run as child processes
-exactly as printed, their metrics.json read back. ``transients``, ``allan`` and ``rwp`` are computed in this
+Writes ``docs/fidelity/twip.md`` (Stumfoll Table 8.3, §8.1.3 / Fig. 8.13, the noiseless DMSO-vs-KF claims of
+Figs. 8.2, 8.4, 8.6, 8.7, 8.11, §8.1's "15 s" and "5 deg", Fig. 5.5, Fig. 7.1 against Table 7.1),
+``docs/fidelity/rwp.md`` (Aranovskiy Remark 3) and the machine-readable rows of both, ``docs/fidelity/twip.json``.
+A run of some parts (``--only``) replaces those parts' sections and rows and keeps the others'. Rows of
+``table_8_3``, ``kf`` and ``dmso`` are ``jaxdip run`` commands, run as child processes exactly as printed, their
+metrics.json read back. ``transients``, ``allan`` and ``rwp`` are computed in this
 process from the library (``jaxdip.theory.twip_transients``, ``jaxdip.sim.allan``, ``jaxdip.scenarios.rwp``);
 their command is this script with ``--only``.
 
 Scale: twip-extra-control with ``--seeds`` seeds (default 500; the experiment's full scale is 1000) of the full
 20 s; twip-dmso's noisy case with ``--dmso-seeds`` seeds (default 300 of its 1000: at 1000 the run's memory
-estimate exceeds this machine's free memory) of 20 s. ``--quick``
+estimate exceeds this machine's free memory) of 20 s; its noiseless cases (``dmso``) with 16 initial states of
+20 s (the dt = 0.001 s variant over the same 20 s). ``--quick``
 passes ``--quick`` to every run (a pipeline check).
 """
 

@@ -42,6 +42,14 @@ last ``tail_s`` seconds; convergence time per state = first time after which |er
 band for the rest of the run (the run's length if it never does, counted in ``converged_fraction``); for the
 DMSO the RMS of fhat - B^T f over the run, and relative to RMS(B^T f) over the run and after ``settle_s``.
 
+Scoring readings (results keys beside the default ones, for the fidelity readings of Figs. 8.2, 8.4, 8.6, 8.7,
+8.11): per estimator the peak |error| over the first second and the mean log10 |error| over the tail; for the
+DMSO ``uncertainty_readings`` (f of (153) on the true state, on the DMSO's estimate, or against the linear model
+run free from x_0, each scored by relative / peak / settled / pointwise metrics); in ``findings`` per KF
+output who is ahead per state under each metric and the KF / DMSO ratios with their geometric and arithmetic
+means (``comparison_readings``), and the coarse / fine ratios of the uncertainty metrics
+(``uncertainty_ratio_readings``). ``dt_fine_gamma`` runs the small-step variant at Fig. 8.9's Gamma.
+
 Each case and estimator is one ``monte_carlo`` call (seed 0 at x0 and its trace in the same program,
 ``index=True, detail=...``); cases of one estimator, sample period and horizon differ only in numbers and
 share a batch size, so they share one compiled program. The noisy case's mean RMS error as a differentiable
