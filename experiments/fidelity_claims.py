@@ -356,7 +356,7 @@ CLAIMS: list[Claim] = [
     Claim("stumfoll:fig-8.2", "§8.1.1, Fig. 8.2 'In all cases the DMSO is able to capture the true system state "
           "to a higher degree of accuracy in a shorter time period'",
           "Without noise or uncertainty the DMSO converges faster than the KF in every state.", "visual",
-          exp="twip-dmso", keys="twip-dmso (kf, kf_printed, kf_posterior)",
+          exp="twip-dmso", readings=True, keys="twip-dmso (kf, kf_printed, kf_posterior)",
           checks=tuple(Check("twip-dmso", "true", f"findings/nominal/kf/dmso_converges_first/{s}",
                              f"DMSO converges before the KF ({s})") for s in ("x", "x_dot", "phi", "phi_dot")),
           notes="Against the KF's prediction (`kf`, dead-beat here); the full run also scores `kf_printed`, (170) "
@@ -367,7 +367,7 @@ CLAIMS: list[Claim] = [
                         "tail RMS phi_dot: KF below DMSO"),)),
     Claim("stumfoll:claim-8.1.1-25pct", "§8.1.1, Fig. 8.4 'errors up to 25%'",
           "The DMSO's uncertainty estimate follows f (153) within about 25% (nominal case).", "25%",
-          exp="twip-dmso", keys="twip-dmso",
+          exp="twip-dmso", readings=True, keys="twip-dmso",
           checks=tuple(Check("twip-dmso", "le", f"nominal/dmso/uncertainty_rel_error/{s}",
                              f"relative RMS error of f-hat ({s} row) over the run, at most 0.25", value=0.25)
                        for s in ("x_dot", "phi_dot"))),
@@ -376,14 +376,14 @@ CLAIMS: list[Claim] = [
           keys="fid-twip readings study", readings=True, notes="Not attempted before issue 16."),
     Claim("stumfoll:fig-8.6", "§8.1.2, Fig. 8.6 'an order of magnitude more accurate'",
           "With parameter uncertainty the DMSO's estimates are better than the KF's in all states, on average an "
-          "order of magnitude.", "x10", exp="twip-dmso", keys="twip-dmso",
+          "order of magnitude.", "x10", exp="twip-dmso", readings=True, keys="twip-dmso",
           checks=(Check("twip-dmso", "ratio_ge", "param/kf/rms_error_first_1s/x_dot", "first-second RMS x_dot: KF / "
                         "DMSO at least 10", value=10.0, other="param/dmso/rms_error_first_1s/x_dot"),
                   Check("twip-dmso", "ratio_ge", "param/kf/rms_error_first_1s/phi_dot", "first-second RMS phi_dot: "
                         "KF / DMSO at least 10", value=10.0, other="param/dmso/rms_error_first_1s/phi_dot"))),
     Claim("stumfoll:fig-8.7", "§8.1.2, Fig. 8.7 'the Kalman filter does obtain a better estimate of the tilt rate "
           "after five seconds'", "With parameter uncertainty the KF ends better on the tilt rate.", "after 5 s",
-          exp="twip-dmso", keys="twip-dmso",
+          exp="twip-dmso", readings=True, keys="twip-dmso",
           checks=(Check("twip-dmso", "true", "findings/param/kf/kf_ends_better_tilt_rate",
                         "tail RMS phi_dot: KF below DMSO"),)),
     Claim("stumfoll:fig-8.9", "§8.1.2, Fig. 8.9 'converges to the true uncertainty in .1 seconds as compared to "
@@ -401,7 +401,7 @@ CLAIMS: list[Claim] = [
                         "at least 5", value=5.0))),
     Claim("stumfoll:fig-8.11", "§8.1.2, Fig. 8.11 'on average two orders of magnitude more accurate'",
           "At dt = 0.001 s the uncertainty estimates are about a hundred times more accurate.", "x100",
-          exp="twip-dmso", keys="twip-dmso (param_dt_fine)",
+          exp="twip-dmso", readings=True, keys="twip-dmso (param_dt_fine)",
           checks=(Check("twip-dmso", "ge", "findings/dt_fine/uncertainty_rms_error_ratio_coarse_over_fine/phi_dot",
                         "f-hat error ratio coarse/fine (phi_dot row), at least 50 (two orders, halved)",
                         value=50.0),)),

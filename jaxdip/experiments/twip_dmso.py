@@ -42,6 +42,14 @@ last ``tail_s`` seconds; convergence time per state = first time after which |er
 band for the rest of the run (the run's length if it never does, counted in ``converged_fraction``); for the
 DMSO the RMS of fhat - B^T f over the run, and relative to RMS(B^T f) over the run and after ``settle_s``.
 
+Scoring readings (results keys beside the default ones, for the fidelity readings of Figs. 8.2, 8.4, 8.6, 8.7,
+8.11): per estimator the peak |error| over the first second and the mean log10 |error| over the tail; for the
+DMSO ``uncertainty_readings`` (f of (153) on the true state, on the DMSO's estimate, or against the linear model
+run free from x_0, each scored by relative / peak / settled / pointwise metrics); in ``findings`` per KF
+output who is ahead per state under each metric and the KF / DMSO ratios with their geometric and arithmetic
+means (``comparison_readings``), and the coarse / fine ratios of the uncertainty metrics
+(``uncertainty_ratio_readings``). ``dt_fine_gamma`` runs the small-step variant at Fig. 8.9's Gamma.
+
 Each case and estimator is one ``monte_carlo`` call (seed 0 at x0 and its trace in the same program,
 ``index=True, detail=...``); cases of one estimator, sample period and horizon differ only in numbers and
 share a batch size, so they share one compiled program. The noisy case's mean RMS error as a differentiable
@@ -103,6 +111,9 @@ class TwipDmsoConfig:
                                                       doc="K_MSO: 4 diagonal entries or a 4x4 matrix (174)")
     dmso_gamma: float = C.field(0.1, C.nonneg_finite, doc="DMSO adaptation rate Gamma (175)")
     dmso_gamma_variant: float = C.field(0.5, C.nonneg_finite, doc="Gamma of the param case's variant (Fig. 8.9)")
+    dt_fine_gamma: str = C.field("gamma", C.one_of("gamma", "variant"),
+                                 doc="Gamma of the small-step variant (Figs. 8.10-8.11): dmso_gamma, or "
+                                     "dmso_gamma_variant (the text comes to dt = 0.001 s after Fig. 8.9's Gamma)")
     basis_scale: list[float] = C.field([1.0, 1.0, 1.0, 1.0], C.finite, C.length(4),
                                        doc="s in the basis phi = [1, tanh(s_i x_i)] (thesis: 1)")
     kf_Q: list[float] = C.field([1e-4, 1e-2, 1e-4, 1e-2], C.nonneg_finite, C.length(4),
@@ -143,9 +154,14 @@ class TwipDmsoConfig:
     chunk_seeds: int = C.field(64, C.positive, doc="seeds per compiled batch")
 
     def loads(self) -> list[Load]:
-        n = max(steps_of(self.duration, self.dt), steps_of(self.duration_fine, self.dt_fine))
-        return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds, n, saved=48 * n),
-                Load("the deterministic cases", ("det_seeds", "duration"), self.det_seeds, n, saved=48 * n)]
+        # only the cases that run count: the noisy case at dt, the noiseless ones up to the small-step variant
+        n = steps_of(self.duration, self.dt)
+        nd = max(n, steps_of(self.duration_fine, self.dt_fine)) if "param" in self.cases else n
+        det = {"nominal", "param"} & set(self.cases)
+        return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds if "noise" in self.cases else 0, n,
+                     saved=48 * n),
+                Load("the deterministic cases", ("det_seeds", "duration"), self.det_seeds if det else 0, nd,
+                     saved=48 * nd)]
 
     def validate(self):
         for i, c in enumerate(self.cases):
@@ -198,7 +214,8 @@ def case_specs(cfg: TwipDmsoConfig) -> list[CaseSpec]:
         out.append(CaseSpec("param_gamma_variant", "table_8_2", dt=cfg.dt, duration=cfg.duration,
                             gamma=cfg.dmso_gamma_variant, estimators=("dmso",), section="§8.1.2, Fig. 8.9", **det))
         out.append(CaseSpec("param_dt_fine", "table_8_2", dt=cfg.dt_fine, duration=cfg.duration_fine,
-                            gamma=cfg.dmso_gamma, estimators=ests, section="§8.1.2, Figs. 8.10-8.11",
+                            gamma=cfg.dmso_gamma if cfg.dt_fine_gamma == "gamma" else cfg.dmso_gamma_variant,
+                            estimators=ests, section="§8.1.2, Figs. 8.10-8.11",
                             **det))
     if "noise" in cfg.cases:
         out.append(CaseSpec("noise", "table_8_2", noisy=True, dt=cfg.dt, duration=cfg.duration,
@@ -284,6 +301,8 @@ def summarize(m: dict, div: np.ndarray, est: str, spec: CaseSpec) -> dict:
     r = {"diverged": int(div.sum()), "seeds": int(len(div))}
     for key, name in (("rms", "rms_error"), ("rms_1s", "rms_error_first_1s"), ("rms_tail", "rms_error_tail")):
         r[name], r[name + "_ci95"] = _per_state(m[key], ok)
+    r["peak_error_first_1s"], r["peak_error_first_1s_ci95"] = _per_state(m["peak_1s"], ok)
+    r["logmean_error_tail"], r["logmean_error_tail_ci95"] = _per_state(m["logmean_tail"], ok)
     r["convergence_time_s"], r["convergence_time_s_ci95"] = _per_state(m["conv"], ok)
     r["convergence_time_s_median"] = {n: float(np.median(m["conv"][ok, j])) if ok.any() else float("nan")
                                       for j, n in enumerate(STATES)}
@@ -301,7 +320,39 @@ def summarize(m: dict, div: np.ndarray, est: str, spec: CaseSpec) -> dict:
         rel = m["unc_rms_err_settled"] / np.maximum(m["unc_rms_settled"], 1e-300)
         r["uncertainty_rel_error_settled"], r["uncertainty_rel_error_settled_ci95"] = _per_state(rel, ok,
                                                                                                  UNCERTAIN_NAMES)
+        r["uncertainty_readings"] = uncertainty_readings(m, ok)
     return r
+
+
+def _safe_div(a, b):
+    return a / np.maximum(b, 1e-300)
+
+
+# How far fhat is from f: the scoring choices a reader of "errors up to 25%" (Fig. 8.4) or "two orders of
+# magnitude more accurate" (Fig. 8.11) may mean, per seed from ``seed_metrics``' u_* arrays.
+UNCERTAINTY_METRICS = {
+    "rel_rms": lambda m: _safe_div(m["u_rms_err"], m["u_rms"]),
+    "rel_rms_settled": lambda m: _safe_div(m["u_rms_err_settled"], m["u_rms_settled"]),
+    "peak_over_peak": lambda m: _safe_div(m["u_peak_err"], m["u_peak"]),
+    "peak_over_peak_settled": lambda m: _safe_div(m["u_peak_err_settled"], m["u_peak"]),
+    "rms_over_peak_settled": lambda m: _safe_div(m["u_rms_err_settled"], m["u_peak"]),
+    "mean_abs_rel_settled": lambda m: _safe_div(m["u_mae_settled"], m["u_ma_settled"]),
+    "median_pointwise_settled": lambda m: m["u_median_pointwise_settled"],
+    "rms_error": lambda m: m["u_rms_err"],
+    "rms_error_settled": lambda m: m["u_rms_err_settled"],
+    "peak_error_settled": lambda m: m["u_peak_err_settled"],
+}
+
+
+def uncertainty_readings(m: dict, ok: np.ndarray) -> dict:
+    """{f reading: {metric: {row: mean over seeds}, metric_ci95: ...}} (``S.F_READINGS``, ``UNCERTAINTY_METRICS``)."""
+    out = {}
+    for i, fr in enumerate(S.F_READINGS):
+        d = {}
+        for name, fn in UNCERTAINTY_METRICS.items():
+            d[name], d[name + "_ci95"] = _per_state(np.asarray(fn(m))[:, i], ok, UNCERTAIN_NAMES)
+        out[fr] = d
+    return out
 
 
 # ---- figures ----------------------------------------------------------------------------------------------
@@ -444,6 +495,7 @@ def findings(r: dict) -> dict:
                 "kf_ends_better_tilt_rate": bool(kf["rms_error_tail"]["phi_dot"] < dm["rms_error_tail"]["phi_dot"]),
                 "tail_rms_ratio_kf_over_dmso": {s: _ratio(kf["rms_error_tail"][s], dm["rms_error_tail"][s])
                                                 for s in STATES},
+                **comparison_readings(dm, kf),
             }
         if case != "noise":
             c["dmso_tracks_f_within_25pct"] = {
@@ -461,7 +513,9 @@ def findings(r: dict) -> dict:
         out["dt_fine"] = {"rms_error_ratio_coarse_over_fine": imp,
                           "geometric_mean_ratio": {e: float(np.exp(np.mean(np.log(list(v.values())))))
                                                    for e, v in imp.items()},
-                          "uncertainty_rms_error_ratio_coarse_over_fine": unc}
+                          "uncertainty_rms_error_ratio_coarse_over_fine": unc,
+                          "uncertainty_readings": {c: uncertainty_ratio_readings(r[c], r["param_dt_fine"])
+                                                   for c in ("param", "param_gamma_variant") if c in r}}
     if "param" in r and "param_gamma_variant" in r:
         a = r["param"]["dmso"]
         b = r["param_gamma_variant"]["dmso"]
@@ -471,6 +525,43 @@ def findings(r: dict) -> dict:
                                                                for s in UNCERTAIN_NAMES},
             "settled_rel_error": {"gamma": a["uncertainty_rel_error_settled"],
                                   "variant": b["uncertainty_rel_error_settled"]}}
+    return out
+
+
+def _means(d: dict, names) -> dict:
+    v = np.array([d[s] for s in names], dtype=float)
+    geo = float(np.exp(np.mean(np.log(v)))) if np.all(v > 0) else float("nan")
+    return {"geometric": geo, "arithmetic": float(np.mean(v))}
+
+
+def comparison_readings(dm: dict, kf: dict) -> dict:
+    """The scoring choices of 'the DMSO is better / converges faster' (Figs. 8.2, 8.6, 8.7) for one KF output:
+    who is lower per state under first-second RMS and peak, KF / DMSO ratios per state with their geometric and
+    arithmetic means over all states and over the two uncertain rows, and who is lower on a log plot's tail."""
+    out = {}
+    for key, tag in (("rms_error_first_1s", "first_1s_rms"), ("peak_error_first_1s", "first_1s_peak"),
+                     ("rms_error", "run_rms")):
+        ratio = {s: _ratio(kf[key][s], dm[key][s]) for s in STATES}
+        out[f"dmso_smaller_{tag}"] = {s: bool(dm[key][s] < kf[key][s]) for s in STATES}
+        out[f"{tag}_ratio_kf_over_dmso"] = ratio
+        out[f"{tag}_ratio_means"] = {"all": _means(ratio, STATES), "uncertain": _means(ratio, UNCERTAIN_NAMES)}
+    out["kf_lower_log_tail_tilt_rate"] = bool(kf["logmean_error_tail"]["phi_dot"]
+                                              < dm["logmean_error_tail"]["phi_dot"])
+    return out
+
+
+def uncertainty_ratio_readings(coarse: dict, fine: dict) -> dict:
+    """Coarse / fine ratios of the DMSO's uncertainty-error metrics (Fig. 8.11), per row and their means; the
+    absolute ones also per unit time (f / dt: a per-step f shrinks with dt by itself)."""
+    a, b = coarse["dmso"]["uncertainty_readings"]["one_step"], fine["dmso"]["uncertainty_readings"]["one_step"]
+    out = {"gamma": {"coarse": coarse["gamma"], "fine": fine["gamma"]}}
+    for name in ("rms_error", "rms_error_settled", "peak_error_settled", "rel_rms", "rel_rms_settled"):
+        ratio = {s: _ratio(a[name][s], b[name][s]) for s in UNCERTAIN_NAMES}
+        out[name] = {**ratio, **_means(ratio, UNCERTAIN_NAMES)}
+        if not name.startswith("rel"):
+            k = fine["dt"] / coarse["dt"]
+            ratio = {s: v * k for s, v in ratio.items()}
+            out[name + "_per_unit_time"] = {**ratio, **_means(ratio, UNCERTAIN_NAMES)}
     return out
 
 

@@ -96,30 +96,67 @@ def record(sample: jd.Sample) -> dict:
     return {"x": sample.x, "xhat": sample.xhat, "u": sample.u[0], "y": sample.y, "fhat": fhat}
 
 
+# The f of (153) read three ways (``F_READINGS``): x_dt,k+1 of the linear model (148) from the true state
+# (the one-step mismatch, the default), from the estimate the DMSO hands out, or run free from x_0 with the
+# applied inputs (x_dt as its own trajectory; unstable open loop, so it drifts from the truth).
+F_READINGS = ("one_step", "estimated", "open_loop")
+
+
+def _open_loop(x0, u, F, G):
+    def step(z, uk):
+        return F @ z + G[:, 0] * uk, z
+
+    return jax.lax.scan(step, x0, u)[1]
+
+
 def trace(rec: dict, F, G) -> dict:
-    """The recorded trajectory with f_k = B^T (x_{k+1} - F x_k - G u_k) (153) and fhat_k aligned to it."""
-    f = rec["x"][1:] - rec["x"][:-1] @ F.T - rec["u"][:-1, None] @ G.T
-    return {**rec, "f": f[:, list(UNCERTAIN_ROWS)], "fhat": rec["fhat"][1:]}
+    """The recorded trajectory with f_k = B^T (x_{k+1} - F x_k - G u_k) (153) and fhat_k aligned to it;
+    ``f_readings`` stacks B^T f_k under each of ``F_READINGS`` (shape (3, T - 1, 2))."""
+    rows = list(UNCERTAIN_ROWS)
+    x, u = rec["x"], rec["u"]
+    lin = lambda z: z @ F.T + u[:-1, None] @ G.T  # noqa: E731
+    f = x[1:] - lin(x[:-1])
+    f_est = x[1:] - lin(rec["xhat"][:-1])
+    f_ol = x[1:] - _open_loop(x[0], u, F, G)[1:]
+    return {**rec, "f": f[:, rows], "fhat": rec["fhat"][1:],
+            "f_readings": jnp.stack([f[:, rows], f_est[:, rows], f_ol[:, rows]])}
 
 
 def seed_metrics(tr: dict, band, dt: float, tail_s: float, settle_s: float) -> dict:
     """Per-seed metrics. Error RMS values skip sample 0, where dmso, kf and kf_printed all hand out the common
-    initial guess (zero) before any measurement has reached them."""
+    initial guess (zero) before any measurement has reached them.
+
+    ``peak_1s``: largest |error| over samples 1..1 s; ``logmean_tail``: mean of log10 |error| over the tail
+    (what a log plot such as Figs. 8.3 and 8.7 shows as the lower line). ``u_*``: the uncertainty estimate
+    against f under each of ``F_READINGS`` (shape (3, 2)): RMS of fhat - f and of f over the run and after
+    ``settle_s``, the largest |fhat - f| over the run and after ``settle_s``, the largest |f|, the mean |fhat - f|
+    and |f| after ``settle_s`` and the median of the pointwise ratio |fhat - f| / |f| after ``settle_s``."""
     T = tr["x"].shape[0]
     err = tr["xhat"] - tr["x"]
     n1 = min(T, int(round(1.0 / dt)) + 1)
     nt = min(T - 1, int(round(tail_s / dt)))
     ns = min(T - 2, int(round(settle_s / dt)))
-    rms = lambda a: jnp.sqrt(jnp.mean(a**2, axis=0))  # noqa: E731
+    rms = lambda a, ax=0: jnp.sqrt(jnp.mean(a**2, axis=ax))  # noqa: E731
     outside = jnp.abs(err) > band
     idx = jnp.arange(T)[:, None]
     last_out = jnp.max(jnp.where(outside, idx, -1), axis=0)
     dev = tr["fhat"] - tr["f"]
+    fr = tr["f_readings"]
+    dr = tr["fhat"][None] - fr
+    tiny = jnp.finfo(err.dtype).tiny
     return {
         "rms": rms(err[1:]), "rms_1s": rms(err[1:n1]), "rms_tail": rms(err[T - nt:]),
+        "peak_1s": jnp.max(jnp.abs(err[1:n1]), axis=0),
+        "logmean_tail": jnp.mean(jnp.log10(jnp.abs(err[T - nt:]) + tiny), axis=0),
         "conv": (last_out + 1) * dt, "converged": last_out < T - 1,
         "unc_rms_err": rms(dev), "unc_rms": rms(tr["f"]),
         "unc_rms_err_settled": rms(dev[ns:]), "unc_rms_settled": rms(tr["f"][ns:]),
+        "u_rms_err": rms(dr, 1), "u_rms": rms(fr, 1),
+        "u_rms_err_settled": rms(dr[:, ns:], 1), "u_rms_settled": rms(fr[:, ns:], 1),
+        "u_peak_err": jnp.max(jnp.abs(dr), axis=1), "u_peak_err_settled": jnp.max(jnp.abs(dr[:, ns:]), axis=1),
+        "u_peak": jnp.max(jnp.abs(fr), axis=1),
+        "u_mae_settled": jnp.mean(jnp.abs(dr[:, ns:]), axis=1), "u_ma_settled": jnp.mean(jnp.abs(fr[:, ns:]), axis=1),
+        "u_median_pointwise_settled": jnp.median(jnp.abs(dr[:, ns:]) / (jnp.abs(fr[:, ns:]) + tiny), axis=1),
     }
 
 
