@@ -510,7 +510,7 @@ def _part_of(claim: str) -> str:
         return "cpx_ldf"
     if "table-3.1" in claim:
         return "controllers"
-    if "procedure-1" in claim or "sec-3.2.1" in claim:
+    if "procedure-1" in claim or "3.2.1" in claim:  # sec-3.2.1, claim-3.2.1-one-vector
         return "eki"
     return "theory"
 

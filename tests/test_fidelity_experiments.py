@@ -70,7 +70,8 @@ def test_twip_transients_swing_against_dop853(transients):
 
     r, _, _ = transients
     p = twip.default_params()
-    rhs = lambda _t, s: np.asarray(twip.f(p, s, np.zeros(1)))  # noqa: E731
+    f = jax.jit(lambda s: twip.f(p, s, jax.numpy.zeros(1)))
+    rhs = lambda _t, s: np.asarray(f(s))  # noqa: E731
     for sw in r["swing"]:
         T, dt = sw["end_s"], 0.01
         t = np.arange(int(round(T / dt)) + 1) * dt
