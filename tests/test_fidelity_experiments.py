@@ -1,6 +1,6 @@
 """The fidelity readings' supporting experiments (twip-transients, twip-allan, rwp-remark3, thesis-theory): each
 runs through the CLI at a tiny scale and writes the contract's folder; one number of each is derived again
-independently (SciPy's DOP853 for the swing, the white-noise and random-walk Allan laws, a per-seed paired
+independently (SciPy's DOP853 for the swing, a NumPy Kalman-filter loop for the overshoot, the white-noise and random-walk Allan laws, a per-seed paired
 difference outside the Monte Carlo driver, zeta from SciPy's CARE and a root finder); and a plain ``reproduce``
 leaves ``reproduce=False`` experiments out while ``--only`` runs them."""
 
@@ -85,6 +85,36 @@ def test_twip_transients_swing_against_dop853(transients):
         assert sw["amplitude_end_deg"] == pytest.approx(np.max(np.abs(th[t >= T - 2.0])), rel=1e-6)
         assert sw["mean_x_last_10s_m"] == pytest.approx(np.mean(sol.y[0][t >= T - 10.0]), rel=1e-4)
         assert sw["first_motion_positive"] == (sol.y[0][np.argmax(np.abs(sol.y[0]) > 1e-6)] > 0)
+
+
+def test_twip_transients_overshoot_from_a_numpy_loop(transients):
+    """The 5 deg reading again from a plain loop: the Kalman filter of (176)-(178) written out in NumPy (prior
+    handed out, estimate from zero), u = -K xhat clipped at +-11.1 V, the Table 8.2 TWIP integrated by SciPy's
+    DOP853 over each held period."""
+    from jaxdip.plants import twip
+    from jaxdip.scenarios import twip_dmso as S
+    from jaxdip.theory import twip_transients as TT
+
+    r, _, _ = transients
+    dt, n = 0.01, 300
+    d = S.design(dt)
+    F, G, K = (np.asarray(a) for a in (d.F, d.G, d.K))
+    Q, R = np.diag([1e-4, 1e-2, 1e-4, 1e-2]), np.diag([1e-6, 1e-5, 4e-6, 2e-5])
+    p = twip.perturbed_params()
+    f = jax.jit(lambda s, u: twip.f(p, s, u))
+    x = np.array([1.0, 0.3, math.radians(10.0), math.radians(1.0)])
+    xp, P, u_prev, phi = np.zeros(4), 0.01 * np.eye(4), np.zeros(1), []
+    for k in range(n):
+        phi.append(x[2])
+        if k > 0:  # predict with the voltage applied over the last period
+            xp, P = F @ xp + G @ u_prev, F @ P @ F.T + Q
+        prior = xp.copy()
+        L = P @ np.linalg.inv(P + R)  # y = x
+        xp, P = xp + L @ (x - xp), (np.eye(4) - L) @ P
+        u = np.clip(-K @ prior, -11.1, 11.1)
+        sol = solve_ivp(lambda _t, s: np.asarray(f(s, u)), (0.0, dt), x, method="DOP853", rtol=1e-11, atol=1e-13)
+        x, u_prev = sol.y[:, -1], u
+    assert r["overshoot"]["kf"]["deg"] == pytest.approx(math.degrees(TT.overshoot(np.array(phi))), abs=1e-8)
 
 
 def test_twip_allan_against_the_white_and_random_walk_laws(tmp_path):
