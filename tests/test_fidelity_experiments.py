@@ -1,8 +1,8 @@
 """The fidelity readings' supporting experiments (twip-transients, twip-allan, rwp-remark3, thesis-theory): each
 runs through the CLI at a tiny scale and writes the contract's folder; one number of each is derived again
-independently (SciPy's DOP853 for the swing, a NumPy Kalman-filter loop for the overshoot, the white-noise and random-walk Allan laws, a per-seed paired
-difference outside the Monte Carlo driver, zeta from SciPy's CARE and a root finder); and a plain ``reproduce``
-leaves ``reproduce=False`` experiments out while ``--only`` runs them."""
+independently (SciPy's DOP853 for the swing, a NumPy Kalman-filter loop for the overshoot, the white-noise and
+random-walk Allan laws, a per-seed paired difference outside the Monte Carlo driver, zeta from SciPy's CARE and a
+root finder); and a plain ``reproduce`` leaves ``reproduce=False`` experiments out while ``--only`` runs them."""
 
 import json
 import math
