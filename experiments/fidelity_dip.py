@@ -6,9 +6,8 @@ the ensemble Kalman search of §3.2.1 (Procedure 1), and the claims of thesis ch
                                        [--runs DIR] [--docs DIR]
 
 Writes ``docs/fidelity/dip.md`` and ``docs/fidelity/dip.json`` (rows {claim, reading, what, command, ours,
-document, holds}). Every row of the first three parts is one ``jaxdip run ...`` command, run as a child process
-exactly as printed, its metrics.json read back. The theory rows are computed in-process by
-``jaxdip.theory.proximal_growth`` (no experiment runs them); their command is this script's.
+document, holds}). Every row is one ``jaxdip run ...`` command, run as a child process exactly as printed, its
+metrics.json read back; the theory rows' run is ``jaxdip run thesis-theory`` (``jaxdip.theory.proximal_growth``).
 
 Scale (the machine is a shared 2-core CPU): ``--seeds`` trials per dip-cpx-ldf reading (default 100, the
 experiment's full 6.5 s, no gamma sweep or single-trial figure), 2 x that per dip-controllers reading (5 s),
@@ -27,7 +26,6 @@ import subprocess
 import sys
 import tempfile
 
-import numpy as np
 
 import jaxdip  # noqa: F401  (float64)
 
@@ -388,71 +386,48 @@ def eki(args, workdir):
     return L, rows
 
 
-# ---- thesis ch. 1-2 theory ---------------------------------------------------------------------------------------
-
-THEORY_CMD = ["python", "experiments/fidelity_dip.py", "--only", "theory"]
+# ---- thesis ch. 1-2 theory (thesis-theory) -----------------------------------------------------------------------
 
 
 def theory(args, workdir):
-    import jax
-    import jax.numpy as jnp
+    cmd = _cmd("thesis-theory", [], None, args.quick)
+    r = _run(cmd, workdir)["results"]
+    nl, li, rp = r["thm_1_3_2"], r["prop_1_4_1"], r["prop_2_4_2"]
 
-    import jaxdip as jd
-    from jaxdip.plants import dip
-    from jaxdip.scenarios import dip_cpx_ldf as S
-    from jaxdip.theory import proximal_growth as pg
+    def yn(b):
+        return "yes" if b else "no"
 
-    trials = 8 if args.quick else 32
-    nl = pg.nonlinear_two_measurement(jax.random.PRNGKey(0), trials=trials, steps=100 if args.quick else 300)
-    sc = S.DipCpxLdf()
-    model, C = sc.model()
-    A, B = jd.linearize(dip.DIP())
-    K, Sric, _ = jd.control.lqr(A, B, jnp.diag(jnp.array([30.0, 350.0, 100.0, 1.0, 1.0, 1.0])), 0.1)
-    Phi_cl = np.asarray(model.Phi) - np.asarray(model.W) @ np.asarray(K)
-    li = pg.linear_least_squares(jax.random.PRNGKey(1), Phi_cl, np.asarray(C), trials=trials,
-                                 steps=100 if args.quick else 400)
-    rp = pg.relaxed_projection_growth(np.asarray(A), np.asarray(B), np.asarray(Sric), trials=10 if args.quick else 50)
-
-    def mx(a):
-        return f"{np.max(a):.2g}"
-
-    def md(a):
-        return f"{np.median(a):.3g}"
-
-    tol = 1e-8
-    h_nl = "yes" if np.all(nl.tail_gap_growing < tol) else "no"
-    h_li = "yes" if np.all(li.err_growing < tol) else "no"
-    h_rp = "yes" if (np.all(rp.rates <= -rp.alpha + 1e-12) and np.all(rp.worst_ratio <= 1 + 1e-9)) else "no"
-    cmd = shlex.join(THEORY_CMD)
+    h_nl, h_li, h_rp = yn(nl["holds"]), yn(li["holds"]), yn(rp["holds"])
     L = [
         "## Thesis ch. 1-2: claims checked by computation",
         "",
-        f"Computed in-process by `jaxdip.theory.proximal_growth` (command: `{cmd}`); the tests in "
-        "tests/test_proximal_growth.py check its parts against scipy and finite differences.",
+        f"Run: `{shlex.join(cmd)}` (experiment thesis-theory on `jaxdip.theory.proximal_growth`); the tests in "
+        "tests/test_proximal_growth.py check its parts against scipy and finite differences, "
+        "tests/test_fidelity_experiments.py its zeta against SciPy's CARE and a root finder.",
         "",
         "| claim | set-up | ours | holds |",
         "|---|---|---|---|",
         f"| Thm 1.3.2 with the two-measurement functional (1.9) | Lorenz, RK4 map h = 0.01, y = (yL, zL) with "
-        f"uniform noise +-0.05, state noise +-1e-3, x^_0 off by up to 1 per coordinate, {len(nl.growth)} trials, "
-        f"{100 if args.quick else 300} steps; gamma_k = gamma_0 rho^k with rho the largest ratio the theorem asks "
-        f"for along the trial (median {md(nl.growth)}), gamma_0 = 1 | phi_k(p_k) - min phi_k over the last quarter: "
-        f"max {mx(nl.tail_gap_growing)} (growing gamma_k) vs {mx(nl.tail_gap_constant)} (gamma_k = 1); "
-        f"||p_k - (x_k + zeta_k)|| at the end: max {mx(nl.err_growing)} vs median {md(nl.err_constant)}; error to "
-        f"the true state ||p_k - x_k|| (last quarter mean): median {md(nl.truth_err_growing)} vs "
-        f"{md(nl.truth_err_constant)} | {h_nl} |",
+        f"uniform noise +-0.05, state noise +-1e-3, x^_0 off by up to 1 per coordinate, {nl['trials']} trials, "
+        f"{nl['steps']} steps; gamma_k = gamma_0 rho^k with rho the largest ratio the theorem asks "
+        f"for along the trial (median {nl['growth_median']:.3g}), gamma_0 = 1 | phi_k(p_k) - min phi_k over the last "
+        f"quarter: max {nl['tail_gap_growing_max']:.2g} (growing gamma_k) vs {nl['tail_gap_constant_max']:.2g} "
+        f"(gamma_k = 1); ||p_k - (x_k + zeta_k)|| at the end: max {nl['err_growing_max']:.2g} vs median "
+        f"{nl['err_constant_median']:.3g}; error to the true state ||p_k - x_k|| (last quarter mean): median "
+        f"{nl['truth_err_growing_median']:.3g} vs {nl['truth_err_constant_median']:.3g} | {h_nl} |",
         f"| Prop. 1.4.1 (linear, functional (1.20)) | the DIP's linearisation under LQR (ZOH 1 ms), G = [C; C Phi; "
-        f"C Phi^2] (outputs xc, alpha, theta), uniform noise +-1e-3 (outputs), +-1e-4 (state), {len(li.growth)} "
-        f"trials, {100 if args.quick else 400} steps, gamma_0 = 150, growth median {md(li.growth)} | "
-        f"||p_k - (x_k + zeta_k)|| at the end: max {mx(li.err_growing)} (growing) vs median {md(li.err_constant)} "
-        f"(gamma = 150); error to the true state: median {md(li.truth_err_growing)} vs "
-        f"{md(li.truth_err_constant)} | {h_li} |",
+        f"C Phi^2] (outputs xc, alpha, theta), uniform noise +-1e-3 (outputs), +-1e-4 (state), {li['trials']} "
+        f"trials, {li['steps']} steps, gamma_0 = 150, growth median {li['growth_median']:.3g} | "
+        f"||p_k - (x_k + zeta_k)|| at the end: max {li['err_growing_max']:.2g} (growing) vs median "
+        f"{li['err_constant_median']:.3g} (gamma = 150); error to the true state: median "
+        f"{li['truth_err_growing_median']:.3g} vs {li['truth_err_constant_median']:.3g} | {h_li} |",
         f"| Prop. 2.4.2 | the DIP's linearisation, P = the LQR Riccati solution (Q = diag(30, 350, 100, 1, 1, 1), "
         f"R = 0.1); zeta = the smallest constant weight with d/dt 1/2 ||x||_P^2 < 0 for all x (Def. 2.4.1 read "
-        f"with gamma = zeta): {rp.zeta:.4g}, alpha = {rp.alpha:.3g} at 1.01 zeta; {len(rp.worst_ratio)} "
-        f"trajectories of 5 s with gamma(t) drawn in (1.01, 100) zeta every 10 ms | decay rate at 25 constant "
-        f"weights in (1.01, 100) zeta: max {np.max(rp.rates):.3g} (must be <= -alpha); max_t ||x(t)||_P "
-        f"e^(alpha t) / ||x_0||_P: max {np.max(rp.worst_ratio):.4g} (must be <= 1); ||x(5)||_P / ||x_0||_P: "
-        f"max {np.max(rp.final_ratio):.3g} | {h_rp} |",
+        f"with gamma = zeta): {rp['zeta']:.4g}, alpha = {rp['alpha']:.3g} at 1.01 zeta; {rp['trials']} "
+        f"trajectories of 5 s with gamma(t) drawn in (1.01, 100) zeta every 10 ms | decay rate at "
+        f"{rp['constant_weights']} constant weights in (1.01, 100) zeta: max {rp['rate_max']:.3g} (must be <= "
+        f"-alpha); max_t ||x(t)||_P e^(alpha t) / ||x_0||_P: max {rp['worst_ratio_max']:.4g} (must be <= 1); "
+        f"||x(5)||_P / ||x_0||_P: max {rp['final_ratio_max']:.3g} | {h_rp} |",
         "",
         "Notes. The weights Thm 1.3.2 asks for grow geometrically at a factor of ~10-100 per step here, so "
         "within a few steps the proximal term no longer matters: p_k is the least-squares fit of the window, "
@@ -466,19 +441,18 @@ def theory(args, workdir):
     ]
     rows = [
         _row("thesis:thm-1.3.2", "growing gamma_k, (1.9) on Lorenz", "phi_k(p_k) -> 0 for the proximal MHE (1.10) "
-             "with the two-measurement functional (1.9) and gamma_k growing as the theorem asks", THEORY_CMD,
-             f"max phi_k(p_k) - min phi_k over the last quarter {mx(nl.tail_gap_growing)} ({len(nl.growth)} trials; "
-             f"constant gamma: {mx(nl.tail_gap_constant)})", "phi_k(p_k) -> 0", h_nl),
+             "with the two-measurement functional (1.9) and gamma_k growing as the theorem asks", cmd,
+             f"max phi_k(p_k) - min phi_k over the last quarter {nl['tail_gap_growing_max']:.2g} ({nl['trials']} "
+             f"trials; constant gamma: {nl['tail_gap_constant_max']:.2g})", "phi_k(p_k) -> 0", h_nl),
         _row("thesis:thm-1.3.2", "growing gamma_k, Lorenz", "the two-measurement functional (1.9) used in (1.10)",
-             THEORY_CMD, f"error to the truth (median) {md(nl.truth_err_growing)} growing vs "
-             f"{md(nl.truth_err_constant)} constant gamma", "no number printed", "n/a"),
+             cmd, f"error to the truth (median) {nl['truth_err_growing_median']:.3g} growing vs "
+             f"{nl['truth_err_constant_median']:.3g} constant gamma", "no number printed", "n/a"),
         _row("thesis:prop-1.4.1", "growing gamma_k, DIP linearisation", "||p_k - (x_k + zeta_k)|| -> 0 under "
-             "Thm 1.3.2's weights", THEORY_CMD, f"final max {mx(li.err_growing)} (constant gamma = 150: median "
-             f"{md(li.err_constant)})", "-> 0", h_li),
+             "Thm 1.3.2's weights", cmd, f"final max {li['err_growing_max']:.2g} (constant gamma = 150: median "
+             f"{li['err_constant_median']:.3g})", "-> 0", h_li),
         _row("thesis:prop-2.4.2", "DIP linearisation, P = LQR Riccati", "gamma(t) > zeta keeps (2.14) "
-             "exponentially stable", THEORY_CMD, f"zeta {rp.zeta:.4g}; worst ||x||_P e^(alpha t)/||x0||_P "
-             f"{np.max(rp.worst_ratio):.4g} over {len(rp.worst_ratio)} random gamma(t)", "exponentially stable",
-             h_rp),
+             "exponentially stable", cmd, f"zeta {rp['zeta']:.4g}; worst ||x||_P e^(alpha t)/||x0||_P "
+             f"{rp['worst_ratio_max']:.4g} over {rp['trials']} random gamma(t)", "exponentially stable", h_rp),
     ]
     return L, rows
 
@@ -535,7 +509,7 @@ def _part_of(claim: str) -> str:
         return "cpx_ldf"
     if "table-3.1" in claim:
         return "controllers"
-    if "procedure-1" in claim or "sec-3.2.1" in claim:
+    if "procedure-1" in claim or "3.2.1" in claim:  # sec-3.2.1, claim-3.2.1-one-vector
         return "eki"
     return "theory"
 

@@ -7,11 +7,10 @@
 Writes ``docs/fidelity/twip.md`` (Stumfoll Table 8.3, §8.1.3 / Fig. 8.13, the noiseless DMSO-vs-KF claims of
 Figs. 8.2, 8.4, 8.6, 8.7, 8.11, §8.1's "15 s" and "5 deg", Fig. 5.5, Fig. 7.1 against Table 7.1),
 ``docs/fidelity/rwp.md`` (Aranovskiy Remark 3) and the machine-readable rows of both, ``docs/fidelity/twip.json``.
-A run of some parts (``--only``) replaces those parts' sections and rows and keeps the others'. Rows of
-``table_8_3``, ``kf`` and ``dmso`` are ``jaxdip run`` commands, run as child processes exactly as printed, their
-metrics.json read back. ``transients``, ``allan`` and ``rwp`` are computed in this
-process from the library (``jaxdip.theory.twip_transients``, ``jaxdip.sim.allan``, ``jaxdip.scenarios.rwp``);
-their command is this script with ``--only``.
+A run of some parts (``--only``) replaces those parts' sections and rows and keeps the others'. Every row is a
+``jaxdip run`` command, run as a child process exactly as printed, its metrics.json read back: ``transients``,
+``allan`` and ``rwp`` run the experiments ``twip-transients``, ``twip-allan`` and ``rwp-remark3`` (supporting
+runs, left out of a plain ``jaxdip reproduce``).
 
 Scale: twip-extra-control with ``--seeds`` seeds (default 500; the experiment's full scale is 1000) of the full
 20 s; twip-dmso's noisy case with ``--dmso-seeds`` seeds (default 300 of its 1000: at 1000 the run's memory
@@ -37,7 +36,6 @@ import jaxdip  # noqa: F401  (float64)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PARTS = ("table_8_3", "kf", "dmso", "transients", "allan", "rwp")
-SELF = "python experiments/fidelity_twip.py --only "
 
 
 def _cmd(exp: str, sets: list[str], seeds: int | None, quick: bool) -> list[str]:
@@ -596,272 +594,163 @@ def _ratio1(a, b):
     return a / b if b and np.isfinite(a) and np.isfinite(b) else float("nan")
 
 
-# ---- §8.1 "15 s", §8.1.2 "5 deg", Fig. 5.5 (in process) ---------------------------------------------------
+# ---- §8.1 "15 s", §8.1.2 "5 deg", Fig. 5.5 (twip-transients) -----------------------------------------------
 
 
-def _closed_loop_trace(case: str, est_name: str):
-    """Seed 0 of twip-dmso's noiseless case ``case`` (nominal: Table 8.1 truth, param: Table 8.2) with one
-    estimator: t, x."""
-    import jax
+def transients(args, workdir: str):
+    from jaxdip.experiments import twip_transients as X
 
-    import jaxdip as jd
-    from jaxdip.scenarios import twip_dmso as S
-    from jaxdip.scenarios.twip_initial import thesis_x0
-
-    dt, T = 0.01, 20.0
-    d = S.design(dt)
-    lp = S.loop(S.estimator(est_name, d), S.sensors(dt, False), d, truth="8.1" if case == "nominal" else "8.2")
-    n = int(round(T / dt))
-    sol = jd.Rollout(lp, thesis_x0(), n, save=S.record)(jax.random.PRNGKey(0))
-    x = np.asarray(sol.saved["x"])
-    return np.arange(x.shape[0]) * dt, x
-
-
-def transients(args):
-    from jaxdip.theory import twip_transients as TT
-
-    DEG = math.pi / 180
-    L = ["## §8.1's \"15 s\" and \"5 degrees\", Fig. 5.5's swing (computed in process)", ""]
+    cmd = _cmd("twip-transients", [], None, args.quick)
+    c = shlex.join(cmd)
+    r = _run(cmd, workdir)["results"]
+    T = r["duration_s"]
+    L = ["## §8.1's \"15 s\" and \"5 degrees\", Fig. 5.5's swing", "", f"Run: `{c}`.", ""]
     rows = []
-    cmd = SELF + "transients"
-    # 15 s: nominal case, seed 0 (x0 of (179)), every state within a band
     L += ["§8.1.1: \"The linear controller is shown to be effective in driving the system states to zero after a "
           "period of time, reaching the desired states in 15 seconds\" (Fig. 8.1, nominal truth, y = x). Ours: "
-          "seed 0 (x0 of (179)) of twip-dmso's `nominal` case over its 20 s, the time at which every state is "
+          f"seed 0 (x0 of (179)) of twip-dmso's `nominal` case over its {T:g} s, the time at which every state is "
           "within a band (2%, 5% or 10% of its initial size: x 1 m, x_dot 0.3 m/s, phi 10 deg, phi_dot 1 deg/s), "
           "read as the time after which they all stay there or the first time they all are there (inf: not within "
-          "20 s). Holds when a reading lands within 15 +- 2 s.", "",
+          f"{T:g} s). Holds when a reading lands within {X.THESIS_SETTLING_S:g} +- {X.SETTLING_TOL_S:g} s.", "",
           "| estimator feeding the LQR | band | settling time (s) | thesis | holds |", "|---|---|---|---|---|"]
-    x0 = np.array([1.0, 0.3, 10 * DEG, 1 * DEG])
-    for est in ("dmso", "kf"):
-        t, x = _closed_loop_trace("nominal", est)
-        for frac in (0.02, 0.05, 0.1):
-            for how in ("stays", "first reaches"):
-                if how == "stays":
-                    ts = max(TT.settling_time(t, x[:, j], frac * x0[j]) for j in range(4))
-                else:
-                    ts = TT.reach_time(t, x, frac * x0)
-                h = "yes" if abs(ts - 15.0) <= 2.0 else "no"
-                shown = "not within 20 s" if math.isinf(ts) else f"{ts:.2f}"
-                L.append(f"| {est} | {100 * frac:g}%, {how} | {shown} | 15 | {h} |")
-                rows.append(_row("stumfoll:claim-8.1-15s", f"{est}; every state {how} within {100 * frac:g}% of "
-                                 "x0", "time the nominal closed loop takes to reach the desired (zero) state", cmd,
-                                 shown + ("" if math.isinf(ts) else " s"), "15 s", h))
+    for e in r["settling"]:
+        h = "yes" if e["holds"] else "no"
+        shown = f"{e['time_s']:.2f}" if e["reached"] else f"not within {T:g} s"
+        L.append(f"| {e['estimator']} | {100 * e['band']:g}%, {e['how']} | {shown} | {X.THESIS_SETTLING_S:g} | {h} |")
+        rows.append(_row("stumfoll:claim-8.1-15s", f"{e['estimator']}; every state {e['how']} within "
+                         f"{100 * e['band']:g}% of x0", "time the nominal closed loop takes to reach the desired "
+                         "(zero) state", c, shown + (" s" if e["reached"] else ""), f"{X.THESIS_SETTLING_S:g} s", h))
     L += ["", "§8.1.2: \"The tilt angle overshoots the desired value by 5 degrees\" (Fig. 8.5, Table 8.2 truth). "
           "Ours: seed 0 of the `param` case, overshoot of phi below 0 after starting at +10 deg. Holds within "
-          "5 +- 1 deg.", "", "| estimator | overshoot (deg) | thesis | holds |", "|---|---|---|---|"]
-    for est in ("dmso", "kf"):
-        t, x = _closed_loop_trace("param", est)
-        ov = TT.overshoot(x[:, 2]) / DEG
-        h = "yes" if abs(ov - 5.0) <= 1.0 else "no"
-        L.append(f"| {est} | {ov:.2f} | 5 | {h} |")
-        rows.append(_row("stumfoll:claim-8.1.2-5deg", est, "tilt overshoot below 0, param case, seed 0", cmd,
-                         f"{ov:.2f} deg", "5 deg", h))
-    # Fig. 5.5
+          f"{X.THESIS_OVERSHOOT_DEG:g} +- {X.OVERSHOOT_TOL_DEG:g} deg.", "",
+          "| estimator | overshoot (deg) | thesis | holds |", "|---|---|---|---|"]
+    for est, o in r["overshoot"].items():
+        h = "yes" if o["holds"] else "no"
+        L.append(f"| {est} | {o['deg']:.2f} | {X.THESIS_OVERSHOOT_DEG:g} | {h} |")
+        rows.append(_row("stumfoll:claim-8.1.2-5deg", est, "tilt overshoot below 0, param case, seed 0", c,
+                         f"{o['deg']:.2f} deg", f"{X.THESIS_OVERSHOOT_DEG:g} deg", h))
+    sw = r["swing"]
+    end = sw[0]["end_s"]
     L += ["", "Fig. 5.5: the unforced TWIP (72)-(73) (Table 8.1, 0 V) released at rest at theta = 10 deg from the "
           "hanging position. The thesis: it oscillates about theta = 0 with damped oscillations (no friction; the "
           "motors' back-EMF damps), the body first moves in the positive direction, and the position settles at a "
           "net positive value in proportion to the starting angle. Ours: RK4 (10 sub-steps of 1 ms per 10 ms), "
-          "checked against DOP853 in tests/test_twip_transients.py.", "",
-          "| start (deg) | period (s) | amplitude after 10 / 60 s (deg) | first cart motion | mean x over the last "
-          "10 of 60 s (mm) | mean x / start (mm/deg) |", "|---|---|---|---|---|---|"]
-    fig = {}
-    for a in (5.0, 10.0, 20.0):
-        t, x = TT.swing(a, 60.0)
-        th = TT.theta_of(x[:, 2]) / DEG
-        pk = TT.peaks(th)
-        period = float(2 * np.mean(np.diff(t[pk][:20])))
-        amp10 = float(np.max(np.abs(th[(t >= 9.0) & (t <= 11.0)])))
-        amp60 = float(np.max(np.abs(th[t >= 58.0])))
-        first = float(x[np.argmax(np.abs(x[:, 0]) > 1e-6), 0])
-        mean_x = float(np.mean(x[t >= 50.0, 0]))
-        fig[a] = (period, amp10, amp60, first, mean_x)
-        L.append(f"| {a:g} | {period:.3f} | {amp10:.2f} / {amp60:.2f} | {'positive' if first > 0 else 'negative'} "
-                 f"| {1e3 * mean_x:.3f} | {1e3 * mean_x / a:.4f} |")
-    p10 = fig[10.0]
-    damped = p10[2] < p10[1] < 10.0
-    rows.append(_row("stumfoll:fig-5.5-damped", "printed model (72)-(73), 0 V", "10 deg swing about theta = 0: "
-                     "amplitude falls", cmd, f"{p10[1]:.2f} deg at 10 s, {p10[2]:.2f} deg at 60 s",
-                     "damped oscillation", "yes" if damped else "no"))
+          "checked against DOP853 in tests/test_twip_transients.py and tests/test_fidelity_experiments.py.", "",
+          f"| start (deg) | period (s) | amplitude after 10 / {end:g} s (deg) | first cart motion | mean x over the "
+          f"last 10 of {end:g} s (mm) | mean x / start (mm/deg) |", "|---|---|---|---|---|---|"]
+    for s in sw:
+        L.append(f"| {s['start_deg']:g} | {s['period_s']:.3f} | {s['amplitude_10s_deg']:.2f} / "
+                 f"{s['amplitude_end_deg']:.2f} | {'positive' if s['first_motion_positive'] else 'negative'} | "
+                 f"{1e3 * s['mean_x_last_10s_m']:.3f} | {1e3 * s['mean_x_last_10s_m'] / s['start_deg']:.4f} |")
+    p10 = next((s for s in sw if s["start_deg"] == 10.0), sw[0])
+    a10 = f"{p10['start_deg']:g} deg"
+    damped, first, prop = p10["damped"], p10["first_motion_positive"], r["swing_net_proportional"]
+    rows.append(_row("stumfoll:fig-5.5-damped", "printed model (72)-(73), 0 V", f"{a10} swing about theta = 0: "
+                     "amplitude falls", c, f"{p10['amplitude_10s_deg']:.2f} deg at 10 s, "
+                     f"{p10['amplitude_end_deg']:.2f} deg at {end:g} s", "damped oscillation", "yes" if damped else "no"))
     rows.append(_row("stumfoll:fig-5.5-first-motion", "printed model (72)-(73), 0 V", "direction of the cart's "
-                     "first motion from theta = +10 deg", cmd, "positive" if p10[3] > 0 else "negative", "positive",
-                     "yes" if p10[3] > 0 else "no"))
-    props = [fig[a][4] / a for a in fig]
-    prop = all(v > 0 for v in props) and max(props) / min(props) < 1.5
+                     f"first motion from theta = +{a10}", c, "positive" if first else "negative", "positive",
+                     "yes" if first else "no"))
     rows.append(_row("stumfoll:fig-5.5-net-position", "printed model (72)-(73), 0 V", "net cart position after the "
-                     "swing, positive and proportional to the start angle (5, 10, 20 deg)", cmd,
-                     ", ".join(f"{1e3 * fig[a][4]:.3f} mm" for a in fig), "net positive, proportional",
+                     "swing, positive and proportional to the start angle (" + ", ".join(f"{s['start_deg']:g}"
+                                                                                      for s in sw) + " deg)", c,
+                     ", ".join(f"{1e3 * s['mean_x_last_10s_m']:.3f} mm" for s in sw), "net positive, proportional",
                      "yes" if prop else "no"))
-    L += ["", f"Damped: {'yes' if damped else 'no'} (amplitude {p10[1]:.2f} deg at 10 s, {p10[2]:.2f} deg at "
-          f"60 s: the back-EMF damps the swing slowly); first motion positive: {'yes' if p10[3] > 0 else 'no'}; "
-          f"net position positive and proportional to the start angle: {'yes' if prop else 'no'}."]
+    L += ["", f"Damped: {'yes' if damped else 'no'} (amplitude {p10['amplitude_10s_deg']:.2f} deg at 10 s, "
+          f"{p10['amplitude_end_deg']:.2f} deg at {end:g} s: the back-EMF damps the swing slowly); first motion "
+          f"positive: {'yes' if first else 'no'}; net position positive and proportional to the start angle: "
+          f"{'yes' if prop else 'no'}."]
     return L, rows
 
 
-# ---- Fig. 7.1 / Table 7.1: Allan deviation of the simulated sensors (in process) --------------------------
+# ---- Fig. 7.1 / Table 7.1: Allan deviation of the simulated sensors (twip-allan) ---------------------------
 
 
-def allan(args):
-    import jax
-    import jax.numpy as jnp
+def allan(args, workdir: str):
+    from jaxdip.experiments import twip_allan as X
 
-    from scipy.stats import t as t_dist
-
-    from jaxdip.sim import allan as A
-    from jaxdip.sim.twip_sensors import DEG, TwipSensors, table_7_1
-
-    dt = 0.01
-    hours = 0.25 if args.quick else 4.0
-    n, seeds = int(hours * 3600 / dt), 2 if args.quick else 8
-    # cf_alpha = 0: the tilt channel is the accelerometer's own angle; stationary biases: a long record's law
-    sens = TwipSensors.table_7_1(dt, cf_alpha=0.0, stationary_start=True)
-
-    @jax.jit
-    def record(key):
-        x = jnp.zeros(4)
-        state, _ = sens.init(key, x)
-        state = (state, jnp.zeros(()))
-
-        def step(s, k):
-            s, y, _ = sens.step(s, x, jax.random.fold_in(key, k), k)
-            return s, y[2:]
-
-        return jax.lax.scan(step, state, jnp.arange(n))[1]
-
-    tab = table_7_1()
-    ms = np.unique(np.round(np.logspace(0, math.log10(n / 10), 14)).astype(int))
-    taus = ms * dt
-    av = {"tilt": [], "gyro": []}
-    for i in range(seeds):
-        y = np.asarray(record(jax.random.PRNGKey(100 + i)))
-        av["tilt"].append(A.allan_variance(y[:, 0], ms))
-        av["gyro"].append(A.allan_variance(y[:, 1], ms))
-    law = {s: A.avar_sampled_white_gauss_markov(tab[f"{s}_white_std"] ** 2, tab[f"{s}_gm_sigma"] ** 2,
-                                                 tab[f"{s}_gm_tau"], dt, ms) for s in ("tilt", "gyro")}
-    unit = {"tilt": (1 / DEG, "deg"), "gyro": (1 / DEG, "deg/s")}
-    cmd = SELF + "allan"
-    L = ["## Fig. 7.1 / Table 7.1: Allan deviation of the simulated sensors (computed in process)", "",
-         f"Fig. 7.1 compares the Allan variance of the robot's measured gyro data with simulated data; the measured "
-         f"data are not in the thesis, so what can be checked is that jaxdip's simulated sensors (`TwipSensors."
-         f"table_7_1`, at rest, walking biases started stationary, dt = {dt} s) have the Allan deviation that "
-         f"Table 7.1's parameters imply under the library's reading (sigma_r^2 a per-sample white variance, "
-         f"sigma_br^2 the intensity driving the Gauss-Markov bias (155) of time constant tau_r): for tau >> dt "
-         f"ADEV^2 = sigma_r^2 dt / tau + sigma_br^2 tau_r^2 / tau [1 - tau_r / (2 tau) (3 - 4 e^(-tau/tau_r) + "
-         f"e^(-2 tau/tau_r))]; the column uses the exact law of the samples (white plus the sampled bias, from its "
-         f"autocovariance; `jaxdip.sim.allan.avar_sampled_white_gauss_markov`). "
-         f"{seeds} records of {hours:g} h each; ours = mean of the overlapping Allan variances over the records "
-         f"(`jaxdip.sim.allan`, tested against the defining sum and the white-noise law sigma^2/tau), interval "
-         f"from their spread (Student's t, {seeds - 1} degrees of freedom). Holds where the law lies inside our 95% interval.", "",
+    cmd = _cmd("twip-allan", [], None, args.quick)
+    c = shlex.join(cmd)
+    r = _run(cmd, workdir)["results"]
+    taus = r["tau_s"]
+    n = r["records"]
+    L = ["## Fig. 7.1 / Table 7.1: Allan deviation of the simulated sensors", "", f"Run: `{c}`.", "",
+         "Fig. 7.1 compares the Allan variance of the robot's measured gyro data with simulated data; the measured "
+         "data are not in the thesis, so what can be checked is that jaxdip's simulated sensors (`TwipSensors."
+         "table_7_1`, at rest, walking biases started stationary, dt = 0.01 s) have the Allan deviation that "
+         "Table 7.1's parameters imply under the library's reading (sigma_r^2 a per-sample white variance, "
+         "sigma_br^2 the intensity driving the Gauss-Markov bias (155) of time constant tau_r): for tau >> dt "
+         "ADEV^2 = sigma_r^2 dt / tau + sigma_br^2 tau_r^2 / tau [1 - tau_r / (2 tau) (3 - 4 e^(-tau/tau_r) + "
+         "e^(-2 tau/tau_r))]; the column uses the exact law of the samples (white plus the sampled bias, from its "
+         "autocovariance; `jaxdip.sim.allan.avar_sampled_white_gauss_markov`). "
+         f"{n} records of {r['record_hours']:g} h each; ours = mean of the overlapping Allan variances over the "
+         "records (`jaxdip.sim.allan`, tested against the defining sum and the white-noise law sigma^2/tau), "
+         f"interval from their spread (Student's t, {n - 1} degrees of freedom). Holds where the law lies inside "
+         "our 95% interval.", "",
          "| sensor | tau (s) | ADEV ours | ADEV from Table 7.1 (exact, sampled) | holds |", "|---|---|---|---|---|"]
     rows = []
-    for s in ("tilt", "gyro"):
-        a = np.array(av[s])
-        mean = a.mean(0)
-        # Student's t: the interval comes from only `seeds` records
-        half = t_dist.ppf(0.975, seeds - 1) * a.std(0, ddof=1) / math.sqrt(seeds)
-        sc, u = unit[s]
-        held = []
-        for j in range(len(ms)):
-            lo, hi = max(mean[j] - half[j], 0.0), mean[j] + half[j]
-            h = "yes" if lo <= law[s][j] <= hi else "no"
-            held.append(h)
-            L.append(f"| {s} | {taus[j]:.3g} | {_g(sc * math.sqrt(mean[j]), 4)} [{_g(sc * math.sqrt(lo), 4)}, "
-                     f"{_g(sc * math.sqrt(hi), 4)}] {u} | {_g(sc * math.sqrt(law[s][j]), 4)} {u} | {h} |")
-        frac = held.count("yes") / len(held)
-        dev = np.abs(np.sqrt(mean / law[s]) - 1)
-        worst, worst_short = float(np.max(dev)), float(np.max(dev[taus <= 100.0]))
-        L.append(f"| {s} | | {held.count('yes')}/{len(held)} cluster times hold; largest deviation of ADEV "
-                 f"{100 * worst_short:.2f}% for tau <= 100 s | | {'yes' if frac >= 0.8 else 'no'} (>= 80% hold) |")
+    frac = f">= {100 * X.HOLD_FRACTION:.0f}% hold"
+    for s in X.SENSORS:
+        e, u = r[s], r[s]["unit"]
+        for j, tau in enumerate(taus):
+            lo, hi = e["adev_ci95"][j]
+            L.append(f"| {s} | {tau:.3g} | {_g(e['adev'][j], 4)} [{_g(lo, 4)}, {_g(hi, 4)}] {u} | "
+                     f"{_g(e['law_adev'][j], 4)} {u} | {'yes' if e['law_inside'][j] else 'no'} |")
+        h = "yes" if e["holds"] else "no"
+        L.append(f"| {s} | | {e['held']}/{e['clusters']} cluster times hold; largest deviation of ADEV "
+                 f"{100 * e['max_deviation_short']:.2f}% for tau <= {X.SHORT_TAU_S:g} s | | {h} ({frac}) |")
         rows.append(_row(f"stumfoll:fig-7.1-{s}", "Table 7.1 read as variances / intensities",
                          f"Allan deviation of the simulated {'accelerometer tilt' if s == 'tilt' else 'gyro'} at "
-                         f"{len(ms)} cluster times {taus[0]:.2g}-{taus[-1]:.3g} s against Table 7.1's law", cmd,
-                         f"law inside the 95% interval at {held.count('yes')}/{len(held)} cluster times; largest "
-                         f"ADEV deviation {100 * worst_short:.2f}% for tau <= 100 s, {100 * worst:.1f}% overall", "Table 7.1 parameters (measured data not printed)",
-                         "yes" if frac >= 0.8 else "no"))
-    # encoder: the printed discretisation errors (position quantum, velocity quantum / dt)
-    q = tab["encoder_quantum"]
-    tt = np.arange(20000) * dt
-    xs = np.stack([0.1 * tt + 0.02 * np.sin(0.7 * tt), 0.1 + 0.014 * np.cos(0.7 * tt),
-                   np.zeros_like(tt), np.zeros_like(tt)], 1)
-    sens_e = TwipSensors.table_7_1(dt, cf_alpha=0.0)
-    st, _ = sens_e.init(jax.random.PRNGKey(0), jnp.zeros(4))
-
-    def step_e(s, kx):
-        k, x = kx
-        s, y, _ = sens_e.step(s, x, jax.random.PRNGKey(0), k)
-        return s, y[:2]
-
-    ys = np.asarray(jax.lax.scan(step_e, (st, jnp.zeros(())), (jnp.arange(len(tt)), jnp.asarray(xs)))[1])
-    perr = float(np.max(np.abs(ys[:, 0] - xs[:, 0])))
-    steps = np.unique(np.round(np.diff(ys[1:, 0]) / q).astype(int))
-    vq = np.diff(np.unique(np.round(ys[1:, 1], 12)))
+                         f"{e['clusters']} cluster times {taus[0]:.2g}-{taus[-1]:.3g} s against Table 7.1's law", c,
+                         f"law inside the 95% interval at {e['held']}/{e['clusters']} cluster times; largest ADEV "
+                         f"deviation {100 * e['max_deviation_short']:.2f}% for tau <= {X.SHORT_TAU_S:g} s, "
+                         f"{100 * e['max_deviation']:.1f}% overall", "Table 7.1 parameters (measured data not printed)",
+                         h))
+    enc = r["encoder"]
+    q, dt = enc["quantum_m"], enc["quantum_m"] / enc["velocity_quantum_m_s"]
     L += ["", f"Encoder (Table 7.1: position error {q} m, velocity {q}/dt m/s), on a robot driving at about 0.1 "
-          f"m/s for {tt[-1]:.0f} s: largest |position error| {perr:.3g} m (half a quantum is {q / 2:.3g} m), "
-          f"velocity readings on a grid of {_g(float(np.min(vq)), 4)} m/s (q/dt = {q / dt:.4g} m/s)."]
-    ok = perr <= q / 2 + 1e-12 and abs(float(np.min(vq)) - q / dt) < 1e-9 * q / dt
+          f"m/s for {enc['duration_s']:.0f} s: largest |position error| {enc['max_position_error_m']:.3g} m (half a "
+          f"quantum is {q / 2:.3g} m), velocity readings on a grid of {_g(enc['velocity_step_m_s'], 4)} m/s (q/dt = "
+          f"{q / dt:.4g} m/s)."]
     rows.append(_row("stumfoll:fig-7.1-encoder", "quantised position, velocity by difference", "encoder errors "
-                     "of the simulated sensor", cmd, f"max |position error| {perr:.3g} m; velocity step "
-                     f"{_g(float(np.min(vq)), 4)} m/s", f"{q} m; {q}/dt = {q / dt:.4g} m/s", "yes" if ok else "no"))
-    del steps
+                     "of the simulated sensor", c, f"max |position error| {enc['max_position_error_m']:.3g} m; "
+                     f"velocity step {_g(enc['velocity_step_m_s'], 4)} m/s", f"{q} m; {q}/dt = {q / dt:.4g} m/s",
+                     "yes" if enc["holds"] else "no"))
     return L, rows
 
 
-# ---- Aranovskiy Remark 3 (in process) --------------------------------------------------------------------
+# ---- Aranovskiy Remark 3 (rwp-remark3) --------------------------------------------------------------------
 
 
-def rwp(args):
-    import equinox as eqx
-    import jax
-    import jax.numpy as jnp
-
-    import jaxdip as jd
-    from jaxdip import stats
-    from jaxdip.estimators import homd
-    from jaxdip.plants import rwp as P
-    from jaxdip.scenarios import rwp as S
-
-    seeds = 16 if args.quick else 128
-    T, tail = (6.0, 2.0) if args.quick else (20.0, 5.0)
-    steps = int(round(T / P.DT))
-    est = homd.HOMDObserver.of(homd.homd_params(), dt=P.DT, substeps=10)
-    base = S.rollout(est, steps=steps, theta0=0.1, save_every=1)
-    idx = int(round((T - tail) / P.DT))
-
-    def wheel_speed_error(d_r, d=0.0):
-        r = eqx.tree_at(lambda r: r.loop.sensor.const_bias, base, jnp.array([d, d_r]))
-        sol = jd.monte_carlo(r, jax.random.PRNGKey(0), seeds)
-        rec = np.asarray(sol.saved)
-        err = rec[:, idx:, S.REC["xr2"]] - rec[:, idx:, S.REC["thetar_dot"]]
-        return err.mean(1), np.asarray(sol.result)
-
-    e0, r0 = wheel_speed_error(0.0)
+def rwp(args, workdir: str):
+    cmd = _cmd("rwp-remark3", [], None, args.quick)
+    c = shlex.join(cmd)
+    m = _run(cmd, workdir)
+    r = m["results"]
     rows = []
-    cmd = SELF + "rwp"
     L = ["# Fidelity: the reaction-wheel pendulum (Aranovskiy et al.)", "",
          "Generated by `python experiments/fidelity_twip.py` (do not edit by hand).", "",
-         "## Remark 3: a biased wheel encoder does not bias the wheel-speed estimate (computed in process)", "",
+         "## Remark 3: a biased wheel encoder does not bias the wheel-speed estimate", "", f"Run: `{c}`.", "",
          f"Remark 3: with the wheel angle measured with a constant bias d_r and the pendulum angle unbiased, the "
          f"HOMD (12)'s error dynamics have the equilibrium e_r,2 = 0: no steady-state bias of the wheel-speed "
          f"estimate. Ours: the `rwp-bias` loop (Table 2 feedback, Table 1 quantisation, 500 Hz) with the HOMD "
-         f"(10)/(12) at the Table 2 gains, theta(0) = 0.1 rad, {seeds} seeds of {T:g} s; the wheel encoder "
-         f"reads theta_r + d_r. Error = mean of (theta_r' estimate - theta_r') over the last {tail:g} s, paired "
-         f"with the same seeds at d_r = 0. Holds when the paired difference's interval contains 0 or lies within "
-         f"+-1e-3 rad/s. The last row shows that the measure can detect an error: with a pendulum bias d instead, "
-         f"the wheel-speed estimate is off by a large constant in the same window (not analysed further here).", "",
+         f"(10)/(12) at the Table 2 gains, theta(0) = {r['theta0']:g} rad, {m['seeds']} seeds of "
+         f"{r['duration_s']:g} s; the wheel encoder reads theta_r + d_r. Error = mean of (theta_r' estimate - "
+         f"theta_r') over the last {r['tail_s']:g} s, paired with the same seeds at d_r = 0. Holds when the paired "
+         f"difference's interval contains 0 or lies within +-{r['tolerance']:g} rad/s. The last row shows that "
+         f"the measure can detect an error: with a pendulum bias d instead, the wheel-speed estimate is off by a "
+         f"large constant in the same window (not analysed further here).", "",
          "| wheel bias d_r (rad) | pendulum bias d (rad) | wheel-speed error (rad/s) | paired minus d_r = 0 | "
          "diverged | holds |", "|---|---|---|---|---|---|"]
-    for d_r, d in ((0.05, 0.0), (0.5, 0.0), (5.0, 0.0), (0.0, 0.05)):
-        e, res = wheel_speed_error(d_r, d)
-        ok = (res == 0) & (r0 == 0)
-        m, ci = stats.mean_ci(e[ok])
-        dm, dci = stats.mean_ci(e[ok] - e0[ok])
-        h = "yes" if (dci[0] <= 0 <= dci[1]) or (abs(dci[0]) <= 1e-3 and abs(dci[1]) <= 1e-3) else "no"
-        L.append(f"| {d_r:g} | {d:g} | {_ci(m, ci, 3)} | {_ci(dm, dci, 3)} | {int((res != 0).sum())} | "
-                 f"{h if d == 0 else '(contrast) ' + h} |")
-        if d == 0:
-            rows.append(_row("aranovskiy:remark-3", f"d_r = {d_r:g} rad", "steady-state wheel-speed estimate "
-                             "error with a biased wheel encoder, paired against d_r = 0", cmd,
-                             _ci(dm, dci, 3) + " rad/s", "0 (no steady-state bias)", h))
+    for e in r["wheel"] + ([r["contrast"]] if "contrast" in r else []):
+        h = "yes" if e["holds"] else "no"
+        L.append(f"| {e['d_r']:g} | {e['d']:g} | {_ci(e['error_mean'], e['error_ci95'], 3)} | "
+                 f"{_ci(e['paired_mean'], e['paired_ci95'], 3)} | {e['diverged']} | "
+                 f"{h if e['d'] == 0 else '(contrast) ' + h} |")
+        if e["d"] == 0:
+            rows.append(_row("aranovskiy:remark-3", f"d_r = {e['d_r']:g} rad", "steady-state wheel-speed estimate "
+                             "error with a biased wheel encoder, paired against d_r = 0", c,
+                             _ci(e["paired_mean"], e["paired_ci95"], 3) + " rad/s", "0 (no steady-state bias)", h))
     return L, rows
 
 
@@ -917,8 +806,8 @@ def main(argv=None) -> int:
     os.makedirs(args.docs, exist_ok=True)
     twip_md = ["# Fidelity: the TWIP (Stumfoll, MS thesis)", "",
                "Generated by `python experiments/fidelity_twip.py` (do not edit by hand). Each section says its "
-               "scale, its readings and when a claim counts as holding; rows computed in process name this script "
-               "as their command. The machine-readable rows of this file and of rwp.md are in twip.json.", ""]
+               "scale, its readings and when a claim counts as holding, and every row the `jaxdip run` command it "
+               "comes from. The machine-readable rows of this file and of rwp.md are in twip.json.", ""]
     rwp_md: list[str] = []
     rows: list[dict] = []
     with tempfile.TemporaryDirectory(prefix="jaxdip-fidelity-twip-") as tmp:
@@ -932,11 +821,11 @@ def main(argv=None) -> int:
             elif part == "dmso":
                 L, R = dmso(args, workdir)
             elif part == "transients":
-                L, R = transients(args)
+                L, R = transients(args, workdir)
             elif part == "allan":
-                L, R = allan(args)
+                L, R = allan(args, workdir)
             else:
-                L, R = rwp(args)
+                L, R = rwp(args, workdir)
             (rwp_md if part == "rwp" else twip_md).extend(L + [""])
             rows.extend(R)
             print("done", part, flush=True)

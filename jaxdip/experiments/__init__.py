@@ -7,7 +7,8 @@ from jaxdip.experiments.base import Experiment, Outcome, run_experiment
 # the built-in experiments, by module; each module defines EXPERIMENT (or EXPERIMENTS) and registers nothing
 # on import, so importing one experiment module has no effect on the registry
 BUILTIN = ("dip_controllers", "dip_cpx_ldf", "dip_lqr", "eki_dip", "eki_examples", "ifn_protection", "lorenz_mhe",
-           "rwp_bias", "tune", "twip_dmso", "twip_extra_control")
+           "rwp_bias", "rwp_remark3", "thesis_theory", "tune", "twip_allan", "twip_dmso", "twip_extra_control",
+           "twip_transients")
 
 
 def registry() -> dict[str, Experiment]:
