@@ -1,6 +1,7 @@
 """``jaxdip.simulate`` against a plain Python loop, on failure, under grad, resumed, fanned out, and against the
 original loop (``tests/reference_loop.py``) for the components it replaces."""
 
+import dataclasses
 import math
 
 import equinox as eqx
@@ -195,6 +196,34 @@ def test_resume_equals_one_call():
         np.testing.assert_array_equal(u, v)
     with pytest.raises(ValueError, match="multiple of save_every"):
         jd.simulate(loop, x0, key, 10, **kw)
+
+
+def test_noise_drawn_ahead_is_the_noise_drawn_in_the_loop():
+    """``Loop.noise_ahead`` draws every period's process noise before the loop: the Python reference (noise
+    drawn period by period) holds, and every save mode, a resumed run and a batch sharing one key give the
+    numbers of the in-loop draw (to the last bits: XLA fuses the two programs differently)."""
+    loop = dataclasses.replace(make_loop(), noise_ahead=True)
+    x0, key = jnp.array([0.15, -0.3]), jax.random.PRNGKey(11)
+    check_against_reference(loop, x0, key)
+    base = make_loop()
+    for kw in ({}, {"save": save_x_xhat_u}, {"save": save_x_xhat_u, "save_every": 4}):
+        a = simulate(base, x0, key, N, metrics=METRICS, **kw)
+        b = simulate(loop, x0, key, N, metrics=METRICS, **kw)
+        for u, v in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)):
+            np.testing.assert_allclose(u, v, rtol=1e-13, atol=1e-16)
+    first = simulate(loop, x0, key, 40, save=lambda s: s.x)
+    rest = simulate(loop, None, key, N - 40, start=first.final, save=lambda s: s.x)
+    whole = simulate(base, x0, key, N, save=lambda s: s.x)
+    np.testing.assert_allclose(np.concatenate([first.saved, rest.saved]), whole.saved, rtol=1e-13, atol=1e-16)
+    # an ensemble judged on one noise sequence: gains batched, the key shared
+    gains = jnp.array([0.9, 1.0, 1.1])
+
+    def run(lp, g):
+        lp = eqx.tree_at(lambda q: q.controller.K, lp, g * lp.controller.K)
+        return simulate(lp, x0, key, N, save=lambda s: s.x).saved
+
+    np.testing.assert_allclose(jax.jit(jax.vmap(lambda g: run(loop, g)))(gains),
+                               jax.jit(jax.vmap(lambda g: run(base, g)))(gains), rtol=1e-13, atol=1e-16)
 
 
 def test_grad_wrt_estimator_hyperparameter_matches_central_differences():

@@ -89,6 +89,11 @@ class Loop(eqx.Module):
     # a bound on the Euclidean norm of x - equilibrium (the failure rule of the thesis's Procedure 1: a state
     # norm above it ends a simulation); crossing it counts as out_of_bounds, like state_bound
     norm_bound: Optional[jax.Array] = eqx.field(default=None, converter=_optional_array)
+    # draw every period's process noise before the periods' loop, vectorised over the periods: the same
+    # numbers. Worth it when a batch shares its key (an ensemble judged on one noise sequence): the shared
+    # draw inside the loop is not batched, and as hundreds of tiny unfused operations per period it cost 3.6x
+    # the rest of the eki-dip search's period (docs/performance.md). Memory: steps x n numbers per key.
+    noise_ahead: bool = eqx.field(default=False, static=True)
 
 
 class Aux(NamedTuple):
@@ -134,8 +139,13 @@ class Solution(NamedTuple):
     result: jax.Array  # RESULTS code
 
 
-def _period(loop: Loop, st: State, base):
-    """One period without failure handling: (new component states, x_{k+1}, u_k, sample)."""
+def _process_noise(k_proc, shape):
+    return jax.random.normal(k_proc, shape)
+
+
+def _period(loop: Loop, st: State, base, noise=None):
+    """One period without failure handling: (new component states, x_{k+1}, u_k, sample). ``noise``: this
+    period's standard normal process noise drawn ahead (``Loop.noise_ahead``), else drawn here."""
     k_sens, k_est, k_ctrl, k_act, k_proc = loop.keys.period(base, st.k)
     s_sens, y, a_sens = loop.sensor.step(st.sensor, st.x, k_sens, st.k)
     s_est, xhat, a_est = loop.estimator.step(st.estimator, y, st.u_prev, k_est, st.k)
@@ -144,13 +154,15 @@ def _period(loop: Loop, st: State, base):
     s_act, u_applied, a_act = loop.actuator.step(st.actuator, u, k_act, st.k)
     x_next = loop.plant.period(st.x, u_applied, loop.dt, loop.substeps)
     if loop.process_noise_std is not None:
-        x_next = x_next + loop.process_noise_std * jax.random.normal(k_proc, st.x.shape)
+        if noise is None:
+            noise = _process_noise(k_proc, st.x.shape)
+        x_next = x_next + loop.process_noise_std * noise
     sample = Sample(st.k, st.k * loop.dt, st.x, y, xhat, u, u_applied, Aux(a_sens, a_est, a_ctrl, a_act))
     return (s_sens, s_est, s_ctrl, s_act), x_next, u, sample
 
 
-def _step(loop: Loop, metrics, base, st: State):
-    comps, x_next, u, sample = _period(loop, st, base)
+def _step(loop: Loop, metrics, base, st: State, noise=None):
+    comps, x_next, u, sample = _period(loop, st, base, noise)
     dev = x_next - loop.plant.equilibrium()
     out = jnp.any(jnp.abs(dev) > loop.state_bound)
     if loop.norm_bound is not None:
@@ -223,19 +235,23 @@ def simulate(loop: Loop, x0, key, steps: int, *, save: Optional[Callable] = None
         raise ValueError(f"save_every must be >= 1, got {save_every}")
     st = init_state(loop, x0, key, metrics) if start is None else start
     base = loop.keys.base(key)
+    if save is not None and steps % save_every:
+        raise ValueError(f"steps={steps} is not a multiple of save_every={save_every}")
+    ahead = None
+    if loop.noise_ahead and loop.process_noise_std is not None:
+        # period k's key as in the loop (so the numbers are those drawn inside it), all periods at once
+        ahead = jax.vmap(lambda k: _process_noise(loop.keys.period(base, k)[4], st.x.shape))(
+            st.k + jnp.arange(steps, dtype=st.k.dtype))
 
-    def step(c):
-        return _step(loop, metrics, base, c)
+    def step(c, noise=None):
+        return _step(loop, metrics, base, c, noise)
 
     if save is None:
-        st, saved = jax.lax.scan(lambda c, _: (step(c)[0], None), st, None, length=steps)
+        st, saved = jax.lax.scan(lambda c, nz: (step(c, nz)[0], None), st, ahead, length=steps)
     else:
-        if steps % save_every:
-            raise ValueError(f"steps={steps} is not a multiple of save_every={save_every}")
-
         if save_every == 1:
-            def block(c, _):
-                c, sample = step(c)
+            def block(c, nz):
+                c, sample = step(c, nz)
                 return c, save(sample)
         else:
             # one copy of the period in the program (compile time grows with copies): the record of the
@@ -243,14 +259,16 @@ def simulate(loop: Loop, x0, key, steps: int, *, save: Optional[Callable] = None
             rec0 = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype),
                                           jax.eval_shape(lambda c: save(step(c)[1]), st))
 
-            def block(c, _):
+            def block(c, nz):
                 def inner(j, carry):
                     ci, rec = carry
-                    ci, sample = step(ci)
+                    ci, sample = step(ci, None if nz is None else nz[j])
                     rec = jax.tree_util.tree_map(lambda a, b: jnp.where(j == 0, a, b), save(sample), rec)
                     return ci, rec
 
                 return jax.lax.fori_loop(0, save_every, inner, (c, rec0))
 
-        st, saved = jax.lax.scan(block, st, None, length=steps // save_every)
+            if ahead is not None:
+                ahead = ahead.reshape((steps // save_every, save_every) + ahead.shape[1:])
+        st, saved = jax.lax.scan(block, st, ahead, length=steps // save_every)
     return Solution(st, saved, _metrics.finalize(metrics, st.metrics), st.result)

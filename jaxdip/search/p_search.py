@@ -120,8 +120,9 @@ class QuadraticFrom(jd.metrics.Reducer):
 def performance_loop(plant, P, cfg: ContinuousSearch) -> jd.Loop:
     """The closed loop of one evaluation of (2.24): (2.14) with P and cfg.gamma, state noise every period, a
     state norm above ``fail_norm`` ends it."""
+    # the ensemble shares one noise sequence per iteration: drawn ahead, once, outside the periods' loop
     return _loop(plant, RelaxedProjection(plant, P, cfg.gamma), dt=cfg.dt, substeps=cfg.substeps,
-                 process_noise_std=cfg.noise_std, norm_bound=cfg.fail_norm, keys=NoiseStream())
+                 process_noise_std=cfg.noise_std, norm_bound=cfg.fail_norm, keys=NoiseStream(), noise_ahead=True)
 
 
 def rp_performance(plant, P, cfg: ContinuousSearch, key, penalize: bool = True):
