@@ -155,6 +155,25 @@ def test_continuous_performance_equals_the_hand_loop():
     np.testing.assert_allclose(np.asarray(ys), np.asarray(one), rtol=1e-12)
 
 
+def test_an_ensemble_sharing_one_key_with_the_noise_drawn_ahead_is_the_hand_loop():
+    """The eki-dip search's evaluation (members batched, one key, ``noise_ahead``): each member's number is
+    the hand loop's on the same noise sequence."""
+    plant = S.plant()
+    cfg = S.search_setup(T=0.15, t_star=0.05)
+    m0 = _member()
+    scales = jnp.array([0.5, 1.0, 2.0])
+    key = jax.random.PRNGKey(3)
+
+    def member(c):
+        return BasisMember(m0.V, m0.log_s + jnp.log(c))
+
+    new = jax.jit(jax.vmap(lambda c: continuous_performance(plant, cfg, noise_ahead=True)(member(c), key)[0]))(scales)
+    ref = jax.jit(jax.vmap(lambda c: _scan_performance(plant, member_P(member(c)), cfg, jax.random.split(key, 1)[0],
+                                                       True)))(scales)
+    np.testing.assert_allclose(np.asarray(new), np.asarray(ref), rtol=1e-12)
+    assert len(set(np.asarray(new).tolist())) == 3  # the members differ: the test compares three numbers
+
+
 def test_tune_projected_steps_equal_optax_by_hand():
     """tune(project=, zero_nonfinite_grads=) is Adam after clipping, non-finite derivatives as 0, then the
     projection, keeping the best iterate before its update: the loop written out with optax."""

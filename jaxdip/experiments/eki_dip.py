@@ -187,7 +187,9 @@ def build(cfg: EkiDipConfig, base):
     A, B = jd.linearize(plant)
     scfg = _search_cfg(cfg)
     members0, v1_lqr = initial_ensemble(cfg, A, B, jax.random.fold_in(base, 1))
-    G0 = continuous_performance(plant, scfg, n_x0=cfg.n_x0)
+    # with one key per iteration for the whole ensemble the noise is drawn once, ahead of the loop (fast);
+    # with a key per member it is drawn in the loop, batched
+    G0 = continuous_performance(plant, scfg, n_x0=cfg.n_x0, noise_ahead=cfg.x0_draw == "shared")
     G = (lambda m, k: jnp.log(G0(m, k))) if cfg.log_performance else G0
     eki = EKI(G=G, template=jax.tree_util.tree_map(lambda a: a[0], members0), y_target=jnp.array([cfg.y_target]),
               R=jnp.array([[cfg.R]]), sigma_w=cfg.sigma_w, project=projection(cfg), failure=cfg.failure,

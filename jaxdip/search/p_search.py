@@ -117,20 +117,22 @@ class QuadraticFrom(jd.metrics.Reducer):
         return state
 
 
-def performance_loop(plant, P, cfg: ContinuousSearch) -> jd.Loop:
+def performance_loop(plant, P, cfg: ContinuousSearch, noise_ahead: bool = False) -> jd.Loop:
     """The closed loop of one evaluation of (2.24): (2.14) with P and cfg.gamma, state noise every period, a
-    state norm above ``fail_norm`` ends it."""
-    # the ensemble shares one noise sequence per iteration: drawn ahead, once, outside the periods' loop
+    state norm above ``fail_norm`` ends it. ``noise_ahead``: draw the noise before the loop (``jd.Loop``), the
+    fast choice when the evaluations of a batch share their key (the ensemble judged on one sequence)."""
     return _loop(plant, RelaxedProjection(plant, P, cfg.gamma), dt=cfg.dt, substeps=cfg.substeps,
-                 process_noise_std=cfg.noise_std, norm_bound=cfg.fail_norm, keys=NoiseStream(), noise_ahead=True)
+                 process_noise_std=cfg.noise_std, norm_bound=cfg.fail_norm, keys=NoiseStream(),
+                 noise_ahead=noise_ahead)
 
 
-def rp_performance(plant, P, cfg: ContinuousSearch, key, penalize: bool = True):
+def rp_performance(plant, P, cfg: ContinuousSearch, key, penalize: bool = True, noise_ahead: bool = False):
     """(2.24) of one evaluation: 1/(T - t*) sum of x^T Q x over the states x_{t*+1} .. x_n (up to a failure),
     or ``penalty`` if the state norm left ``fail_norm`` (``penalize=False``: the sum up to the failure)."""
     n, s = cfg.n_steps, cfg.t_star_steps
     x0 = cfg.x0_std * jax.random.normal(jax.random.split(key)[0], (plant.n,))
-    sol = jd.simulate(performance_loop(plant, P, cfg), x0, key, n, metrics=QuadraticFrom(cfg.Qpos, s + 1))
+    sol = jd.simulate(performance_loop(plant, P, cfg, noise_ahead), x0, key, n,
+                      metrics=QuadraticFrom(cfg.Qpos, s + 1))
     failed = sol.result != jd.RESULTS.ok
     # the reducer saw x_k for the periods whose successor was good; the last good state (x_n, or the one
     # before the failure, where the state is frozen) is the final state
@@ -141,14 +143,15 @@ def rp_performance(plant, P, cfg: ContinuousSearch, key, penalize: bool = True):
     return jnp.where(failed & penalize, cfg.penalty, y)
 
 
-def continuous_performance(plant, cfg: ContinuousSearch, n_x0: int = 1, penalize: bool = True):
+def continuous_performance(plant, cfg: ContinuousSearch, n_x0: int = 1, penalize: bool = True,
+                           noise_ahead: bool = False):
     """G(member, key) of (2.24) for a continuous engine plant under (2.14) with P = P_{V,s}, averaged over
     n_x0 initial states (keys ``split(key, n_x0)``; the thesis used one). ``penalize=False`` returns the
     integral up to the failure instead of the penalty (a smooth objective for gradients)."""
 
     def G(member: BasisMember, key):
         P = member_P(member)
-        ys = jax.vmap(lambda k: rp_performance(plant, P, cfg, k, penalize))(jax.random.split(key, n_x0))
+        ys = jax.vmap(lambda k: rp_performance(plant, P, cfg, k, penalize, noise_ahead))(jax.random.split(key, n_x0))
         return jnp.atleast_1d(ys.mean())
 
     return G
