@@ -594,9 +594,9 @@ RWP_SEEDS = 64
 RWP_FIG3_READINGS = [
     ("default", "no current limit; L of (9) matched to the HOMD's rise time at velocity steps 1 and 10 rad/s; "
      "settle band 0.005 rad; observers integrated by RK4 (10 sub-steps) on the linearly held samples", []),
-    ("limit 10 A", "current clipped at 10 A (the peak rating of the paper's EPOS2 50/5 drive; the paper states no "
+    ("limit 10 A", "current clipped at 10 A (a short-time peak for the paper's 5 A drive; the paper states no "
      "limit); the observers' models are given the law's (commanded) current", ["current_limit=10.0"]),
-    ("limit 5 A", "clipped at 5 A, the drive's continuous rating", ["current_limit=5.0"]),
+    ("limit 5 A", "clipped at 5 A, the drive's continuous current", ["current_limit=5.0"]),
     ("limit 6 A", "clipped at 6 A, just above the current that holds the pendulum at 0.15 rad", ["current_limit=6.0"]),
     ("limit 10 A, clipped current observed", "clipped at 10 A and the observers' models given the clipped "
      "current (the drive measures it)", ["current_limit=10.0", "observer_current=applied"]),
@@ -642,8 +642,9 @@ def rwp_fig3(args, workdir: str):
          "the other parts at their --quick scale, unused here); each seed draws both encoders' quantisation phases and "
          "small initial velocities; both observers see the same seeds. The paper gives no current limit: the law "
          f"(8) asks for about 58 A at theta = 0.1 and 87 A at 0.15, while holding the pendulum still at 0.15 rad "
-         f"takes {hold_current:.2f} A (ml g sin(0.15) / k). The drive named in §II (maxon EPOS2 50/5) is rated "
-         "5 A continuous and 10 A peak (maxon's data, not the paper's), hence the limits tried. By default the "
+         f"takes {hold_current:.2f} A (ml g sin(0.15) / k). The drive named in §II, a maxon EPOS2 50/5, is a 5 A "
+         "continuous drive (the 5 of its name) with a short-time peak above that (its successor EPOS4 50/5 is "
+         "rated 15 A for under 15 s; the paper gives no number), hence the limits 5, 6 and 10 A. By default the "
          "observers' models (9), (10), (12) are given the law's current, which is what the loop computes; "
          "`observer_current=applied` gives them the clipped one.", "",
          "| reading | settle from 0.1 (s): HOMD | Luenberger | faster | stabilised from 0.15: HOMD | Luenberger "
