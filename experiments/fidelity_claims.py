@@ -235,12 +235,13 @@ CLAIMS: list[Claim] = [
                          "steps to ||x|| < 1e-4 by RP below the LQR's steps to 1e-2"),)),
     Claim("thesis:claim-2.7.2-v", "§2.7.2, 'after about 250 iterations the ensemble mean was' v = [.995, .1003]",
           "On the nonlinear example the search (J = 100, K = 4) ends at a stabilising v close to [0.995, 0.1003].",
-          "v = [0.995, 0.1003], ~250 iterations", exp="eki-nonlinear", keys="eki-nonlinear",
+          "v = [0.995, 0.1003], ~250 iterations", exp="eki-nonlinear",
+          keys="eki-nonlinear (x0_draw, final, R, init_var, iterations, K, judge_std); fidelity_dip.py eki_nonlinear",
           checks=(Check("eki-nonlinear", "true", "stabilizing", "found P stabilising"),
                   Check("eki-nonlinear", "ge", "stabilizing_fraction_single_ensemble", "searches with one ensemble "
                         "(the thesis's procedure) ending stabilising, at least 0.9", value=0.9),
                   Check("eki-nonlinear", "ge", "alignment_with_thesis_v", "|cos| with the thesis's v, at least "
-                        "0.99", value=0.99))),
+                        "0.99", value=0.99)), readings=True),
     Claim("thesis:fig-2.3", "§2.7.2, Fig. 2.3", "Relaxed projection with the found P stabilises the nonlinear "
           "example smoothly.", "visual", exp="eki-nonlinear", keys="eki-nonlinear",
           checks=(Check("eki-nonlinear", "ge", "stabilized_fraction_of_initial_states", "random initial states "
@@ -444,7 +445,8 @@ CLAIMS: list[Claim] = [
           readings=True),
     Claim("stumfoll:fig-8.18", "§8.2.2, Fig. 8.18 (unmodeled gains 3/4 and 2/5)", "LQR alone goes unstable; LQR + "
           "extra control keeps the TWIP up.", "visual", exp="twip-extra-control",
-          keys="twip-extra-control (unmodeled_unstable, variants k1)",
+          keys="twip-extra-control (unmodeled_unstable, variants, d_gains_unstable, d1_freq, init_spread); "
+               "fidelity_twip.py fig_8_18",
           checks=(Check("twip-extra-control", "ge", "unmodeled_unstable/lqr_diverged_fraction", "LQR falls in at "
                         "least 10% of the seeds", value=0.1),
                   Check("twip-extra-control", "ge", "unmodeled_unstable/extra_bounded_fraction", "LQR + extra "
@@ -465,7 +467,8 @@ CLAIMS: list[Claim] = [
           "if the initial position is increased to theta(0) = 0.15, the linearization-based observer does not "
           "provide system stabilization'", "HOMD settles faster than the Luenberger observer from 0.1; from 0.15 the "
           "Luenberger loop falls, the HOMD loop holds.", "theta(0) 0.1 and 0.15; visual", exp="rwp-bias",
-          keys="rwp-bias (theta0, current_limit)",
+          keys="rwp-bias (current_limit, observer_current, luenberger_omega, luenberger_vref, settle_tol, "
+               "init_velocity_std, hold); fidelity_twip.py rwp_fig3",
           checks=(_below("rwp-bias", "no_bias/homd/0.1/settle_time", "no_bias/luenberger/0.1/settle_time",
                          "settle time from 0.1 (s): HOMD below Luenberger"),
                   Check("rwp-bias", "le", "no_bias/luenberger/0.15/stabilized_fraction", "Luenberger from 0.15: "

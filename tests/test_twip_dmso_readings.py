@@ -2,10 +2,7 @@
 (153) against a plain NumPy version, the ratio summaries against direct arithmetic, the ``dt_fine_gamma`` key,
 and fidelity_twip's merge of a partial run into the committed page and rows."""
 
-import importlib.util
-import json
 import os
-import sys
 
 import jax.numpy as jnp
 import numpy as np
@@ -152,29 +149,3 @@ def test_loads_count_only_the_cases_that_run():
     full = C.load(E.TwipDmsoConfig).loads()
     assert full[0].trajectories == 1000 and full[0].steps == 2000 and full[1].steps == 20000
 
-
-def _fidelity_twip():
-    exp = os.path.join(ROOT, "experiments")
-    if exp not in sys.path:
-        sys.path.insert(0, exp)
-    spec = importlib.util.spec_from_file_location("fidelity_twip", os.path.join(exp, "fidelity_twip.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_partial_run_keeps_the_other_parts(tmp_path):
-    FT = _fidelity_twip()
-    (tmp_path / "twip.md").write_text("# title\n\nintro\n\n## A\n\nold a\n\n## B\n\nold b\n")
-    old_rows = [{"claim": "a:1", "reading": "r"}, {"claim": "b:1", "reading": "old"},
-                {"claim": "b:2", "reading": "old"}]
-    (tmp_path / "twip.json").write_text(json.dumps(old_rows))
-    md = ["# title", "", "intro", "", "## B", "", "new b", "", "## C", "", "new c", ""]
-    rows = [{"claim": "b:1", "reading": "new"}, {"claim": "c:1", "reading": "new"}]
-    out, kept = FT._keep_other_parts(str(tmp_path), md, rows)
-    text = "\n".join(out)
-    assert text.index("## A") < text.index("## B") < text.index("## C")
-    assert "old a" in text and "new b" in text and "old b" not in text and "new c" in text
-    assert text.count("# title") == 1
-    # rows of the claims the run wrote are replaced; the others (b:2 included) stay
-    assert kept == [old_rows[0], old_rows[2], *rows]

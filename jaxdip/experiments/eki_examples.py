@@ -53,6 +53,12 @@ class EkiExampleConfig:
     restarts: int = C.field(1, C.positive, doc="independent ensembles per search, best final mean kept (thesis: 1)")
     select_states: int = C.field(64, C.positive, doc="common initial states scoring the restarts' results")
     n_x0: int = C.field(1, C.positive, doc="initial states per evaluation, shared by the ensemble (thesis: 1)")
+    x0_draw: str = C.field("shared", C.one_of("shared", "per_member"),
+                           doc="initial states of an iteration: shared by the ensemble, or drawn per member "
+                               "(Procedure 1, steps 1-2)")
+    final: str = C.field("mean", C.one_of("mean", "best_member"),
+                         doc="what a search ends with: the ensemble mean (thesis) or the member with the lowest "
+                             "mean y1 over select_states common initial states")
     fail_norm: float = C.field(1e3, C.positive_finite, doc="a state norm above this fails the evaluation")
     penalty: float = C.field(1000.0, C.positive_finite, doc="y1 of a failed evaluation (the thesis's 1000)")
     rp_gamma: float = C.field(0.45, C.positive_finite, doc="gamma of (2.18)")
@@ -87,7 +93,8 @@ def make_eki(cfg):
     G = discrete_performance(_plant(cfg), cfg.s, cfg.K, fail_norm=cfg.fail_norm, penalty=cfg.penalty,
                              n_x0=cfg.n_x0)
     return EKI(G=G, template=jnp.zeros(2), y_target=jnp.asarray(cfg.y_target), R=jnp.diag(jnp.asarray(cfg.R)),
-               sigma_w=cfg.sigma_w, project=lambda v: v / jnp.linalg.norm(v), align=align_signs)
+               sigma_w=cfg.sigma_w, project=lambda v: v / jnp.linalg.norm(v), align=align_signs,
+               member_keys=cfg.x0_draw == "per_member")
 
 
 def search(cfg, key):
@@ -99,7 +106,8 @@ def search(cfg, key):
     the initial ensemble, and a few restarts pick the better one.
     """
     return direction_search(make_eki(cfg), key, ensemble=cfg.ensemble, init_var=cfg.init_var,
-                            iterations=cfg.iterations, restarts=cfg.restarts, select_states=cfg.select_states)
+                            iterations=cfg.iterations, restarts=cfg.restarts, select_states=cfg.select_states,
+                            final=cfg.final)
 
 
 def state_and_input(sample):

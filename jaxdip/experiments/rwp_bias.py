@@ -61,7 +61,13 @@ class RwpBiasConfig:
                                       doc="[k_r1, k_r2, alpha_r] of (12) (Table 2)")
     luenberger_vref: list[float] = C.field([1.0, 10.0], C.positive_finite, C.length(2),
                                            doc="velocity steps (rad/s) at which L of (9) matches the HOMD rise time")
+    luenberger_omega: list[float] = C.field([], C.positive_finite,
+                                            doc="[omega_p, omega_r]: L of (9) with gains (omega k1, omega^2 k2) "
+                                                "set directly (empty: matched to the HOMD's rise time)")
     current_limit: float = C.field(INF, C.positive, doc="|I| limit (A); the paper states none")
+    observer_current: str = C.field("commanded", C.one_of("commanded", "applied"),
+                                    doc="current in the observers' models under current_limit: the law's "
+                                        "(commanded) or the clipped one (applied)")
     quantize: bool = C.field(True, doc="quantise the angles with the Table 1 resolutions")
     theta0: list[float] = C.field([0.1, 0.15], C.finite, doc="initial pendulum angles of part (a) (rad)")
     init_velocity_std: list[float] = C.field([0.01, 0.1], C.nonneg_finite, C.length(2),
@@ -119,6 +125,8 @@ class RwpBiasConfig:
             raise C.ConfigError("steady_window", "must be shorter than bias_duration")
         if not self.theta0:
             raise C.ConfigError("theta0", "needs at least one angle")
+        if self.luenberger_omega and len(self.luenberger_omega) != 2:
+            raise C.ConfigError("luenberger_omega", f"must be empty or have 2 entries, got {len(self.luenberger_omega)}")
         if not self.gamma_d:
             raise C.ConfigError("gamma_d", "needs at least one gain")
 
@@ -132,6 +140,10 @@ def homd_parameters(cfg):
 
 def luenberger_parameters(cfg):
     hp = homd_parameters(cfg)
+    if cfg.luenberger_omega:
+        wp, wr = cfg.luenberger_omega
+        L = lu.decoupled_gain(hp.model, wp * hp.pend.k1, wp**2 * hp.pend.k2, wr * hp.wheel.k1, wr**2 * hp.wheel.k2)
+        return lu.luenberger_params(L, hp.model), wp, wr
     L, wp, wr = lu.matched_gain(hp.model, hp.pend, hp.wheel, *cfg.luenberger_vref)
     return lu.luenberger_params(L, hp.model), wp, wr
 
@@ -157,7 +169,7 @@ def simulate(cfg, cases, duration, n_seeds, desc, measured_velocities=False, qua
     rollouts = [scenario.rollout(est, steps=n_steps, theta0=th0, velocity_std=cfg.init_velocity_std,
                                  save_every=cfg.record_every, dt=cfg.dt, substeps=cfg.substeps, K=cfg.K, d=d,
                                  current_limit=cfg.current_limit, measured_velocities=measured_velocities,
-                                 quantize=q)
+                                 quantize=q, observer_current=cfg.observer_current)
                 for est, d, th0 in cases]
     stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *[_loop_and_x0(r) for r in rollouts])
     sol = jd.monte_carlo(rollouts[0], jax.random.PRNGKey(cfg.seed), n_seeds, sweep=(_loop_and_x0, stacked),

@@ -4,7 +4,9 @@ Table 1 angle quantisation, law (8)/(23) with the Table 2 gains) around any obse
 Shared by the ``rwp-bias`` experiment and the ``rwp`` tuning target. The sensor measures [theta + d, theta_r]
 (with ``measured_velocities``: [theta + d, theta_r, theta', theta_r'], the setting of Proposition 2); the
 controller is u = -K xhat with K = [k1, k2, 0, k3] on the observer's output [y - d̂, θ̂', θ̂_r, θ̂_r']; the
-actuator clips the current at ``current_limit``; the trajectory fails once |theta| > pi/2.
+actuator clips the current at ``current_limit`` (``observer_current="applied"``: the controller clips it, so the
+observers' models see the clipped current; by default they see the law's); the trajectory fails once
+|theta| > pi/2.
 
 Initial states (``RWPStart``): theta(0) = theta0 plus the pendulum encoder's quantisation phase U(-q/2, q/2),
 theta_r(0) ~ U(0, q_r) (the wheel encoder's phase), Gaussian initial velocities. ``theta0`` is a field, so a
@@ -20,7 +22,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from jaxdip.control.feedback import StateFeedback
+from jaxdip.control.feedback import SaturatedFeedback, StateFeedback
 from jaxdip.engine import Loop, Rollout, param
 from jaxdip.engine.metrics import Sum
 from jaxdip.plants import rwp
@@ -68,14 +70,23 @@ def sensor(dt: float, d: float = 0.0, measured_velocities: bool = False, quantiz
 
 def loop(estimator: Any, *, dt: float = rwp.DT, substeps: int = 10, K: Sequence[float] = rwp.K_TABLE2,
          d: float = 0.0, current_limit: float = INF, measured_velocities: bool = False, quantize: bool = True,
-         straight_through: bool = False) -> Loop:
-    """The closed loop around ``estimator`` (an engine estimator with output [y - d̂, θ̂', θ̂_r, θ̂_r'])."""
+         straight_through: bool = False, observer_current: str = "commanded") -> Loop:
+    """The closed loop around ``estimator`` (an engine estimator with output [y - d̂, θ̂', θ̂_r, θ̂_r']).
+    ``observer_current``: "commanded" (the estimator is given the law's current u_{k-1}) or "applied" (the
+    clipped current: the limit moves into the controller)."""
     k1, k2, k3 = K
+    gain = jnp.array([[k1, k2, 0.0, k3]])
+    if observer_current == "applied":
+        ctrl = SaturatedFeedback(gain, jnp.array([-current_limit]), jnp.array([current_limit]))
+    elif observer_current == "commanded":
+        ctrl = StateFeedback(gain)
+    else:
+        raise ValueError(f"observer_current: 'commanded' or 'applied', got {observer_current!r}")
     return Loop(
         plant=RWP(),
         sensor=sensor(dt, d, measured_velocities, quantize, straight_through),
         estimator=estimator,
-        controller=StateFeedback(jnp.array([[k1, k2, 0.0, k3]])),
+        controller=ctrl,
         actuator=Saturation(jnp.array([-current_limit]), jnp.array([current_limit])),
         dt=dt,
         substeps=substeps,

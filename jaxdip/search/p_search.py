@@ -175,17 +175,30 @@ def iterate(eki, state, iterations: int):
     return jax.lax.scan(body, state, None, length=iterations)
 
 
+def lowest_y1(eki, vs, key, n_states: int):
+    """The row of ``vs`` (candidate unit vectors) with the lowest mean y_1 = ||x_K||^2 over ``n_states`` initial
+    states common to all candidates (keys ``split(key, n_states)``)."""
+    sel = jax.random.split(key, n_states)
+    score = jax.vmap(lambda v: jax.vmap(lambda k: eki.G(v, k))(sel)[:, 0].mean())(vs)
+    return vs[jnp.argmin(score)]
+
+
 @eqx.filter_jit
 def direction_search(eki, key, *, ensemble: int, init_var: float, iterations: int, restarts: int = 1,
-                     select_states: int = 64):
+                     select_states: int = 64, final: str = "mean"):
     """Procedure 1 over unit vectors v (P = P_v): one whole search as a pure function of its key; returns
-    (final normalised ensemble mean, mean-performance history). Compiled on its own (a batch of searches
+    (final normalised v, mean-performance history). Compiled on its own (a batch of searches
     vmaps it instead: the EKI amplifies the last-bit differences between a batched and an unbatched program,
     so one search is run unbatched).
 
-    Members start from N(0, init_var I), normalised. With ``restarts > 1`` independent ensembles run side by
-    side and the final mean with the lowest mean y_1 over ``select_states`` common initial states wins.
+    Members start from N(0, init_var I), normalised. ``final``: what a search ends with, the normalised
+    ensemble mean (the thesis) or, with ``"best_member"``, the final member (normalised) with the lowest mean
+    y_1 over ``select_states`` initial states common to the members. With ``restarts > 1`` independent
+    ensembles run side by side and the final v with the lowest mean y_1 over ``select_states`` common initial
+    states wins.
     """
+    if final not in ("mean", "best_member"):
+        raise ValueError(f"final: 'mean' or 'best_member', got {final!r}")
 
     def single(k):
         k_init, k_run = jax.random.split(k)
@@ -193,6 +206,10 @@ def direction_search(eki, key, *, ensemble: int, init_var: float, iterations: in
         members = jnp.sqrt(init_var) * jax.random.normal(k_init, (ensemble, d))
         members = members / jnp.linalg.norm(members, axis=1, keepdims=True)
         st, hist = iterate(eki, eki.init(members, k_run), iterations)
+        if final == "best_member":
+            unravel = eki.unravel()
+            vs = jax.vmap(lambda m: eki.project(unravel(m)) if eki.project is not None else unravel(m))(st.members)
+            return lowest_y1(eki, vs, jax.random.fold_in(k, 2), select_states), hist
         return eki.mean(st), hist
 
     if restarts == 1:
