@@ -25,12 +25,12 @@ import math
 import os
 import re
 import shlex
-import subprocess
 import sys
 import tempfile
 from dataclasses import replace
 
 import jaxdip  # noqa: F401  (float64)
+from fidelity_runs import command as _cmd, run as _run  # noqa: E402  (beside this script)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 METHODS = ("cpx", "scpx", "ekf", "ekf2")
@@ -50,30 +50,6 @@ LORENZ_READINGS = [
      ["eta_time=unit_time", "ekf_eta_time=unit_time"]),
 ]
 ALIGNMENTS = ("filtered", "prediction")
-
-
-def _cmd(exp: str, sets: list[str], seeds: int | None, quick: bool) -> list[str]:
-    cmd = ["jaxdip", "run", exp]
-    if quick:
-        cmd.append("--quick")
-    if seeds is not None:
-        cmd += ["--seeds", str(seeds)]
-    for s in sets:
-        cmd += ["--set", s]
-    return cmd
-
-
-def _run(cmd: list[str], workdir: str) -> dict:
-    """Run a ``jaxdip ...`` command line (as this interpreter's jaxdip) into ``workdir``/<the command>; its
-    metrics.json. A folder that already holds a finished run of the same command is read, not run again."""
-    slug = "_".join(cmd[2:]).replace("--set_", "").replace("=", "-").replace("--", "")
-    out = os.path.join(workdir, slug)
-    if not os.path.isfile(os.path.join(out, "metrics.json")):
-        full = [sys.executable, "-m", "jaxdip.cli", *cmd[1:], "--out", out]
-        print("$", shlex.join(cmd), flush=True)
-        subprocess.run(full, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
-    with open(os.path.join(out, "metrics.json")) as fh:
-        return json.load(fh)
 
 
 def _fmt(v: float, ci) -> str:

@@ -24,12 +24,12 @@ import json
 import math
 import os
 import shlex
-import subprocess
 import sys
 import tempfile
 
 
 import jaxdip  # noqa: F401  (float64)
+from fidelity_runs import command as _cmd, run  # noqa: E402  (beside this script)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PARTS = ("cpx_ldf", "controllers", "eki", "theory", "eki_nonlinear")
@@ -38,29 +38,8 @@ DEG = 180.0 / math.pi
 # ---- running ---------------------------------------------------------------------------------------------------
 
 
-def _cmd(exp: str, sets: list[str], seeds: int | None, quick: bool) -> list[str]:
-    cmd = ["jaxdip", "run", exp]
-    if quick:
-        cmd.append("--quick")
-    if seeds is not None:
-        cmd += ["--seeds", str(seeds)]
-    for s in sets:
-        cmd += ["--set", s]
-    return cmd
-
-
 def _run(cmd: list[str], workdir: str) -> dict:
-    """Run a ``jaxdip ...`` command (as this interpreter's jaxdip) into ``workdir``/<the command>; its metrics.json.
-    A folder that already holds a finished run of the same command is read, not run again."""
-    slug = "_".join(cmd[2:]).replace("--set_", "").replace("=", "-").replace("--", "")
-    slug = "".join(c if c.isalnum() or c in "-_.," else "_" for c in slug)
-    out = os.path.join(workdir, slug)
-    if not os.path.isfile(os.path.join(out, "metrics.json")):
-        full = [sys.executable, "-m", "jaxdip.cli", *cmd[1:], "--out", out]
-        print("$", shlex.join(cmd), flush=True)
-        subprocess.run(full, check=True, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    with open(os.path.join(out, "metrics.json")) as fh:
-        return _nan(json.load(fh))
+    return _nan(run(cmd, workdir))
 
 
 def _nan(v):

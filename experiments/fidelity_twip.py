@@ -27,13 +27,13 @@ import json
 import math
 import os
 import shlex
-import subprocess
 import sys
 import tempfile
 
 import numpy as np
 
 import jaxdip  # noqa: F401  (float64)
+from fidelity_runs import command as _cmd, run as _run  # noqa: E402  (beside this script)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PARTS = ("table_8_3", "kf", "dmso", "transients", "allan", "rwp", "rwp_fig3", "fig_8_18")
@@ -41,31 +41,6 @@ PARTS = ("table_8_3", "kf", "dmso", "transients", "allan", "rwp", "rwp_fig3", "f
 # of the rows they return)
 PART_CLAIMS = {"rwp_fig3": ("aranovskiy:fig-3",), "fig_8_18": ("stumfoll:fig-8.18",)}
 RWP_PARTS = ("rwp", "rwp_fig3")  # the parts whose sections go to rwp.md
-
-
-def _cmd(exp: str, sets: list[str], seeds: int | None, quick: bool) -> list[str]:
-    cmd = ["jaxdip", "run", exp]
-    if quick:
-        cmd.append("--quick")
-    if seeds is not None:
-        cmd += ["--seeds", str(seeds)]
-    for s in sets:
-        cmd += ["--set", s]
-    return cmd
-
-
-def _run(cmd: list[str], workdir: str) -> dict:
-    """Run a ``jaxdip ...`` command (this interpreter's jaxdip) into ``workdir``/<slug>; its metrics.json. A
-    folder holding a finished run of the same command is read, not run again."""
-    slug = "_".join(cmd[2:]).replace("--set_", "").replace("=", "-").replace("--", "")
-    slug = "".join(c if c.isalnum() or c in "-_.," else "_" for c in slug)[:200]
-    out = os.path.join(workdir, slug)
-    if not os.path.isfile(os.path.join(out, "metrics.json")):
-        print("$", shlex.join(cmd), flush=True)
-        subprocess.run([sys.executable, "-m", "jaxdip.cli", *cmd[1:], "--out", out], check=True, cwd=ROOT,
-                       stdout=subprocess.DEVNULL)
-    with open(os.path.join(out, "metrics.json")) as fh:
-        return json.load(fh)
 
 
 def _g(v, d=4) -> str:
@@ -1020,26 +995,14 @@ def main(argv=None) -> int:
                  "it comes from. The machine-readable rows of this file and of rwp.md are in twip.json.", ""]
     sections: dict[str, list[str]] = {}
     rows: list[dict] = []
+    # each part: (args, workdir) -> (markdown lines, rows)
+    run_part = {"table_8_3": table_8_3, "kf": kf, "dmso": dmso, "transients": transients, "allan": allan,
+                "rwp": rwp, "rwp_fig3": rwp_fig3, "fig_8_18": fig_8_18}
     with tempfile.TemporaryDirectory(prefix="jaxdip-fidelity-twip-") as tmp:
         workdir = args.runs or tmp
         os.makedirs(workdir, exist_ok=True)
         for part in parts:
-            if part == "table_8_3":
-                L, R = table_8_3(args, workdir)
-            elif part == "kf":
-                L, R = kf(args, workdir)
-            elif part == "dmso":
-                L, R = dmso(args, workdir)
-            elif part == "transients":
-                L, R = transients(args, workdir)
-            elif part == "allan":
-                L, R = allan(args, workdir)
-            elif part == "rwp_fig3":
-                L, R = rwp_fig3(args, workdir)
-            elif part == "fig_8_18":
-                L, R = fig_8_18(args, workdir)
-            else:
-                L, R = rwp(args, workdir)
+            L, R = run_part[part](args, workdir)
             sections[part] = L
             rows.extend(R)
             print("done", part, flush=True)
