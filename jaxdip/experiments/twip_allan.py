@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import jaxdip as jd
 from jaxdip import config as C
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 
@@ -63,26 +64,25 @@ def cluster_sizes(n: int, clusters: int) -> np.ndarray:
     return np.unique(np.round(np.logspace(0, math.log10(n / 10), clusters)).astype(int))
 
 
+class AtRest(jd.DiscretePlant):
+    """The TWIP held still: its state never changes (the sensors' records at rest)."""
+
+    state_names = ("x", "x_dot", "phi", "phi_dot")
+
+    def step(self, x, u):
+        return x
+
+
 def records(cfg: TwipAllanConfig):
-    """The (samples, 2) records [tilt, gyro] of the sensors at rest, one per key seed + i (a generator)."""
+    """The (samples, 2) records [tilt, gyro] of the sensors at rest, one per key seed + i (a generator): the
+    engine's loop with the robot held still, its measurements saved every period."""
     from jaxdip.sim.twip_sensors import TwipSensors
 
-    n = cfg.samples()
     # cf_alpha = 0: the tilt channel is the accelerometer's own angle; stationary biases: a long record's law
     sens = TwipSensors.table_7_1(cfg.dt, cf_alpha=0.0, stationary_start=True)
-
-    @jax.jit
-    def record(key):
-        x = jnp.zeros(4)
-        state, _ = sens.init(key, x)
-        state = (state, jnp.zeros(()))
-
-        def step(s, k):
-            s, y, _ = sens.step(s, x, jax.random.fold_in(key, k), k)
-            return s, y[2:]
-
-        return jax.lax.scan(step, state, jnp.arange(n))[1]
-
+    loop = jd.Loop(plant=AtRest(), sensor=sens, estimator=jd.Passthrough(),
+                   controller=jd.control.ConstantInput(jnp.zeros(1)), dt=cfg.dt, substeps=1)
+    record = jax.jit(lambda key: jd.simulate(loop, jnp.zeros(4), key, cfg.samples(), save=lambda s: s.y[2:]).saved)
     for i in range(cfg.records):
         yield np.asarray(record(jax.random.PRNGKey(cfg.seed + i)))
 
