@@ -22,10 +22,11 @@ import json
 import math
 import os
 import shlex
-import subprocess
 import sys
 import tempfile
 import tomllib
+
+from fidelity_runs import command, run  # beside this script: the readings' child-process runner
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # experiment -> [(config key, candidate value, what it means)]
@@ -113,15 +114,6 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(L) + "\n"
 
 
-def _run(cmd: list[str], out: str) -> dict:
-    full = cmd + ["--out", out]
-    r = subprocess.run(full, cwd=ROOT, capture_output=True, text=True)
-    if r.returncode:
-        raise SystemExit(f"{shlex.join(full)} failed:\n{r.stderr[-2000:]}")
-    with open(os.path.join(out, "metrics.json")) as fh:
-        return json.load(fh)["results"]
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", default=None, help="a `jaxdip reproduce --quick` folder with the default runs")
@@ -135,10 +127,8 @@ def main(argv=None) -> int:
     rows = json.load(open(args.out)) if os.path.exists(args.out) else []
     rows = [r for r in rows if r["experiment"] not in ids]
     work = tempfile.mkdtemp(prefix="jaxdip-integration-")
-    jaxdip = os.path.join(os.path.dirname(sys.executable), "jaxdip")
     for exp in ids:
         keys = sorted({k for k, _, _ in CANDIDATES[exp]})
-        ref_sets = [a for k in keys for a in ("--set", f"{k}={REFERENCE}")]
         base = None
         if args.runs and os.path.exists(os.path.join(args.runs, exp, "config.toml")):
             with open(os.path.join(args.runs, exp, "config.toml"), "rb") as fh:
@@ -147,10 +137,10 @@ def main(argv=None) -> int:
                 with open(os.path.join(args.runs, exp, "metrics.json")) as fh:
                     base = json.load(fh)["results"]
         if base is None:
-            base = _run([jaxdip, "run", exp, "--quick"] + ref_sets, os.path.join(work, exp, "reference"))
+            base = run(command(exp, [f"{k}={REFERENCE}" for k in keys], None, True), work)["results"]
         for key, value, what in CANDIDATES[exp]:
-            cmd = ["jaxdip", "run", exp, "--quick", "--set", f"{key}={value}"]
-            new = _run([jaxdip] + cmd[1:], os.path.join(work, exp, f"{key}-{value}"))
+            cmd = command(exp, [f"{key}={value}"], None, True)
+            new = run(cmd, work)["results"]
             c = compare(base, new)
             row = {"experiment": exp, "key": key, "value": value, "what": what, "command": shlex.join(cmd), **c}
             rows.append(row)

@@ -3,11 +3,15 @@
 import importlib.util
 import json
 import os
+import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _module():
+    exp = os.path.join(ROOT, "experiments")
+    if exp not in sys.path:  # the script imports its neighbour fidelity_runs
+        sys.path.insert(0, exp)
     spec = importlib.util.spec_from_file_location("integration_choice",
                                                   os.path.join(ROOT, "experiments", "integration_choice.py"))
     mod = importlib.util.module_from_spec(spec)
