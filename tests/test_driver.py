@@ -219,15 +219,26 @@ SHARD_SCRIPT = textwrap.dedent(
     assert jax.device_count() == 8, jax.devices()
     r = dip_rollout(steps=100) if sys.argv[2] == "dip" else lorenz_rollout(steps=100)
     key = jax.random.PRNGKey(3)
+    compiled = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda ev, d, **kw: compiled.append(kw.get("fun_name")) if ev.endswith("backend_compile_duration") else None)
     one = jd.monte_carlo(r, key, 20, shard=False)
+    compiled.clear()
     many = jd.monte_carlo(r, key, 20, shard=True, chunk=16, time_chunk=25)  # 2 calls of 16, padded
     assert len(many.saved.sharding.device_set) == 8, many.saved.sharding
     assert_same(one, many)
+    # one program each for the start, a chunk of periods and the metrics: the second chunk and the second call
+    # find the first's program (the carry is laid out the same way each time)
+    assert compiled.count("jit(_batch)") == 3, compiled
     where = lambda r: r.loop.sensor.std
     stds = jnp.stack([0.5 * r.loop.sensor.std, 2.0 * r.loop.sensor.std])
     sw1 = jd.monte_carlo(r, key, 20, shard=False, sweep=(where, stds))
     sw8 = jd.monte_carlo(r, key, 20, shard=True, sweep=(where, stds))
     assert_same(sw1, sw8)
+    compiled.clear()
+    sw8t = jd.monte_carlo(r, key, 20, shard=True, sweep=(where, stds), time_chunk=25)  # seeds on axis 1
+    assert_same(sw1, sw8t)
+    assert compiled.count("jit(_batch)") == 3, compiled
     print("max_abs_diff", float(np.max(np.abs(np.asarray(one.saved) - np.asarray(many.saved)))))
     """
 )

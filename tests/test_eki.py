@@ -91,7 +91,15 @@ assert len(jax.local_devices()) == 2
 cfg = C.load(E.EkiDipConfig, quick={"ensemble": 6, "T": 0.1, "t_star": 0.05})
 plant, scfg, eki, st, members0, v1 = E.build(cfg, jax.random.PRNGKey(0))
 # member keys: the devices' blocks must also fold their own members' indices (the shared key is the simpler case)
-out = [run_eki(eki._replace(shard=s, member_keys=True), st, 3, chunk=3) for s in (False, True)]
+compiled = []
+jax.monitoring.register_event_duration_secs_listener(
+    lambda ev, d, **kw: compiled.append(kw.get("fun_name")) if ev.endswith("backend_compile_duration") else None)
+out = []
+for s in (False, True):
+    compiled.clear()
+    out.append(run_eki(eki._replace(shard=s, member_keys=True), st, 4, chunk=2))
+    # two chunks, one program: the second chunk's state is laid out as the first's
+    assert compiled.count("jit(advance)") == 1, (s, compiled)
 print(float(np.max(np.abs(np.asarray(out[0][0].members) - np.asarray(out[1][0].members)))),
       float(np.max(np.abs(out[0][1] - out[1][1]))))
 """

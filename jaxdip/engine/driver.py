@@ -123,10 +123,17 @@ def _m_finalize(f, key, state, n):
 
 
 @eqx.filter_jit
-def _batch(method, fn, where, values, base, idx, args, n, detail=None):
+def _batch(method, fn, where, values, base, idx, args, n, detail=None, out_sharding=None):
     """vmap of ``method(fn, fold_in(base, i), arg_i, n)`` over the seed indices ``idx`` (and over the sweep).
-    ``detail``: split each seed's output into (per seed, detail) and keep the detail of the batch's first seed."""
+    ``detail``: split each seed's output into (per seed, detail) and keep the detail of the batch's first seed.
+    ``out_sharding``: lay every output out so (a sharding, static)."""
+    out = _batch_body(method, fn, where, values, base, idx, args, n, detail)
+    if out_sharding is not None:
+        out = jax.lax.with_sharding_constraint(out, out_sharding)
+    return out
 
+
+def _batch_body(method, fn, where, values, base, idx, args, n, detail):
     def seeds(f, a):
         if method is _m_call_indexed:
             a = idx
@@ -190,6 +197,15 @@ def _global_indices(seeds: np.ndarray, devices):
     seeds = seeds.astype(np.uint32)
     sharding = NamedSharding(device_mesh(devices), PartitionSpec("seeds"))
     return jax.make_array_from_callback(seeds.shape, sharding, lambda i: seeds[i])
+
+
+def _progress_chunk(steps: int, every: int) -> int:
+    """About a twentieth of the horizon, a multiple of ``every`` that divides it where one is near: a shorter
+    last chunk would be another program to compile."""
+    units = max(1, steps // every)
+    target = max(1, units // 20)
+    near = [d for d in range(max(1, target // 2), min(units, 2 * target) + 1) if units % d == 0]
+    return (min(near, key=lambda d: abs(d - target)) if near else target) * every
 
 
 def device_mesh(devices=None):
@@ -269,7 +285,7 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
     call = _m_call_indexed if index else _m_call
     if rollout:
         every = fn.save_every if fn.save is not None else 1
-        tc = time_chunk or (max(1, fn.steps // 20) if progress else fn.steps)
+        tc = time_chunk or (_progress_chunk(fn.steps, every) if progress else fn.steps)
         tc = max(every, (tc // every) * every)
         sizes = [tc] * (fn.steps // tc) + ([fn.steps % tc] if fn.steps % tc else [])
     # one bar, process 0's; the chunking above must not depend on it (every process runs the same programs)
@@ -280,6 +296,12 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
         if not traced:
             jax.block_until_ready(x)  # dispatch is asynchronous: wait so the bar tells the truth
         return x
+
+    carry_sharding = None
+    if n_dev > 1:
+        from jax.sharding import NamedSharding, PartitionSpec
+
+        carry_sharding = NamedSharding(device_mesh(devices), PartitionSpec(*([None] * seed_axis), "seeds"))
 
     outs, first = [], None
     for b in range(n_batches):
@@ -303,7 +325,10 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
             outs.append(out)
             bar.update(fn.steps if rollout else 1)
             continue
-        state = _batch(_m_init, fn, where, values, key, idx, None, 0)
+        # The initial state leaves that do not depend on the seed (counters, zeros) would come out replicated,
+        # while the advance's outputs are split over the seeds: the second chunk would then see other input
+        # shardings than the first and compile the loop again. Lay them out as the advance will.
+        state = _batch(_m_init, fn, where, values, key, idx, None, 0, out_sharding=carry_sharding)
         saved = []
         for size in sizes:
             state, s = _batch(_m_advance, fn, where, values, key, idx, state, size)

@@ -180,12 +180,16 @@ def run_eki(eki: EKI, state: EKIState, iterations: int, *, chunk: int = 10, prog
         return jax.lax.scan(body, st, None, length=n_dummy.shape[0])
 
     if shard:
-        from jax.sharding import Mesh, PartitionSpec
+        from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
         # every device holds the whole ensemble, evaluates its block of members and runs the (small) update
         # itself on the gathered performances: one collective per iteration, the same numbers everywhere
-        advance = jax.shard_map(advance, mesh=Mesh(np.array(devices), (axis,)), in_specs=PartitionSpec(),
-                                out_specs=PartitionSpec(), check_vma=False)
+        mesh = Mesh(np.array(devices), (axis,))
+        advance = jax.shard_map(advance, mesh=mesh, in_specs=PartitionSpec(), out_specs=PartitionSpec(),
+                                check_vma=False)
+        # the first chunk's state laid out as the chunks return it (whole on every device), so the second
+        # chunk finds the program the first compiled instead of compiling it again
+        state = jax.device_put(state, NamedSharding(mesh, PartitionSpec()))
     advance = jax.jit(advance)
 
     history = []
