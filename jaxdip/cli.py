@@ -92,7 +92,7 @@ def _parser():
     rp.add_argument("--out", default="results")
     rp.add_argument("--force", action="store_true", help="replace jaxdip result folders of other experiments")
     rp.add_argument("--jobs", type=int, default=None,
-                    help="experiments run side by side, each in its own process (default: one per CPU core, "
+                    help="experiments run side by side in worker processes (default: one per CPU core, "
                          "at most 2; compilation is single-threaded, so a second job uses the idle core)")
     rp.add_argument("--only", default=None, metavar="ID,ID", help="run these experiments only (default: every "
                     "experiment but the fidelity readings' supporting runs, which `jaxdip list` marks)")
@@ -250,6 +250,18 @@ def cmd_run(args, argv=None) -> int:
 
 
 def cmd_reproduce(args, argv=None) -> int:
+    jobs = args.jobs if args.jobs is not None else max(1, min(2, os.cpu_count() or 1))
+    several = args.only is None or len([w for w in args.only.split(",") if w.strip()]) > 1
+    # the workers start importing JAX while this process loads and checks the experiments' configurations
+    pool = _Workers(jobs) if jobs > 1 and several and not args.distributed else None
+    try:
+        return _reproduce(args, jobs, pool)
+    finally:
+        if pool is not None:
+            pool.close()
+
+
+def _reproduce(args, jobs: int, pool) -> int:
     from jaxdip import config as C
     from jaxdip import distributed, outdir
     from jaxdip.config import ConfigError
@@ -267,7 +279,6 @@ def cmd_reproduce(args, argv=None) -> int:
             return _error(f"--only: unknown experiment {', '.join(unknown) or '(none given)'}; "
                           f"choose from {', '.join(i for i, _ in reg)}")
         reg = [(i, e) for i, e in reg if i in want]
-    jobs = args.jobs if args.jobs is not None else max(1, min(2, os.cpu_count() or 1))
     if jobs < 1:
         return _error(f"--jobs: must be >= 1, got {jobs}")
     report_path = os.path.join(args.out, "REPORT.md")
@@ -308,7 +319,7 @@ def cmd_reproduce(args, argv=None) -> int:
 
     if jobs > 1 and len(reg) > 1:
         with _Signals():
-            code = _reproduce_parallel(args, reg, jobs)
+            code = _reproduce_parallel(args, reg, jobs, pool)
         if code:
             return code
         for exp_id, exp in reg:
@@ -342,67 +353,137 @@ def cmd_reproduce(args, argv=None) -> int:
     return 0
 
 
-def _reproduce_parallel(args, reg, jobs: int) -> int:
-    """Run the experiments as ``jaxdip run`` child processes, ``jobs`` at a time, longest first; each child's
-    output goes to a log beside its result folder's staging, shown only when it fails. 0 or the exit code."""
-    import subprocess
+def _reproduce_parallel(args, reg, jobs: int, pool: "_Workers | None" = None) -> int:
+    """Run the experiments in ``jobs`` worker processes (``jaxdip.reproduce_worker``), longest first, each worker
+    taking the next experiment when it finishes one: a worker starts JAX once and keeps its compiled programs in
+    memory for the experiments after the first. Each experiment's output goes to a log, shown only when it
+    fails. 0 or the exit code."""
+    import queue
     import tempfile
 
     order = sorted(reg, key=lambda r: -_QUICK_COST.get(r[0], 10.0)) if args.quick else list(reg)
-    pending = list(order)
-    running: dict = {}
+    pending = [exp_id for exp_id, _ in order]
     failed: list = []
     logs = tempfile.mkdtemp(prefix="jaxdip-reproduce-")
     n, done = len(order), 0
+    pool = pool or _Workers(jobs)
+    answers, workers = pool.answers, pool.workers[:n]
+    for w in pool.workers[n:]:
+        _close(w)
 
-    def launch(exp_id):
-        cmd = [sys.executable, "-m", "jaxdip.cli", "run", exp_id, "--out", os.path.join(args.out, exp_id)]
-        cmd += ["--quick"] * bool(args.quick) + ["--force"] * bool(args.force)
-        cmd += ["--no-compile-cache"] * bool(args.no_compile_cache)
-        log = open(os.path.join(logs, f"{exp_id}.log"), "w")
-        env = dict(os.environ, JAXDIP_NO_PROGRESS="1")
-        running[exp_id] = (subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env,
-                                             start_new_session=True), log,
-                           time.perf_counter())
+    def give(w):
+        exp_id = pending.pop(0)
+        argv = ["run", exp_id, "--out", os.path.join(args.out, exp_id)]
+        argv += ["--quick"] * bool(args.quick) + ["--force"] * bool(args.force)
+        argv += ["--no-compile-cache"] * bool(args.no_compile_cache)
+        w["task"], w["t"] = exp_id, time.perf_counter()
+        w["given"] += 1
+        try:
+            w["proc"].stdin.write(json.dumps({"id": exp_id, "argv": argv, "log": _log(exp_id)}) + "\n")
+            w["proc"].stdin.flush()
+        except OSError:
+            pass  # the worker has died: its reader reports the end, and the experiment counts as failed
+
+    def _log(exp_id):
+        return os.path.join(logs, f"{exp_id}.log")
+
+    def tail(exp_id):
+        try:
+            with open(_log(exp_id)) as fh:
+                lines = [ln for ln in fh.read().splitlines() if ln.strip()]
+        except OSError:
+            lines = []
+        return (lines[-1:] or ["(no output)"])[0]
 
     try:
+        for w in workers:
+            give(w)
         # after a failure nothing new starts, and the loop ends once the running ones have finished
-        while running or (pending and not failed):
-            while pending and len(running) < jobs and not failed:
-                launch(pending.pop(0)[0])
-            time.sleep(0.2)
-            for exp_id, (proc, log, t) in list(running.items()):
-                if proc.poll() is None:
-                    continue
-                log.close()
-                del running[exp_id]
-                done += 1
-                if proc.returncode == 0:
-                    print(f"== {exp_id} done ({time.perf_counter() - t:.1f} s) [{done}/{n}]", file=sys.stderr)
-                else:
-                    with open(log.name) as fh:
-                        tail = [ln for ln in fh.read().splitlines() if ln.strip()][-1:] or ["(no output)"]
-                    failed.append((exp_id, proc.returncode, tail[0]))
+        while any(w["task"] is not None for w in workers):
+            try:
+                w, ans = answers.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            exp_id, w["task"] = w["task"], None
+            if exp_id is None:
+                continue
+            done += 1
+            rc = ans["rc"] if ans is not None else (w["proc"].wait() or 1)
+            if rc == 0:
+                print(f"== {exp_id} done ({time.perf_counter() - w['t']:.1f} s) [{done}/{n}]", file=sys.stderr)
+            else:
+                failed.append((exp_id, rc, tail(exp_id)))
+            if pending and not failed and ans is not None:
+                give(w)
+            else:
+                _close(w)
     except KeyboardInterrupt:
-        for proc, _, _ in running.values():
-            proc.send_signal(signal.SIGINT)  # once: the children are in their own sessions
-        for proc, log, _ in running.values():
-            proc.wait()
-            log.close()
+        for w in workers:
+            if w["task"] is not None and w["proc"].poll() is None:
+                w["proc"].send_signal(signal.SIGINT)  # once: the workers are in their own sessions
+        for w in workers:
+            _close(w)
+            w["proc"].wait()
         print(f"interrupted: the experiments finished before it are in {args.out}", file=sys.stderr)
         return 130
+    for w in workers:
+        _close(w)
+        w["proc"].wait()
     if failed:
         exp_id, code, line = failed[0]
         line = line[len("error: "):] if line.startswith("error: ") else line
-        print(f"error: {exp_id}: {line} (log: {os.path.join(logs, exp_id + '.log')})", file=sys.stderr)
+        print(f"error: {exp_id}: {line} (log: {_log(exp_id)})", file=sys.stderr)
         return 130 if code == 130 else (code if code == 2 else 1)
     return 0
 
 
-# rough cold --quick wall times (s) on a 2-core CPU: the parallel reproduce starts the long ones first
-_QUICK_COST = {"ifn-protection": 38, "tune": 35, "rwp-bias": 27, "dip-controllers": 27, "dip-cpx-ldf": 27,
-               "eki-dip": 26, "twip-dmso": 21, "eki-nonlinear": 21, "lorenz-mhe": 19, "twip-extra-control": 10,
-               "eki-linear": 9, "dip-lqr": 5}
+class _Workers:
+    """``n`` started ``jaxdip.reproduce_worker`` processes (started early: each spends its first seconds importing
+    JAX) and one queue of their answers, ``(worker, answer or None when the worker has ended)``."""
+
+    def __init__(self, n: int):
+        import queue
+        import subprocess
+        import threading
+
+        self.answers: queue.Queue = queue.Queue()
+        self.workers = []
+        env = dict(os.environ, JAXDIP_NO_PROGRESS="1")
+        for _ in range(n):
+            proc = subprocess.Popen([sys.executable, "-m", "jaxdip.reproduce_worker"], stdin=subprocess.PIPE,
+                                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env, text=True,
+                                    bufsize=1, start_new_session=True)
+            w = {"proc": proc, "task": None, "t": 0.0, "given": 0}
+            threading.Thread(target=self._read, args=(w,), daemon=True).start()
+            self.workers.append(w)
+
+    def _read(self, w):
+        for line in w["proc"].stdout:
+            self.answers.put((w, json.loads(line)))
+        self.answers.put((w, None))
+
+    def close(self):
+        for w in self.workers:
+            _close(w)
+            if not w["given"] and w["proc"].poll() is None:
+                w["proc"].kill()  # never given an experiment (the run was refused): do not wait for its start-up
+            w["proc"].wait()
+
+
+def _close(w):
+    """End of input: the worker exits once its current experiment is done."""
+    if w["proc"].stdin and not w["proc"].stdin.closed:
+        try:
+            w["proc"].stdin.close()
+        except OSError:
+            pass
+
+
+# cold --quick wall times (s) of each experiment alone on a 2-core CPU (measured this round): the parallel
+# reproduce starts the long ones first
+_QUICK_COST = {"tune": 44, "ifn-protection": 43, "eki-dip": 40, "dip-cpx-ldf": 30, "rwp-bias": 28, "twip-dmso": 24,
+               "dip-controllers": 21, "lorenz-mhe": 19, "eki-nonlinear": 16, "twip-extra-control": 10,
+               "eki-linear": 9, "dip-lqr": 6}
 
 
 def cmd_bench(args, argv=None) -> int:

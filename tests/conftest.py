@@ -11,6 +11,12 @@ os.environ.setdefault("JAXDIP_NO_PROGRESS", "1")
 os.environ.setdefault("JAXDIP_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"jaxdip-test-xla-{os.getuid()}"))
 
 import jaxdip  # noqa: E402,F401  (enables float64 before any test builds an array)
+from jaxdip.cli import _compile_cache  # noqa: E402
+
+# Compiled programs go to that folder from the first test on, as in a CLI run: the test processes (pytest's
+# workers) and the CLI runs the tests start share what one of them compiled, and a second run of the suite on
+# the same machine compiles little.
+_compile_cache(True)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

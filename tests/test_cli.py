@@ -149,10 +149,11 @@ def test_compilation_cache_is_written_and_reused(dip_lqr_uncached, cached_runs):
 
 @pytest.mark.slow
 def test_parallel_reproduce_equals_sequential(tmp_path):
-    """``reproduce --jobs 2`` runs experiments as child processes: same results and report rows as ``--jobs 1``."""
+    """``reproduce --jobs 2`` runs experiments in two worker processes, one of them running two experiments one
+    after another: same results and report rows as ``--jobs 1``."""
     import json
 
-    ids = "dip-lqr,eki-linear"
+    ids = "dip-lqr,eki-linear,twip-extra-control"
     for jobs in ("1", "2"):
         r = jaxdip("reproduce", "--quick", "--only", ids, "--jobs", jobs, "--out", str(tmp_path / f"j{jobs}"))
         assert r.returncode == 0, r.stderr[-2000:]
@@ -160,4 +161,4 @@ def test_parallel_reproduce_equals_sequential(tmp_path):
         a, b = (json.loads((tmp_path / f"j{j}" / exp_id / "metrics.json").read_text())["results"] for j in "12")
         assert a == b
     report = (tmp_path / "j2" / "REPORT.md").read_text()
-    assert "[dip-lqr](dip-lqr/report.md)" in report and "[eki-linear](eki-linear/report.md)" in report
+    assert all(f"[{i}]({i}/report.md)" in report for i in ids.split(","))

@@ -241,24 +241,56 @@ def test_console_script_one_line(tmp_path):
     assert os.listdir(tmp_path) == ["mine.txt"]
 
 
-def test_parallel_reproduce_stops_after_a_failing_child(tmp_path):
-    """A failing experiment stops the parallel reproduce with its error line (it used to wait forever for the
-    experiments it would no longer start)."""
+FAKE_WORKER = """
+import json, os, sys
+answers = os.fdopen(os.dup(1), "w", buffering=1)
+for line in sys.stdin:
+    task = json.loads(line)
+    with open(task["log"], "w") as log:
+        print("started " + task["id"], file=log)
+        if task["id"] == "eki-linear":
+            print("error: boom", file=log)
+            answers.write(json.dumps({"id": task["id"], "rc": 1}) + "\\n")
+            continue
+    if task["id"] == "lorenz-mhe":
+        os._exit(9)  # the worker dies without answering
+    answers.write(json.dumps({"id": task["id"], "rc": 0}) + "\\n")
+"""
+
+
+def _parallel_with_fake_workers(tmp_path, ids, jobs):
     import subprocess
     import sys
 
+    worker = tmp_path / "fake_worker.py"
+    worker.write_text(FAKE_WORKER)
     fake = tmp_path / "fake-python"
-    fake.write_text('#!/bin/sh\ncase "$*" in *eki-linear*) echo "error: boom"; exit 1;; esac\nexit 0\n')
+    fake.write_text(f"#!/bin/sh\nexec {sys.executable} {worker}\n")
     fake.chmod(0o755)
     code = (
         "import sys, types\n"
         "from jaxdip import cli\n"
         f"sys.executable = {str(fake)!r}\n"
-        f"args = types.SimpleNamespace(out={str(tmp_path / 'o')!r}, quick=True, force=False, no_compile_cache=False)\n"
-        "reg = [(i, None) for i in ('eki-linear', 'dip-lqr', 'lorenz-mhe')]\n"
-        "sys.exit(cli._reproduce_parallel(args, reg, 1))\n"
+        f"args = types.SimpleNamespace(out={str(tmp_path / 'o')!r}, quick=False, force=False, no_compile_cache=False)\n"
+        f"reg = [(i, None) for i in {tuple(ids)!r}]\n"
+        f"sys.exit(cli._reproduce_parallel(args, reg, {jobs}))\n"
     )
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+
+
+def test_parallel_reproduce_stops_after_a_failing_child(tmp_path):
+    """A failing experiment stops the parallel reproduce with its error line (it used to wait forever for the
+    experiments it would no longer start)."""
+    r = _parallel_with_fake_workers(tmp_path, ("eki-linear", "dip-lqr", "twip-dmso"), 1)
     assert r.returncode == 1, r.stderr
     assert "error: eki-linear: boom" in r.stderr
-    assert "dip-lqr done" not in r.stderr  # started after the failure: never launched
+    assert "dip-lqr done" not in r.stderr  # would have been next: never given to the worker
+
+
+def test_parallel_reproduce_survives_a_dying_worker(tmp_path):
+    """A worker that dies mid-experiment (killed, out of memory) fails that experiment instead of hanging; the
+    other worker finishes the one it is running, and one worker runs experiments one after another."""
+    r = _parallel_with_fake_workers(tmp_path, ("dip-lqr", "twip-dmso", "lorenz-mhe", "rwp-bias"), 2)
+    assert r.returncode == 1, r.stderr
+    assert "error: lorenz-mhe: started lorenz-mhe" in r.stderr, r.stderr
+    assert "dip-lqr done" in r.stderr and "twip-dmso done" in r.stderr  # three experiments on two workers

@@ -71,6 +71,11 @@ def value_and_grad_fn(f: Callable, mode: str = "forward") -> Callable:
             val = f(unravel(v), *args)
             return val, val
 
+        if flat.shape == (1,):
+            # one hyperparameter: one jvp. jacfwd would vmap the jvp over a batch of one tangent, and batching
+            # the loop again (its nested scans each re-batched to a fixed point) doubles the tracing time
+            val, dval = jax.jvp(lambda v: g(v)[0], (flat,), (jnp.ones_like(flat),))
+            return val, unravel(jnp.reshape(dval, (1,)))
         jac, val = jax.jacfwd(g, has_aux=True)(flat)
         return val, unravel(jac)
 
