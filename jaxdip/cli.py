@@ -377,7 +377,7 @@ def _reproduce_parallel(args, reg, jobs: int, pool: "_Workers | None" = None) ->
         argv += ["--quick"] * bool(args.quick) + ["--force"] * bool(args.force)
         argv += ["--no-compile-cache"] * bool(args.no_compile_cache)
         w["task"], w["t"] = exp_id, time.perf_counter()
-        w["given"] += 1
+        w["given"] = True
         try:
             w["proc"].stdin.write(json.dumps({"id": exp_id, "argv": argv, "log": _log(exp_id)}) + "\n")
             w["proc"].stdin.flush()
@@ -421,14 +421,10 @@ def _reproduce_parallel(args, reg, jobs: int, pool: "_Workers | None" = None) ->
         for w in workers:
             if w["task"] is not None and w["proc"].poll() is None:
                 w["proc"].send_signal(signal.SIGINT)  # once: the workers are in their own sessions
-        for w in workers:
-            _close(w)
-            w["proc"].wait()
+        pool.close()
         print(f"interrupted: the experiments finished before it are in {args.out}", file=sys.stderr)
         return 130
-    for w in workers:
-        _close(w)
-        w["proc"].wait()
+    pool.close()
     if failed:
         exp_id, code, line = failed[0]
         line = line[len("error: "):] if line.startswith("error: ") else line
@@ -453,7 +449,7 @@ class _Workers:
             proc = subprocess.Popen([sys.executable, "-m", "jaxdip.reproduce_worker"], stdin=subprocess.PIPE,
                                     stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env, text=True,
                                     bufsize=1, start_new_session=True)
-            w = {"proc": proc, "task": None, "t": 0.0, "given": 0}
+            w = {"proc": proc, "task": None, "t": 0.0, "given": False}
             threading.Thread(target=self._read, args=(w,), daemon=True).start()
             self.workers.append(w)
 

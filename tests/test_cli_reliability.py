@@ -249,7 +249,7 @@ for line in sys.stdin:
     with open(task["log"], "w") as log:
         print("started " + task["id"], file=log)
         if task["id"] == "eki-linear":
-            print("error: boom", file=log)
+            print("error: boom", file=log, flush=True)  # as the real worker: the log is written before the answer
             answers.write(json.dumps({"id": task["id"], "rc": 1}) + "\\n")
             continue
     if task["id"] == "lorenz-mhe":
