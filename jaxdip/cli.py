@@ -96,6 +96,11 @@ def _parser():
                          "at most 2; compilation is single-threaded, so a second job uses the idle core)")
     rp.add_argument("--only", default=None, metavar="ID,ID", help="run these experiments only (default: every "
                     "experiment but the fidelity readings' supporting runs, which `jaxdip list` marks)")
+    for q in (r, rp):
+        q.add_argument("--compile-effort", choices=("fast", "balanced", "full"), default=None,
+                       help="how hard XLA optimises the compiled programs: fast compiles in about half the time "
+                            "and runs slower, full is XLA's default (default: full; with --quick, the level "
+                            "measured best for each experiment's quick run); results agree to the last bits")
     for q in (r, b, rp):
         q.add_argument("--no-compile-cache", action="store_true",
                        help="do not read or write the on-disk cache of compiled code (see JAXDIP_CACHE_DIR)")
@@ -205,6 +210,13 @@ def _riccati_keys(cfg) -> str:
     return ", ".join(keys) if keys else "the weights"
 
 
+def _effort(args, exp) -> str:
+    """The compile effort of a run: the flag's, else the experiment's quick-run level with --quick, else full."""
+    if args.compile_effort:
+        return args.compile_effort
+    return exp.quick_effort if args.quick else "full"
+
+
 def cmd_run(args, argv=None) -> int:
     from jaxdip.checkpoint import CheckpointMismatch
     from jaxdip.config import ConfigError
@@ -227,7 +239,8 @@ def cmd_run(args, argv=None) -> int:
     with _Signals() as sig:
         try:
             metrics = run_experiment(exp, cfg, out, resume=args.resume, force=args.force,
-                                     flag_keys=flags, stop_requested=sig.requested)
+                                     flag_keys=flags, stop_requested=sig.requested,
+                                     compile_effort=_effort(args, exp))
         except ConfigError as e:
             return _error(f"{e.key}: {e.why}")
         except OutputError as e:
@@ -331,7 +344,8 @@ def _reproduce(args, jobs: int, pool) -> int:
                     out = os.path.join(args.out, exp_id)
                     if main:
                         print(f"== {exp_id}", file=sys.stderr)
-                    run_experiment(exp, cfgs[exp_id], out, force=args.force, stop_requested=sig.requested)
+                    run_experiment(exp, cfgs[exp_id], out, force=args.force, stop_requested=sig.requested,
+                                   compile_effort=_effort(args, exp))
                     collect(exp_id, exp)
             except (ConfigError, OutputError) as e:
                 return _error(f"{e.key}: {e.why}")
@@ -376,6 +390,7 @@ def _reproduce_parallel(args, reg, jobs: int, pool: "_Workers | None" = None) ->
         argv = ["run", exp_id, "--out", os.path.join(args.out, exp_id)]
         argv += ["--quick"] * bool(args.quick) + ["--force"] * bool(args.force)
         argv += ["--no-compile-cache"] * bool(args.no_compile_cache)
+        argv += ["--compile-effort", args.compile_effort] if args.compile_effort else []
         w["task"], w["t"] = exp_id, time.perf_counter()
         w["given"] = True
         try:

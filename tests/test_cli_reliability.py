@@ -271,7 +271,7 @@ def _parallel_with_fake_workers(tmp_path, ids, jobs):
         "import sys, types\n"
         "from jaxdip import cli\n"
         f"sys.executable = {str(fake)!r}\n"
-        f"args = types.SimpleNamespace(out={str(tmp_path / 'o')!r}, quick=False, force=False, no_compile_cache=False)\n"
+        f"args = types.SimpleNamespace(out={str(tmp_path / 'o')!r}, quick=False, force=False, no_compile_cache=False, compile_effort=None)\n"
         f"reg = [(i, None) for i in {tuple(ids)!r}]\n"
         f"sys.exit(cli._reproduce_parallel(args, reg, {jobs}))\n"
     )

@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.engine import effort
 from jaxdip.engine import metrics as _metrics
 from jaxdip.engine.roles import param
 from jaxdip.engine.simulate import Loop, Solution, State, init_state, simulate
@@ -122,7 +123,7 @@ def _m_finalize(f, key, state, n):
     return _metrics.finalize(f.metrics, state.metrics)
 
 
-@eqx.filter_jit
+@effort.filter_jit
 def _batch(method, fn, where, values, base, idx, args, n, detail=None, out_sharding=None):
     """vmap of ``method(fn, fold_in(base, i), arg_i, n)`` over the seed indices ``idx`` (and over the sweep).
     ``detail``: split each seed's output into (per seed, detail) and keep the detail of the batch's first seed.

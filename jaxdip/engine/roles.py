@@ -30,6 +30,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import effort
+
 
 def _as_float_array(v):
     return jnp.asarray(v, dtype=jnp.result_type(float))
@@ -121,7 +123,7 @@ def _discrete_map(plant, x, u):
     return plant.step(x, u)
 
 
-@eqx.filter_jit
+@effort.filter_jit
 def _jacobians(plant, x, u):
     # x and u are arguments, not constants made inside: XLA would fold them and round differently
     f = _vector_field if plant.continuous else _discrete_map

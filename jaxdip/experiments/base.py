@@ -23,6 +23,7 @@ import jax
 
 from jaxdip import config as cfgmod
 from jaxdip import distributed, outdir, resources
+from jaxdip.engine import effort
 
 
 @dataclass
@@ -58,6 +59,10 @@ class Experiment:
     # False for the supporting runs of the fidelity readings (docs/fidelity.md): `jaxdip run` and
     # `reproduce --only` run them, a plain `reproduce` (the headline reproduction) leaves them out
     reproduce: bool = True
+    # compile effort of a --quick run (jaxdip.engine.effort), measured per experiment: "fast" where compiling
+    # dominates the quick run, "balanced" where running the compiled code weighs too, "full" (XLA's default, and
+    # every full run's) where the results amplify the last bits in which the levels differ, or not measured
+    quick_effort: str = "full"
 
 
 def _jsonable(o):
@@ -76,7 +81,7 @@ def dump_json(obj) -> str:
     return json.dumps(_jsonable(obj), indent=2, sort_keys=False, allow_nan=False)
 
 
-def provenance(exp_id: str, seeds: int, wall_s: float) -> dict:
+def provenance(exp_id: str, seeds: int, wall_s: float, compile_effort: str = "full") -> dict:
     p = {
         "experiment": exp_id,
         "seeds": seeds,
@@ -84,6 +89,7 @@ def provenance(exp_id: str, seeds: int, wall_s: float) -> dict:
         "backend": jax.default_backend(),
         "devices": jax.device_count(),
         "jax_version": jax.__version__,
+        "compile_effort": compile_effort,
         "wall_s": round(wall_s, 3),
     }
     if jax.process_count() > 1:
@@ -98,14 +104,16 @@ def check_resources(cfg, flag_keys: dict[str, str] | None = None) -> None:
 
 
 def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, force: bool = False,
-                   flag_keys: dict[str, str] | None = None, stop_requested: Callable[[], bool] | None = None) -> dict:
+                   flag_keys: dict[str, str] | None = None, stop_requested: Callable[[], bool] | None = None,
+                   compile_effort: str = "full") -> dict:
     """Run an experiment with a validated config and write its folder; returns metrics.json's content.
 
     Raises ``ConfigError`` (resources) or ``outdir.OutputError`` (destination) before anything is compiled.
     Experiments with long searches checkpoint beside ``out_dir`` (``ctx.checkpoint_path`` of the ``RunContext`` passed to ``run``) and, with
     ``resume``, continue from there; the checkpoint is removed once the folder is complete. ``stop_requested``
     is asked once more before the folder is moved into place, so an interrupt that a library swallowed still
-    leaves no folder behind.
+    leaves no folder behind. ``compile_effort``: how hard XLA optimises the programs (``jaxdip.engine.effort``;
+    results agree across levels to the last bits), recorded in the provenance.
     """
     import matplotlib
 
@@ -127,10 +135,11 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
     ctx = RunContext(out_dir, resume)
     try:
         t0 = time.perf_counter()
-        outcome = exp.run(cfg, ctx)
+        with effort.effort(compile_effort):
+            outcome = exp.run(cfg, ctx)
         wall = time.perf_counter() - t0
         seeds = getattr(cfg, "seeds", 1)
-        metrics = {**provenance(exp.id, seeds, wall), "results": outcome.results, "timing": outcome.timing}
+        metrics = {**provenance(exp.id, seeds, wall, compile_effort), "results": outcome.results, "timing": outcome.timing}
         if not main:
             for fig in outcome.figures.values():
                 plt.close(fig)

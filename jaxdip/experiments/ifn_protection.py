@@ -24,13 +24,13 @@ import math
 import time
 from dataclasses import dataclass
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxdip import config as C
 from jaxdip import stats
+from jaxdip.engine import effort
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import fmt_ci
 from jaxdip.immune import alternatives as Al
@@ -434,7 +434,7 @@ def run(cfg: IfnProtectionConfig, ctx: RunContext | None = None) -> Outcome:
 # ---- figures ------------------------------------------------------------------------------------------------
 
 
-@eqx.filter_jit
+@effort.filter_jit
 def _raster(model, control, t, rho):
     """The indicator of a control on a (t, |x|) grid (x along the first axis)."""
     key = jax.random.PRNGKey(0)
@@ -717,4 +717,6 @@ EXPERIMENT = Experiment(
            "perturbations": 2, "lineages": 512, "generations": 6, "tune_steps": 100, "tune_batch": 2048,
            "generation_targets": [1.5, 1.0]},
     source="thesis ch. 4 (§4.3–4.5: (A1)–(A6), (4.1)–(4.8), Theorem 4.4.1, Corollary 4.4.2)",
+    # its quick run is mostly running compiled quadratures and Monte Carlo: -O0 code made it 3x slower
+    quick_effort="balanced",
 )

@@ -20,10 +20,10 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import effort
 from jaxdip.immune.controls import LevelSet
 from jaxdip.immune.model import Infection
 
@@ -49,7 +49,7 @@ def _trapezoid_bracket(f, widths):
             jnp.sum(widths * jnp.maximum(a, b)))
 
 
-@eqx.filter_jit
+@effort.filter_jit
 def masses(model: Infection, control, cost, n: int = 4096) -> Masses:
     """int_A g and int_A h of a control with a ``profile``, by the bracketed trapezoid rule in s, n panels per
     segment between consecutive breakpoints."""

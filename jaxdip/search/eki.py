@@ -28,6 +28,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
+from jaxdip.engine import effort
+
 
 class EKIState(NamedTuple):
     members: jnp.ndarray  # (J, p) flattened members
@@ -190,7 +192,7 @@ def run_eki(eki: EKI, state: EKIState, iterations: int, *, chunk: int = 10, prog
         # the first chunk's state laid out as the chunks return it (whole on every device), so the second
         # chunk finds the program the first compiled instead of compiling it again
         state = jax.device_put(state, NamedSharding(mesh, PartitionSpec()))
-    advance = jax.jit(advance)
+    advance = effort.jit(advance)
 
     history = []
     done = int(state.iteration)
