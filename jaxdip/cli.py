@@ -490,8 +490,9 @@ def _close(w):
             pass
 
 
-# cold --quick wall times (s) of each experiment alone on a 2-core CPU (measured this round): the parallel
-# reproduce starts the long ones first
+# cold --quick wall times (s) of each experiment alone on a 2-core CPU at full compile effort (measured before
+# the quick compile efforts; the reproduce figures in docs/performance.md were taken with this order): the
+# parallel reproduce starts the long ones first
 _QUICK_COST = {"tune": 44, "ifn-protection": 43, "eki-dip": 40, "dip-cpx-ldf": 30, "rwp-bias": 28, "twip-dmso": 24,
                "dip-controllers": 21, "lorenz-mhe": 19, "eki-nonlinear": 16, "twip-extra-control": 10,
                "eki-linear": 9, "dip-lqr": 6}
