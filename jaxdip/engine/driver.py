@@ -158,10 +158,6 @@ def _float_leaves_to_arrays(tree):
         lambda a: jnp.asarray(a) if isinstance(a, float) else a, tree)
 
 
-def _traced(*trees) -> bool:
-    return any(isinstance(leaf, jax.core.Tracer) for t in trees for leaf in jax.tree_util.tree_leaves(t))
-
-
 def _concat(parts, axis):
     if parts[0] is None:
         return None
@@ -256,7 +252,7 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
     where, values = (None, None) if sweep is None else sweep
     if where is not None:
         values = jax.tree_util.tree_map(jnp.asarray, values)
-    traced = _traced(fn, key, values)
+    traced = effort.traced(fn, key, values)
     progress = progress and not traced
 
     devices = jax.devices()

@@ -7,7 +7,7 @@ cheaper levels, measured on this project's loops (2-core CPU, cold compilation c
 
 - ``"fast"``: LLVM at -O0 and XLA's older elemental emitters. Compile time about halves (a quick reproduction's
   summed experiment time 320 -> 175 s); compiled code runs 1.2-4x slower, so it suits programs that run
-  briefly: quick runs, the tests.
+  briefly, as in most quick runs.
 - ``"balanced"``: LLVM at -O1, older emitters. Compile time about -40 %; code about as fast as ``"full"`` on
   these loops (the quick reproduction's run-dominated experiment, ifn-protection, kept its speed).
 
@@ -55,7 +55,7 @@ def current() -> str:
 
 
 def set_default(level: str) -> None:
-    """The compile effort outside any ``effort(...)`` block (the test suite sets ``"fast"``)."""
+    """The compile effort outside any ``effort(...)`` block (``"full"`` unless set)."""
     global _default
     _default = _check(level)
 
@@ -80,8 +80,9 @@ def _options() -> dict[str, Any] | None:
     return opts
 
 
-def _traced(args, kwargs) -> bool:
-    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((args, kwargs)))
+def traced(*trees) -> bool:
+    """Whether any leaf of ``trees`` is a tracer (the call is part of an enclosing trace)."""
+    return any(isinstance(leaf, jax.core.Tracer) for t in trees for leaf in jax.tree_util.tree_leaves(t))
 
 
 class _PerLevel:
@@ -100,7 +101,7 @@ class _PerLevel:
         return f
 
     def __call__(self, *args, **kwargs):
-        opts = None if _traced(args, kwargs) else _options()
+        opts = None if traced(args, kwargs) else _options()
         if opts is None:
             return self._variant(None)(*args, **kwargs)
         try:
@@ -110,9 +111,6 @@ class _PerLevel:
             if "compiler_options" not in str(e):
                 raise
             return self._variant(None)(*args, **kwargs)
-
-    def __get__(self, obj, objtype=None):
-        return self if obj is None else functools.partial(self, obj)
 
 
 def jit(fun: Callable | None = None, **jit_kwargs) -> Callable:
