@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from jaxdip import distributed
+from conftest import host_devices_flags
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -26,7 +27,7 @@ CLUSTER_VARS = ("SLURM_", "OMPI_", "PMI_", "JAX_COORDINATOR", "JAXDIP_COORDINATO
 
 def clean_env(**extra):
     env = {k: v for k, v in os.environ.items() if not k.startswith(CLUSTER_VARS)}
-    env.update(JAX_PLATFORMS="cpu", XLA_FLAGS="--xla_force_host_platform_device_count=2", **extra)
+    env.update(JAX_PLATFORMS="cpu", XLA_FLAGS=host_devices_flags(2), **extra)
     return env
 
 

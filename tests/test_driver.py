@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import jaxdip as jd
+from conftest import host_devices_flags
 
 STEPS = 200
 
@@ -245,7 +246,7 @@ SHARD_SCRIPT = textwrap.dedent(
 
 
 def run_sharded(rollout):
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=8", JAX_PLATFORMS="cpu")
+    env = dict(os.environ, XLA_FLAGS=host_devices_flags(8), JAX_PLATFORMS="cpu")
     out = subprocess.run([sys.executable, "-c", SHARD_SCRIPT, os.path.dirname(__file__), rollout], env=env,
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]

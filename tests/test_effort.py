@@ -11,7 +11,7 @@ import pytest
 
 from jaxdip.cli import main
 from jaxdip.engine import effort
-from tests.conftest import TINY_DIP_LQR
+from conftest import TINY_DIP_LQR
 
 
 def _pendulum(x0, h, steps):

@@ -54,6 +54,7 @@ def test_continuum_rule_is_the_level_set(cost):
     np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+@pytest.mark.usefixtures("runs_long")
 @pytest.mark.parametrize("cells", [8192, pytest.param(65536, marks=pytest.mark.slow)])
 def test_lattice_rule_approaches_the_level_set_and_stochastic_band_meets_V(cells):
     ctrls = (LevelSet(cost=Uniform(), log_r=jnp.asarray(LOG_R)),

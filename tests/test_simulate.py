@@ -312,7 +312,8 @@ def test_native_and_legacy_components_reproduce_the_original_loop():
     for loop in (legacy, native):
         sol = simulate(loop, x0, key, n, save=lambda s: (s.x, s.xhat, s.u, s.y))
         for a, b in zip(sol.saved, (rec.x, rec.xhat, rec.u, rec.y)):
-            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-15)
+            # 300 closed-loop periods carry last-bit differences of three separately compiled programs
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-13)
 
 
 def test_native_estimators_equal_their_init_step_versions():

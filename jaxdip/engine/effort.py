@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import functools
+import os
 from typing import Any, Callable, Iterator
 
 import equinox as eqx
@@ -78,6 +79,28 @@ def _options() -> dict[str, Any] | None:
     if not opts or jax.default_backend() != "cpu":
         return None
     return opts
+
+
+def set_process_level(level: str) -> None:
+    """Make ``level`` XLA's default for every program this process compiles, the library's own, a user's ``jax.jit``
+    and the small programs behind eager operations alike, by adding its options to ``XLA_FLAGS``.
+
+    XLA reads the flags when JAX starts its backend, so this must come before the first computation (else a
+    RuntimeError).
+    ``effort(...)`` still picks explicit levels for the library's programs; ``"full"`` then means this default.
+    The test suite uses it (most of its time is compiling programs that run for milliseconds).
+    """
+    opts = LEVELS[_check(level)]
+    have = os.environ.get("XLA_FLAGS", "")
+    # an option already in XLA_FLAGS stays as it is: the user's own setting, or this call made by a parent process
+    flags = [f"--{k}={str(v).lower()}" for k, v in opts.items() if f"--{k}=" not in have]
+    if not flags:
+        return
+    from jax._src import xla_bridge
+
+    if getattr(xla_bridge, "backends_are_initialized", lambda: False)():
+        raise RuntimeError("set_process_level must come before JAX's first computation (its backend has started)")
+    os.environ["XLA_FLAGS"] = " ".join([have, *flags]).strip()
 
 
 def traced(*trees) -> bool:
