@@ -87,6 +87,28 @@ def test_unknown_level_is_refused():
         effort.set_default("O0")
 
 
+def test_process_level_sets_xla_flags_once_and_keeps_the_users():
+    import subprocess
+    import sys
+
+    script = (
+        "import os; from jaxdip.engine import effort\n"
+        "effort.set_process_level('balanced'); effort.set_process_level('fast')\n"
+        "print(os.environ['XLA_FLAGS'])\n"
+        "import jax.numpy as jnp; float(jnp.ones(2).sum())\n"
+        "effort.set_process_level('balanced')  # every option already there: nothing to do\n"
+        "os.environ['XLA_FLAGS'] = ''\n"
+        "try:\n    effort.set_process_level('fast')\nexcept RuntimeError:\n    print('refused after start')\n")
+    env = dict(os.environ, XLA_FLAGS="--xla_cpu_use_fusion_emitters=true")
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    flags, refused = out.stdout.strip().splitlines()
+    # the user's emitter choice stays; the first call's level is added once, the second call finds it there
+    assert flags.split() == ["--xla_cpu_use_fusion_emitters=true", "--xla_backend_optimization_level=1"]
+    assert refused == "refused after start"
+    effort.set_process_level("full")  # no options at all: never refused
+
+
 def test_cli_records_the_level_and_levels_agree(tmp_path):
     outs = {}
     for level in ("fast", "full"):
