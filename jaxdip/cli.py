@@ -490,12 +490,11 @@ def _close(w):
             pass
 
 
-# cold --quick wall times (s) of each experiment alone on a 2-core CPU at full compile effort (measured before
-# the quick compile efforts; the reproduce figures in docs/performance.md were taken with this order): the
-# parallel reproduce starts the long ones first
-_QUICK_COST = {"tune": 44, "ifn-protection": 43, "eki-dip": 40, "dip-cpx-ldf": 30, "rwp-bias": 28, "twip-dmso": 24,
-               "dip-controllers": 21, "lorenz-mhe": 19, "eki-nonlinear": 16, "twip-extra-control": 10,
-               "eki-linear": 9, "dip-lqr": 6}
+# cold --quick wall times (s) of each experiment in the parallel reproduce on a 2-core CPU, at the quick compile
+# efforts (rwp-bias estimated at balanced from its run alone): the parallel reproduce starts the long ones first
+_QUICK_COST = {"ifn-protection": 37, "eki-dip": 25, "tune": 18, "rwp-bias": 18, "dip-cpx-ldf": 15,
+               "lorenz-mhe": 14, "dip-controllers": 13, "twip-dmso": 10, "eki-linear": 9, "eki-nonlinear": 7,
+               "twip-extra-control": 6, "dip-lqr": 2}
 
 
 def cmd_bench(args, argv=None) -> int:
