@@ -86,9 +86,9 @@ def set_process_level(level: str) -> None:
     and the small programs behind eager operations alike, by adding its options to ``XLA_FLAGS``.
 
     XLA reads the flags when JAX starts its backend, so this must come before the first computation (else a
-    RuntimeError).
-    ``effort(...)`` still picks explicit levels for the library's programs; ``"full"`` then means this default.
-    The test suite uses it (most of its time is compiling programs that run for milliseconds).
+    RuntimeError). ``effort(...)`` still picks explicit levels for the library's programs; ``"full"`` then
+    means this default. The test suite uses it (most of its time is compiling programs that run for
+    milliseconds).
     """
     opts = LEVELS[_check(level)]
     have = os.environ.get("XLA_FLAGS", "")
