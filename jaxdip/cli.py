@@ -19,11 +19,11 @@ def _use_all_cores():
     XLA reads the flag when the backend starts (first computation), so setting it here, before any array is
     made, is enough. A user's own XLA_FLAGS are left alone.
     """
-    flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_force_host_platform_device_count" not in flags and os.environ.get("JAX_PLATFORMS", "cpu") == "cpu":
-        n = os.cpu_count() or 1
-        if n > 1:
-            os.environ["XLA_FLAGS"] = (flags + f" --xla_force_host_platform_device_count={n}").strip()
+    from jaxdip import xla_flags
+
+    n = os.cpu_count() or 1
+    if n > 1 and os.environ.get("JAX_PLATFORMS", "cpu") == "cpu":
+        xla_flags.append(xla_flags.pending({"xla_force_host_platform_device_count": n}))
 
 
 def _compile_cache(enabled: bool) -> None:

@@ -27,11 +27,12 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import functools
-import os
 from typing import Any, Callable, Iterator
 
 import equinox as eqx
 import jax
+
+from jaxdip import xla_flags
 
 LEVELS: dict[str, dict[str, Any]] = {
     "full": {},
@@ -90,17 +91,14 @@ def set_process_level(level: str) -> None:
     means this default. The test suite uses it (most of its time is compiling programs that run for
     milliseconds).
     """
-    opts = LEVELS[_check(level)]
-    have = os.environ.get("XLA_FLAGS", "")
-    # an option already in XLA_FLAGS stays as it is: the user's own setting, or this call made by a parent process
-    flags = [f"--{k}={str(v).lower()}" for k, v in opts.items() if f"--{k}=" not in have]
+    flags = xla_flags.pending(LEVELS[_check(level)])
     if not flags:
         return
     from jax._src import xla_bridge
 
     if getattr(xla_bridge, "backends_are_initialized", lambda: False)():
         raise RuntimeError("set_process_level must come before JAX's first computation (its backend has started)")
-    os.environ["XLA_FLAGS"] = " ".join([have, *flags]).strip()
+    xla_flags.append(flags)
 
 
 def traced(*trees) -> bool:
