@@ -13,17 +13,33 @@ import sys
 import time
 
 
-def _use_all_cores():
-    """On CPU, expose one XLA host device per core so Monte Carlo batches shard over all of them.
+def _use_all_cores(processes: int = 1):
+    """On CPU, expose one XLA host device per core so Monte Carlo batches shard over all of them; with
+    ``processes`` processes computing side by side (the workers of a parallel ``reproduce``), each gets its share
+    of the cores: sharding one worker's batches over cores the other workers keep busy only adds compilation
+    (the partitioned programs) and synchronisation, cold ``reproduce --quick`` 92 s against 79 s on 2 cores.
 
     XLA reads the flag when the backend starts (first computation), so setting it here, before any array is
-    made, is enough. A user's own XLA_FLAGS are left alone.
+    made, is enough. A user's own XLA_FLAGS are left alone; worker processes inherit this one.
     """
     from jaxdip import xla_flags
 
-    n = os.cpu_count() or 1
-    if n > 1 and os.environ.get("JAX_PLATFORMS", "cpu") == "cpu":
+    cores = os.cpu_count() or 1
+    n = max(1, cores // max(1, processes))
+    # set even when it is 1: the workers' own `run` would otherwise take every core
+    if cores > 1 and os.environ.get("JAX_PLATFORMS", "cpu") == "cpu":
         xla_flags.append(xla_flags.pending({"xla_force_host_platform_device_count": n}))
+
+
+def _jobs(args) -> int:
+    """``reproduce --jobs``, or its default: one per core, at most 2."""
+    return args.jobs if args.jobs is not None else max(1, min(2, os.cpu_count() or 1))
+
+
+def _reproduce_jobs(args) -> int:
+    """How many worker processes a ``reproduce`` runs side by side (1: the experiments run in this process)."""
+    several = args.only is None or len({w.strip() for w in args.only.split(",") if w.strip()}) > 1
+    return _jobs(args) if several and not args.distributed and _jobs(args) > 1 else 1
 
 
 def _compile_cache(enabled: bool) -> None:
@@ -263,10 +279,9 @@ def cmd_run(args, argv=None) -> int:
 
 
 def cmd_reproduce(args, argv=None) -> int:
-    jobs = args.jobs if args.jobs is not None else max(1, min(2, os.cpu_count() or 1))
-    several = args.only is None or len([w for w in args.only.split(",") if w.strip()]) > 1
+    jobs = _jobs(args)
     # the workers start importing JAX while this process loads and checks the experiments' configurations
-    pool = _Workers(jobs) if jobs > 1 and several and not args.distributed else None
+    pool = _Workers(jobs) if _reproduce_jobs(args) > 1 else None
     try:
         return _reproduce(args, jobs, pool)
     finally:
@@ -523,7 +538,7 @@ def main(argv=None) -> int:
         if v is not None and not v.strip():
             return _error(f"--{flag}: empty path")
     if args.cmd in ("run", "reproduce", "bench"):
-        _use_all_cores()
+        _use_all_cores(_reproduce_jobs(args) if args.cmd == "reproduce" else 1)
         _compile_cache(not args.no_compile_cache)
     if args.cmd in ("run", "reproduce") and (code := _distributed(args)):
         return code

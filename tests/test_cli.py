@@ -162,3 +162,28 @@ def test_parallel_reproduce_equals_sequential(tmp_path):
         assert a == b
     report = (tmp_path / "j2" / "REPORT.md").read_text()
     assert all(f"[{i}]({i}/report.md)" in report for i in ids.split(","))
+
+
+@pytest.mark.parametrize("argv, cores, devices", [
+    (["run", "dip-lqr"], 2, "2"),
+    (["reproduce", "--quick"], 2, "1"),  # two workers side by side: one core each
+    (["reproduce", "--jobs", "1"], 2, "2"),
+    (["reproduce", "--only", "dip-lqr"], 2, "2"),  # one experiment runs in this process
+    (["reproduce", "--only", "dip-lqr,dip-lqr"], 2, "2"),
+    (["reproduce"], 8, "4"),
+    (["reproduce", "--jobs", "3"], 8, "2"),
+    (["run", "dip-lqr"], 1, None),
+])
+def test_reproduce_workers_share_the_cores(monkeypatch, argv, cores, devices):
+    """Each process computing side by side gets its share of the cores as XLA host devices (set before JAX
+    starts, inherited by the workers); a user's own device count is kept."""
+    monkeypatch.delenv("XLA_FLAGS", raising=False)
+    monkeypatch.setenv("JAX_PLATFORMS", "cpu")
+    monkeypatch.setattr(os, "cpu_count", lambda: cores)
+    args = cli._parser().parse_args(argv)
+    cli._use_all_cores(cli._reproduce_jobs(args) if args.cmd == "reproduce" else 1)
+    flags = os.environ.get("XLA_FLAGS", "")
+    assert flags == (f"--xla_force_host_platform_device_count={devices}" if devices else "")
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=3")
+    cli._use_all_cores(2)
+    assert os.environ["XLA_FLAGS"] == "--xla_force_host_platform_device_count=3"
