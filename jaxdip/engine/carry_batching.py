@@ -61,6 +61,10 @@ def out_batched(jaxpr, in_batched: Sequence[bool]) -> list[bool] | None:
     when the program holds something this reader has no rule for."""
     from jax._src import core
 
+    memo = getattr(_state, "memo", None)
+    key = (id(jaxpr), tuple(bool(b) for b in in_batched))
+    if memo is not None and key in memo:
+        return memo[key][1]
     j = _jaxpr(jaxpr)
     bat: dict = {}
     for v, b in zip(j.invars, in_batched):
@@ -73,10 +77,15 @@ def out_batched(jaxpr, in_batched: Sequence[bool]) -> list[bool] | None:
         ins = [get(v) for v in eqn.invars]
         outs = _eqn_out_batched(eqn, ins) if any(ins) else [False] * len(eqn.outvars)
         if outs is None:
+            if memo is not None:
+                memo[key] = (jaxpr, None)
             return None
         for v, b in zip(eqn.outvars, outs):
             bat[v] = b
-    return [get(v) for v in j.outvars]
+    out = [get(v) for v in j.outvars]
+    if memo is not None:
+        memo[key] = (jaxpr, out)  # holding the jaxpr keeps its id from being reused while the memo lives
+    return out
 
 
 def _has_program(params: dict) -> bool:
@@ -192,6 +201,19 @@ def _check() -> bool:
     return os.environ.get("JAXDIP_CHECK_CARRY_BATCHING", "") not in ("", "0")
 
 
+@contextlib.contextmanager
+def _memo() -> Iterator[None]:
+    """Loops nested in a loop body are read once per batching of the outermost loop, not once per level."""
+    outer = getattr(_state, "memo", None) is None
+    if outer:
+        _state.memo = {}
+    try:
+        yield
+    finally:
+        if outer:
+            _state.memo = None
+
+
 def _broadcast(batching, axis_data, args, dims, idx: list[int]):
     args, dims = list(args), list(dims)
     for i in idx:
@@ -204,17 +226,18 @@ def _wrap_scan(orig, batching):
     def rule(axis_data, args, dims, reverse, length, jaxpr, num_consts, num_carry, **kw):
         if not _on():
             return orig(axis_data, args, dims, reverse, length, jaxpr, num_consts, num_carry, **kw)
-        ins = [d is not None for d in dims]
-        carry, _ = _scan_out(jaxpr, ins, num_consts, num_carry)
-        if _check():
-            _, ref = orig(axis_data, args, dims, reverse, length, jaxpr, num_consts, num_carry, **kw)
-            want = [d is not None for d in ref[:num_carry]]
-            if carry is not None and carry != want:
-                raise AssertionError(f"carry batching predicted {carry}, JAX's fixed point {want}")
-        if carry is not None:
-            idx = [num_consts + i for i, b in enumerate(carry) if b and not ins[num_consts + i]]
-            args, dims = _broadcast(batching, axis_data, args, dims, idx)
-        return orig(axis_data, args, dims, reverse, length, jaxpr, num_consts, num_carry, **kw)
+        with _memo():  # for the whole batching: the loops nested in this body are read from it
+            ins = [d is not None for d in dims]
+            carry, _ = _scan_out(jaxpr, ins, num_consts, num_carry)
+            if _check():
+                _, ref = orig(axis_data, args, dims, reverse, length, jaxpr, num_consts, num_carry, **kw)
+                want = [d is not None for d in ref[:num_carry]]
+                if carry is not None and carry != want:
+                    raise AssertionError(f"carry batching predicted {carry}, JAX's fixed point {want}")
+            if carry is not None:
+                idx = [num_consts + i for i, b in enumerate(carry) if b and not ins[num_consts + i]]
+                args, dims = _broadcast(batching, axis_data, args, dims, idx)
+            return orig(axis_data, args, dims, reverse, length, jaxpr, num_consts, num_carry, **kw)
 
     return rule
 
@@ -224,19 +247,20 @@ def _wrap_while(orig, batching):
         call = (cond_nconsts, cond_jaxpr, body_nconsts, body_jaxpr)
         if not _on():
             return orig(axis_data, args, dims, *call, **kw)
-        ins = [d is not None for d in dims]
-        carry = _while_carry(cond_jaxpr, body_jaxpr, ins, cond_nconsts, body_nconsts)
-        if _check():
-            _, ref = orig(axis_data, args, dims, *call, **kw)
-            want = [d is not None for d in ref]
-            if carry is not None and carry != want:
-                raise AssertionError(f"while carry batching predicted {carry}, JAX's fixed point {want}")
-        # JAX puts the batch axis of the carry after the predicate's: only a scalar predicate keeps it at 0
-        if carry is not None and not cond_jaxpr.out_avals[0].shape:
-            k = cond_nconsts + body_nconsts
-            idx = [k + i for i, b in enumerate(carry) if b and not ins[k + i]]
-            args, dims = _broadcast(batching, axis_data, args, dims, idx)
-        return orig(axis_data, args, dims, *call, **kw)
+        with _memo():
+            ins = [d is not None for d in dims]
+            carry = _while_carry(cond_jaxpr, body_jaxpr, ins, cond_nconsts, body_nconsts)
+            if _check():
+                _, ref = orig(axis_data, args, dims, *call, **kw)
+                want = [d is not None for d in ref]
+                if carry is not None and carry != want:
+                    raise AssertionError(f"while carry batching predicted {carry}, JAX's fixed point {want}")
+            # JAX puts the carry's batch axis after the predicate's: only a scalar predicate keeps it at 0
+            if carry is not None and not cond_jaxpr.out_avals[0].shape:
+                k = cond_nconsts + body_nconsts
+                idx = [k + i for i, b in enumerate(carry) if b and not ins[k + i]]
+                args, dims = _broadcast(batching, axis_data, args, dims, idx)
+            return orig(axis_data, args, dims, *call, **kw)
 
     return rule
 
