@@ -39,7 +39,7 @@ def _jobs(args) -> int:
 def _reproduce_jobs(args) -> int:
     """How many worker processes a ``reproduce`` runs side by side (1: the experiments run in this process)."""
     several = args.only is None or len({w.strip() for w in args.only.split(",") if w.strip()}) > 1
-    return _jobs(args) if several and not args.distributed and _jobs(args) > 1 else 1
+    return max(1, _jobs(args)) if several and not args.distributed else 1
 
 
 def _compile_cache(enabled: bool) -> None:

@@ -29,7 +29,6 @@ from typing import Iterator, Sequence
 
 _state = threading.local()
 _installed = False
-_UNKNOWN = None  # "cannot tell": the loop goes to JAX's rule as it is
 
 # primitives whose batching depends on a named axis (a reduction over the mapped axis is unbatched)
 _NAMED = {"psum", "pmax", "pmin", "ppermute", "pbroadcast", "all_gather", "all_to_all", "axis_index",
@@ -88,6 +87,12 @@ def out_batched(jaxpr, in_batched: Sequence[bool]) -> list[bool] | None:
     return out
 
 
+# primitives that call one program on their operands: batched exactly as that program is
+_CALLS = {"jit": "jaxpr", "pjit": "jaxpr", "remat": "jaxpr", "checkpoint": "jaxpr", "closed_call": "call_jaxpr",
+          "core_call": "call_jaxpr", "custom_jvp_call": "call_jaxpr", "custom_vjp_call": "call_jaxpr",
+          "custom_vjp_call_jaxpr": "fun_jaxpr"}
+
+
 def _has_program(params: dict) -> bool:
     from jax._src import core
 
@@ -100,29 +105,26 @@ def _has_program(params: dict) -> bool:
 def _eqn_out_batched(eqn, ins: list[bool]) -> list[bool] | None:
     name, p, n_out = eqn.primitive.name, eqn.params, len(eqn.outvars)
     if name in _NAMED or "axis_name" in p:
-        return _UNKNOWN
+        return None
     if name == "scan":
         return _scan_out(p["jaxpr"], ins, p["num_consts"], p["num_carry"])[1]
     if name == "while":
-        carry = _while_carry(p["cond_jaxpr"], p["body_jaxpr"], ins, p["cond_nconsts"], p["body_nconsts"])
-        return carry
+        return _while_carry(p["cond_jaxpr"], p["body_jaxpr"], ins, p["cond_nconsts"], p["body_nconsts"])
     if name == "cond":
         if ins[0]:
             return [True] * n_out  # a per-seed branch index: JAX selects between all branches' outputs
         outs = [out_batched(br, ins[1:]) for br in p["branches"]]
         if any(o is None for o in outs):
-            return _UNKNOWN
+            return None
         return [any(col) for col in zip(*outs)]
     if name == "custom_linear_solve":
         return _linear_solve_out(p["const_lengths"], p["jaxprs"], ins)
     if name == "optimization_barrier":
         return list(ins)
-    for key in ("jaxpr", "call_jaxpr", "fun_jaxpr"):  # jit, closed_call, remat, custom_jvp_call, custom_vjp_call
-        if key in p and name in ("jit", "pjit", "closed_call", "core_call", "remat", "checkpoint",
-                                 "custom_jvp_call", "custom_vjp_call", "custom_vjp_call_jaxpr"):
-            return out_batched(p[key], ins)
+    if name in _CALLS and _CALLS[name] in p:
+        return out_batched(p[_CALLS[name]], ins)
     if _has_program(p):
-        return _UNKNOWN
+        return None
     return [True] * n_out  # a plain primitive: batched as soon as one operand is
 
 
@@ -222,45 +224,35 @@ def _broadcast(batching, axis_data, args, dims, idx: list[int]):
     return args, dims
 
 
-def _wrap_scan(orig, batching):
-    def rule(axis_data, args, dims, reverse, length, jaxpr, num_consts, num_carry, **kw):
+def _scan_carry(ins, *, jaxpr, num_consts, num_carry, **_):
+    """(index of the scan's first carried operand, its carry after the fixed point or None)."""
+    return num_consts, _scan_out(jaxpr, ins, num_consts, num_carry)[0]
+
+
+def _while_loop_carry(ins, *, cond_jaxpr, body_jaxpr, cond_nconsts, body_nconsts, **_):
+    """The same for a while loop. JAX puts the carry's batch axis after the predicate's: only a scalar predicate
+    keeps it at 0, where the broadcast puts it."""
+    carry = _while_carry(cond_jaxpr, body_jaxpr, ins, cond_nconsts, body_nconsts)
+    return cond_nconsts + body_nconsts, carry if not cond_jaxpr.out_avals[0].shape else None
+
+
+def _wrap(orig, batching, predict):
+    """JAX's batching rule ``orig`` of a loop, given beforehand the carry that ``predict`` reads off the program."""
+    def rule(axis_data, args, dims, **params):
         if not _on():
-            return orig(axis_data, args, dims, reverse, length, jaxpr, num_consts, num_carry, **kw)
+            return orig(axis_data, args, dims, **params)
         with _memo():  # for the whole batching: the loops nested in this body are read from it
             ins = [d is not None for d in dims]
-            carry, _ = _scan_out(jaxpr, ins, num_consts, num_carry)
-            if _check():
-                _, ref = orig(axis_data, args, dims, reverse, length, jaxpr, num_consts, num_carry, **kw)
-                want = [d is not None for d in ref[:num_carry]]
-                if carry is not None and carry != want:
+            first, carry = predict(ins, **params)
+            if _check() and carry is not None:
+                _, ref = orig(axis_data, args, dims, **params)
+                want = [d is not None for d in ref[:len(carry)]]
+                if carry != want:
                     raise AssertionError(f"carry batching predicted {carry}, JAX's fixed point {want}")
             if carry is not None:
-                idx = [num_consts + i for i, b in enumerate(carry) if b and not ins[num_consts + i]]
+                idx = [first + i for i, b in enumerate(carry) if b and not ins[first + i]]
                 args, dims = _broadcast(batching, axis_data, args, dims, idx)
-            return orig(axis_data, args, dims, reverse, length, jaxpr, num_consts, num_carry, **kw)
-
-    return rule
-
-
-def _wrap_while(orig, batching):
-    def rule(axis_data, args, dims, cond_nconsts, cond_jaxpr, body_nconsts, body_jaxpr, **kw):
-        call = (cond_nconsts, cond_jaxpr, body_nconsts, body_jaxpr)
-        if not _on():
-            return orig(axis_data, args, dims, *call, **kw)
-        with _memo():
-            ins = [d is not None for d in dims]
-            carry = _while_carry(cond_jaxpr, body_jaxpr, ins, cond_nconsts, body_nconsts)
-            if _check():
-                _, ref = orig(axis_data, args, dims, *call, **kw)
-                want = [d is not None for d in ref]
-                if carry is not None and carry != want:
-                    raise AssertionError(f"while carry batching predicted {carry}, JAX's fixed point {want}")
-            # JAX puts the carry's batch axis after the predicate's: only a scalar predicate keeps it at 0
-            if carry is not None and not cond_jaxpr.out_avals[0].shape:
-                k = cond_nconsts + body_nconsts
-                idx = [k + i for i, b in enumerate(carry) if b and not ins[k + i]]
-                args, dims = _broadcast(batching, axis_data, args, dims, idx)
-            return orig(axis_data, args, dims, *call, **kw)
+            return orig(axis_data, args, dims, **params)
 
     return rule
 
@@ -285,8 +277,8 @@ def install() -> bool:
                 return False
         if list(inspect.signature(batching.broadcast).parameters)[:4] != ["x", "sz", "axis", "mesh_axis"]:
             return False
-        batching.fancy_primitive_batchers[loops.scan_p] = _wrap_scan(scan_rule, batching)
-        batching.fancy_primitive_batchers[loops.while_p] = _wrap_while(while_rule, batching)
+        batching.fancy_primitive_batchers[loops.scan_p] = _wrap(scan_rule, batching, _scan_carry)
+        batching.fancy_primitive_batchers[loops.while_p] = _wrap(while_rule, batching, _while_loop_carry)
     except (ImportError, AttributeError, KeyError, TypeError, ValueError):
         return False
     _installed = True
