@@ -7,7 +7,6 @@ table takes seconds); ``test_console_script_one_line`` checks the same contract 
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import subprocess
@@ -17,26 +16,10 @@ import pytest
 
 from jaxdip import cli
 from jaxdip.outdir import MARKER
+from snapshots import snapshot
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BIG = "1" + "0" * 22  # beyond int64
-
-
-def snapshot(root) -> dict:
-    """Every path under ``root`` with its kind and content hash (and link target)."""
-    out = {}
-    for dirpath, dirnames, filenames in os.walk(root):
-        for name in dirnames + filenames:
-            p = os.path.join(dirpath, name)
-            rel = os.path.relpath(p, root)
-            if os.path.islink(p):
-                out[rel] = ("link", os.readlink(p))
-            elif os.path.isdir(p):
-                out[rel] = ("dir", oct(os.stat(p).st_mode))
-            else:
-                with open(p, "rb") as fh:
-                    out[rel] = ("file", hashlib.sha256(fh.read()).hexdigest(), oct(os.stat(p).st_mode))
-    return out
 
 
 def _marker(folder, owner, files):
