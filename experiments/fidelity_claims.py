@@ -177,7 +177,7 @@ CLAIMS: list[Claim] = [
           "24400", exp="dip-cpx-ldf", keys="dip-cpx-ldf (gamma_criterion)", checks=(_GAMMA,),
           notes="The bound itself: tests/test_theory_mhe.py::test_prop_1_4_3_bound_1000_seeds."),
     Claim("thesis:prop-1.5.2", "§1.5.2, Proposition 1.5.2", "Stability of the subspace (SCPX) estimates.",
-          "a proposition", test="tests/test_theory_mhe.py::test_prop_1_4_2_cpx_and_1_5_1_scpx"),
+          "a proposition", test="tests/test_propositions_mhe.py::test_prop_1_5_2_subspace_bound"),
     Claim("thesis:fig-1.1-norm", "§1.6, Fig. 1.1 and 'Both proximal point methods had smaller estimation error "
           "than the EKF'", "Over 50 Lorenz trials (h = 0.001, 20 time units, sigma_eta 0.1, sigma_eps 5) CPX "
           "(gamma 0.5) and SCPX (gamma 50) have a smaller mean norm error e than an EKF with the true noise.",

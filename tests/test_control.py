@@ -8,9 +8,7 @@ import pytest
 
 from jaxdip.control import care, dare, dlqr, lqr
 from jaxdip.control.power_series import power_series_law, ps_params, third_order_term
-from jaxdip.control.projection import (
-    projected_closed_loop, projection, relaxed_closed_form, relaxed_discrete, state_weight,
-)
+from jaxdip.control.projection import projected_closed_loop
 from jaxdip.control.spd import P_v, P_Vs, gram_schmidt_basis, householder_basis, surface_normal
 from jaxdip.plants import dip, examples2d
 from jaxdip.sim import linearize, zoh
@@ -134,60 +132,6 @@ def test_spd_constructions():
     # v = -e1 is the degenerate case of the Householder pair
     U = np.asarray(householder_basis(-np.eye(3)[0]))
     np.testing.assert_allclose(U[:, 0], -np.eye(3)[0], atol=1e-15)
-
-
-def test_relaxed_projection_linear_closed_form():
-    """(2.16) simulated step by step equals the derived closed form (projection.py docstring) to 1e-10."""
-    plant = examples2d.linear()
-    prm = plant.default_params()
-    A, B = np.asarray(prm.A), np.asarray(prm.B).reshape(2, 1)
-    P = np.asarray(P_v(jnp.array([-0.9975, -0.07]), 1e6))
-    x = np.array([2.0, 1.0])
-    xs, gammas = [], []
-    for _ in range(25):
-        g = float(state_weight(0.45, 3.0, x))
-        u = np.asarray(relaxed_discrete(P, A @ x, B, x, g))
-        gammas.append(g)
-        x = A @ x + B @ u
-        xs.append(x)
-    closed = np.asarray(relaxed_closed_form(A, B, P, np.array([2.0, 1.0]), np.array(gammas)))
-    np.testing.assert_allclose(closed, np.array(xs), rtol=0, atol=1e-10)
-
-
-def test_prop_2_3_3_on_the_nonlinear_example():
-    """Prop. 2.3.3 on §2.7.2: with alpha the projection's contraction (Def. 2.3.2) over a region, every state
-    there whose weight gamma_k exceeds (1 - sqrt(alpha))/sqrt(alpha) has ||x_{k+1}||_P < ||x_k||_P."""
-    plant = examples2d.nonlinear()
-    prm = plant.default_params()
-    P = np.asarray(P_v(jnp.array([0.9950, 0.1003]), 1e6))
-    step = jax.jit(lambda x, u: plant.step(prm, x, u))
-    grid = np.stack(np.meshgrid(np.linspace(-2, 2, 61), np.linspace(-2, 2, 61)), -1).reshape(-1, 2)
-    grid = grid[np.linalg.norm(grid, axis=1) > 1e-3]
-
-    def fg(x):
-        fx = np.asarray(step(jnp.asarray(x), jnp.zeros(1)))
-        gx = np.asarray(step(jnp.asarray(x), jnp.ones(1))) - fx
-        return fx, gx
-
-    pn = lambda z: float(z @ P @ z)
-    ratios = []
-    for x in grid:
-        fx, gx = fg(x)
-        xp = fx + gx * np.asarray(projection(P, fx, gx))[0]
-        ratios.append(pn(xp) / pn(x))
-    alpha = 1.0 - max(ratios)
-    assert 0 < alpha < 1, alpha
-    bound = (1 - np.sqrt(alpha)) / np.sqrt(alpha)
-    checked = 0
-    for x in grid:
-        g = float(state_weight(0.1, 2.0, x))
-        if g <= bound:
-            continue
-        fx, gx = fg(x)
-        xn = fx + gx * np.asarray(relaxed_discrete(P, fx, gx, x, g))[0]
-        assert pn(xn) < pn(x)
-        checked += 1
-    assert checked > 100
 
 
 def test_linear_example_thesis_v_is_stabilising():
