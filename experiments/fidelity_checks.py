@@ -26,9 +26,17 @@ def get(results: dict, path: str):
 
 
 def _interval(results: dict, path: str, explicit: str | None):
-    try:
-        ci = get(results, explicit or f"{path}_ci95")
-    except KeyError:
+    """The 95% interval of the value at ``path``: at ``explicit``, else the sibling ``<path>_ci95``, else, for a
+    per-state value ``a/name/state``, at ``a/name_ci95/state`` (how the experiments store per-state intervals)."""
+    head, _, last = path.rpartition("/")
+    candidates = [explicit] if explicit else [f"{path}_ci95"] + ([f"{head}_ci95/{last}"] if head else [])
+    for c in candidates:
+        try:
+            ci = get(results, c)
+            break
+        except KeyError:
+            continue
+    else:
         return None
     if (isinstance(ci, list) and len(ci) == 2 and all(isinstance(x, (int, float)) for x in ci)
             and not any(math.isnan(x) for x in ci)):

@@ -164,12 +164,16 @@ def group_rows(rows_by_id: dict[str, list[dict]], known) -> tuple[dict[str, dict
     return out, sorted(unknown)
 
 
-def parts_status(parts: dict[str, list[dict]], claim: FC.Claim | None = None) -> Status:
+def parts_status(parts: dict[str, list[dict]], claim: FC.Claim | None = None,
+                 default: Status | None = None) -> Status:
     """A claim scored in parts holds only if every part holds under some reading; it is as weak as its weakest
-    part."""
-    if len(parts) == 1:
+    part. ``default``: the default run's checks, one more part where the claim's own id has no rows (its rows
+    then score other statements of it only)."""
+    if len(parts) == 1 and default is None:
         return readings_status(next(iter(parts.values())), claim)
     sts = {pid: readings_status(rows) for pid, rows in parts.items()}
+    if default is not None:
+        sts[f"{claim.id}-default-run"] = default
     held = [pid for pid, st in sts.items() if st.kind in REPRODUCED]
     n_rows = sum(len([r for r in rows if r["holds"] != "n/a"]) for rows in parts.values())
     if len(held) == len(sts):
@@ -186,7 +190,10 @@ def parts_status(parts: dict[str, list[dict]], claim: FC.Claim | None = None) ->
 def claim_status(claim: FC.Claim, rows, runs: dict[str, dict], quick: bool) -> Status:
     """``rows``: a list of rows of the claim, or {row id: rows} for a claim scored in parts."""
     if isinstance(rows, dict):
-        return parts_status(rows, claim) if rows else claim_status(claim, [], runs, quick)
+        if not rows:
+            return claim_status(claim, [], runs, quick)
+        default = check_status(claim, runs, quick) if claim.checks and claim.id not in rows else None
+        return parts_status(rows, claim, default)
     if rows:
         return readings_status(rows, claim)
     if claim.readings:
@@ -216,7 +223,8 @@ def load_rows(folder: str) -> tuple[dict[str, list[dict]], list[str]]:
             missing = [k for k in ROW_KEYS if k not in r]
             if missing or r["holds"] not in HOLDS:
                 raise ValueError(f"{name}: row {i}: missing {missing} or holds {r.get('holds')!r} not in {HOLDS}")
-            out.setdefault(r["claim"], []).append({**FS.annotate(r), "file": name})
+            a = FS.annotate(r)
+            out.setdefault(a["claim"], []).append({**a, "file": name})
     return out, files
 
 

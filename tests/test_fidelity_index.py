@@ -270,3 +270,11 @@ def test_no_default_check_is_reproduced_while_its_interval_straddles_its_thresho
                 cur = cur.setdefault(st, {})
             cur[ci_path[-1]] = [k.value - 1.0, k.value + 1.0]
             assert FI.evaluate(k, res, 10)[0] == "undecided", (c.id, k.key)
+
+
+def test_a_per_state_interval_is_found_beside_its_dict():
+    res = {"kf": {"t": {"x": 4.4}, "t_ci95": {"x": [4.2, 4.6]}}, "dm": {"t": {"x": 0.5}, "t_ci95": {"x": [0.4, 0.6]}}}
+    k = FC.Check("e", "ratio_ge", "kf/t/x", "l", value=5.0, other="dm/t/x")
+    h, text = FI.evaluate(k, res)
+    assert h == "yes" and "[7, 11.5]" in text  # [4.2 / 0.6, 4.6 / 0.4]
+    assert FI.evaluate(FC.Check("e", "ratio_ge", "kf/t/x", "l", value=8.0, other="dm/t/x"), res)[0] == "undecided"
