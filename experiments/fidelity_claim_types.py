@@ -121,6 +121,7 @@ class Choice:
     support: str
     where: str
     without: str
+    key: str | None = None  # path of the number without it in the run's results, shown beside ``without``
 
     def __post_init__(self):
         if self.support not in SUPPORT:

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import fidelity_claims as FC  # noqa: E402
 import fidelity_support as FS  # noqa: E402
-from fidelity_checks import combine, evaluate, get, run_size  # noqa: E402,F401  (the generator's API)
+from fidelity_checks import combine, evaluate, fmt, get, run_size  # noqa: E402,F401  (the generator's API)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 HOLDS = ("yes", "no", "undecided", "n/a")
@@ -83,13 +83,23 @@ def check_status(claim: FC.Claim, runs: dict[str, dict], quick: bool) -> Status:
         texts.append(f"{t} (**{h}**)")
     v = combine(verdicts)
     ours = "; ".join(texts) + "".join(
-        f"; choice: {c.name} ({c.support}: {c.where}); without it: {c.without}" for c in claim.choices)
+        f"; choice: {c.name} ({c.support}: {c.where}); without it: {c.without}" + _run_value(m, c.key)
+        for c in claim.choices)
     command += f" ({m['seeds']} seeds)"
     if v != "yes":
         return Status(("not reproduced" if v == "no" else "undecided") + " (default config)",
                       "not reproduced" if v == "no" else "undecided", ours, command)
     kind = weakest(["printed"] + [c.support for c in claim.choices])
     return held_status(claim, kind, "default config", ours, command)
+
+
+def _run_value(m: dict, key: str | None) -> str:
+    if key is None:
+        return ""
+    try:
+        return f" (this run: {fmt(get(m['results'], key))})"
+    except KeyError:
+        return f" (this run: key {key} absent)"
 
 
 def weakest(supports: list[str]) -> str:
@@ -279,7 +289,7 @@ def render(rows_by_claim: dict[str, list[dict]], files: list[str], runs: dict[st
         "",
         "Documents: " + "; ".join(f"**{k}** = {v}" for k, v in FC.DOCUMENTS.items()) + ".",
         "",
-        "Summary: " + ", ".join(f"{v} {KIND_LABELS[k]}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
+        "Summary: " + ", ".join(f"{counts[k]} {label}" for k, label in KIND_LABELS.items() if counts.get(k))
         + f" ({len(claims)} claims; {len(FC.QUALITATIVE)} figures qualitative, not scored).",
         "",
     ]
@@ -328,17 +338,25 @@ def render(rows_by_claim: dict[str, list[dict]], files: list[str], runs: dict[st
 
 
 def study_readings(grouped: dict[str, dict[str, list[dict]]]) -> list[str]:
-    """One consistent reading per study first (``FS.STUDIES``): how every claim of the study fares under it,
-    then which per-claim readings exclude each other."""
+    """One consistent reading per study first (``FS.STUDIES``): how every claim of the study fares under it;
+    then every reading against every claim, which shows the readings that exclude each other."""
     L = []
     for st in FS.STUDIES:
+        rows = {cid: {r["reading"]: r for prs in grouped.get(cid, {}).values() for r in prs} for cid in st.claims}
         L += [f"## {st.title}: one reading for all its claims", "", st.text, "",
               "| claim | holds | ours |", "|---|---|---|"]
-        for cid in st.claims:
-            rows = [r for prs in grouped.get(cid, {}).values() for r in prs if r["reading"] == st.reading]
-            for r in rows:
-                L.append("| " + " | ".join(_cell(x) for x in (f"`{cid}`", f"**{r['holds']}**", r["ours"])) + " |")
-        L += ["", st.exclusive, ""]
+        L += ["| " + " | ".join(_cell(x) for x in (f"`{cid}`", f"**{rows[cid][st.reading]['holds']}**",
+                                                  rows[cid][st.reading]["ours"])) + " |"
+              for cid in st.claims if st.reading in rows[cid]]
+        readings = list(dict.fromkeys(r for cid in st.claims for r in rows[cid]))
+        L += ["", st.exclusive, "", "| reading | text | " + " | ".join(f"`{c}`" for c in st.claims) + " |",
+              "|---|---|" + "---|" * len(st.claims)]
+        for name in readings:
+            first = next(rows[c][name] for c in st.claims if name in rows[c])
+            L.append("| " + " | ".join(_cell(x) for x in (
+                name, first["support"], *(rows[c][name]["holds"] if name in rows[c] else "" for c in st.claims)))
+                + " |")
+        L.append("")
     return L
 
 

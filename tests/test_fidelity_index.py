@@ -229,6 +229,8 @@ def test_a_row_whose_interval_straddles_its_threshold_is_undecided():
             "LQR fell 0.42 [0.328, 0.518] (42/100); LQR + extra up 0.96 [0.902, 0.984] (96/100)")
     a = FI.FS.annotate(r)
     assert a["holds"] == "undecided" and a["holds_study"] == "yes" and a["support"] == "unprinted"
+    # half-width 0.058 on the threshold's side, distance 0.01: 100 (0.058 / 0.01)^2 = 3364 seeds
+    assert "about 3364 samples would decide it (now 100)" in a["holds_why"]
     r["ours"] = "LQR fell 0.42 [0.328, 0.518] (42/100); LQR + extra up 1 [0.963, 1] (100/100)"
     assert FI.FS.annotate(r)["holds"] == "yes"
     r["ours"] = "LQR fell 0.05 [0.01, 0.08] (5/100); LQR + extra up 1 [0.963, 1] (100/100)"
