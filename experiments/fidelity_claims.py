@@ -63,7 +63,7 @@ _GAMMA_OSC = (
            "theta_dot RMS error (rad/s) of the gamma sweep: gamma 1 below gamma 1e5"),
 )
 
-CLAIMS: list[Claim] = [
+_CLAIMS_DIP: list[Claim] = [
     # ---------------------------------------------------------------------------------------------- paper
     Claim("paper:table-1", "§5, Table 1 (6.5 s of stabilisation, laboratory DIP)",
           "Power-series control fed by CPX (gamma 150) keeps the DIP closer to upright and with less variance in "
@@ -275,16 +275,35 @@ CLAIMS: list[Claim] = [
           "no number", not_attempted="no scored metric: implemented in jaxdip.immune (docs/immune.md) without a "
                                      "results key to compare"),
 ]
-# Stumfoll and Aranovskiy et al. (experiments/fidelity_claims_twip.py); the numbered propositions and theorems
-# of the documents, where that module exists
-CLAIMS += list(_twip.CLAIMS)
-try:
-    import fidelity_claims_propositions as _propositions
-except ModuleNotFoundError as e:  # only the module's own absence; an error inside it is raised
-    if e.name != "fidelity_claims_propositions":
-        raise
-else:
-    CLAIMS += list(_propositions.CLAIMS)
+# Stumfoll and Aranovskiy et al. are in experiments/fidelity_claims_twip.py; the numbered propositions and
+# theorems of the documents in experiments/fidelity_claims_propositions.py, where that module exists.
+_CLAIMS_BASE = _CLAIMS_DIP + list(_twip.CLAIMS)
+
+
+def _propositions() -> list[Claim]:
+    try:
+        import fidelity_claims_propositions as mod
+    except ModuleNotFoundError as e:  # only the module's own absence; an error inside it is raised
+        if e.name != "fidelity_claims_propositions":
+            raise
+        return []
+    return list(mod.CLAIMS)
+
+
+def claims() -> list[Claim]:
+    """Every scored claim: ``CLAIMS``."""
+    if "CLAIMS" not in globals():
+        globals()["CLAIMS"] = _CLAIMS_BASE + _propositions()
+    return globals()["CLAIMS"]
+
+
+def __getattr__(name: str):
+    # CLAIMS is assembled on first use, not at import, so that the propositions module may import Claim and
+    # Check from here (at import, a circular import would see that module half-initialised, without its CLAIMS)
+    if name == "CLAIMS":
+        return claims()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 QUALITATIVE: list[Qualitative] = [
     Qualitative("paper:fig-1", "diagram and photograph of the DIP"),
@@ -329,7 +348,7 @@ QUALITATIVE: list[Qualitative] = [
 
 def by_id() -> dict[str, Claim]:
     out: dict[str, Claim] = {}
-    for c in CLAIMS:
+    for c in claims():
         if c.id in out:
             raise ValueError(f"claim id {c.id} twice")
         out[c.id] = c

@@ -5,6 +5,7 @@ import importlib.util
 import json
 import os
 import re
+import subprocess
 import sys
 
 import pytest
@@ -280,3 +281,16 @@ def test_a_per_state_interval_is_found_beside_its_dict():
     h, text = FI.evaluate(k, res)
     assert h == "yes" and "[7, 11.5]" in text  # [4.2 / 0.6, 4.6 / 0.4]
     assert FI.evaluate(FC.Check("e", "ratio_ge", "kf/t/x", "l", value=8.0, other="dm/t/x"), res)[0] == "undecided"
+
+
+@pytest.mark.parametrize("first", ["fidelity_claims_propositions", "fidelity_claims"])
+def test_a_propositions_module_is_appended_whichever_is_imported_first(tmp_path, first):
+    # the propositions module imports Claim from the inventory, which appends its CLAIMS: a circular import that
+    # must work in both orders (a fresh interpreter, so the inventory already loaded here is not reused)
+    (tmp_path / "fidelity_claims_propositions.py").write_text(
+        "from fidelity_claims import Claim\n"
+        "CLAIMS = (Claim('thesis:prop-9.9.9', 'w', 'c', 'd', test='tests/x.py::t'),)\n")
+    code = (f"import sys; sys.path[:0] = [{str(tmp_path)!r}, {EXP!r}]; import {first}; import fidelity_claims as FC; "
+            "ids = [c.id for c in FC.CLAIMS]; assert ids[-1] == 'thesis:prop-9.9.9', ids[-3:]; "
+            "assert 'thesis:prop-9.9.9' in FC.by_id() and len(ids) == len(set(ids))")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=tmp_path)
