@@ -326,8 +326,8 @@ def render(rows_by_claim: dict[str, list[dict]], files: list[str], runs: dict[st
             L += ["| reading | text | what | ours | document | holds | command |", "|---|---|---|---|---|---|---|"]
             L += ["| " + " | ".join(_cell(x) for x in (
                 r["reading"], f"{r.get('support', 'unclassified')}: {r.get('support_where', '')}", r["what"], r["ours"], r["document"],
-                f"**{r['holds']}**" + (f" (study: {r['holds_study']}; {r['holds_why']})" if "holds_study" in r
-                                       else ""), f"`{r['command']}`")) + " |" for r in prs]
+                f"**{r['holds']}**" + (f" (study: {r['holds_study']}" + (f"; {r['holds_why']}" if r["holds_why"]
+                                                                      else "") + ")" if "holds_study" in r else ""), f"`{r['command']}`")) + " |" for r in prs]
             L.append("")
     if unknown:
         L += ["## Rows whose claim id the inventory does not know", ""]

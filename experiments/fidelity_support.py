@@ -33,8 +33,9 @@ class Rule:
 
 @dataclass(frozen=True)
 class RowThreshold:
-    """Every ``value [lo, hi]`` that ``pattern`` finds in a row's ``ours`` (groups: value, lo, hi) must lie on
-    the claim's side: ``ge``/``le`` ``value`` on the whole interval, or ``within`` (``value``, ``upper``)."""
+    """Every ``value [lo, hi]`` that ``pattern`` finds in a row's ``ours`` (groups: value, lo, hi; or the value
+    alone where the row prints no interval) must lie on the claim's side: ``ge``/``le`` ``value`` on the whole
+    interval, or ``within`` (``value``, ``upper``)."""
 
     claim: str
     pattern: str
@@ -167,6 +168,12 @@ THRESHOLDS: tuple[RowThreshold, ...] = (
     RowThreshold("stumfoll:claim-8.1.1-25pct", r"(?:x_dot|phi_dot) " + _CI, "within", 0.125,
                  "largest relative error between 12.5% and 50% ('up to 25%')", upper=0.5,
                  readings=r"peak_over_peak"),
+    # "an order of magnitude" / "two orders of magnitude" as numbers, within a factor of two (the rows print
+    # the mean ratio as a point)
+    RowThreshold("stumfoll:fig-8.6", r"^mean (\S+) \(", "within", 5.0, "mean ratio about 10 (5 to 20)",
+                 upper=20.0),
+    RowThreshold("stumfoll:fig-8.11", r"^(\S+) \(x_dot", "within", 50.0, "ratio about 100 (50 to 200)",
+                 upper=200.0),
 )
 
 # Rows of one claim id that measure different statements of the claim (not alternative readings of one): the
@@ -214,7 +221,8 @@ def threshold_verdict(row: dict) -> tuple[str, str] | None:
         if not _applies(t.claim, row["claim"]) or (t.readings and not re.search(t.readings, row["reading"])):
             continue
         for m in re.finditer(t.pattern, row["ours"]):
-            v, lo, hi = map(float, m.groups())
+            g = [float(x) for x in m.groups()]
+            v, lo, hi = g if len(g) == 3 else (g[0], g[0], g[0])
             h = _interval_side(v, lo, hi, t)
             verdicts.append(h)
             if h == "undecided" and t.rule != "within":
@@ -222,7 +230,7 @@ def threshold_verdict(row: dict) -> tuple[str, str] | None:
                 n = re.match(r" \((\d+)/(\d+)\)", row["ours"][m.end():])
                 why.append(f"{t.label}: {run_size(int(n.group(2)) if n else None, v, lo, hi, t.value)}")
             elif h != "yes":
-                why.append(f"{t.label}: [{lo:.4g}, {hi:.4g}] {h}")
+                why.append(f"{t.label}: " + (f"[{lo:.4g}, {hi:.4g}]" if len(g) == 3 else f"{v:.4g}") + f" {h}")
     if not verdicts:
         return None
     holds = "yes" if all(v == "yes" for v in verdicts) else "no" if "no" in verdicts else "undecided"
