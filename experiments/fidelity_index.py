@@ -193,8 +193,10 @@ def parts_status(parts: dict[str, list[dict]], claim: FC.Claim | None = None,
                            "see Readings")
     kind = "undecided" if all(st.kind in ("undecided", "pending") for st in sts.values()) else "not reproduced"
     part_names = ", ".join(pid.split(":")[1] for pid in held) or "none"
+    ours = f"default run ({default.status}): {default.ours}" if default is not None else ""
     return Status(f"not reproduced: {len(held)} of {len(sts)} parts hold under some reading ({part_names}); "
-                  f"{n_rows} readings rows tried (listed below)", kind, "", "see Readings")
+                  f"{n_rows} readings rows tried (listed below)", kind, ours,
+                  "see Readings" + (f"; {default.command}" if default is not None else ""))
 
 
 def claim_status(claim: FC.Claim, rows, runs: dict[str, dict], quick: bool) -> Status:
