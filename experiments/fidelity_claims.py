@@ -17,101 +17,20 @@ A claim's status is decided in one of these ways (in this order of precedence):
 - ``input``: a table of parameters the models use; nothing to reproduce.
 - ``not_attempted``: why not.
 
+A claim that holds is classed by how far it departs from the text (``experiments/fidelity_index.py`` states the
+rules at the top of ``docs/fidelity.md``): ``choices`` name the modelling choices a default-config verdict depends
+on, each with its support and the number without it; ``ordering`` marks a claim checked only as an ordering on
+a metric we chose; readings rows get their support from ``experiments/fidelity_support.py``.
+
 Claim ids: ``<doc>:<kind>-<number>[<suffix>]`` with the document's own numbering; kind ``claim`` plus a slug for
 a number in the prose. Tolerances are ours (the documents state none); each ``Check`` says its rule.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
-DOCUMENTS = {
-    "paper": "Bernstein, King, Tran: A moving horizon state estimator for real-time stabilization of a DIP",
-    "thesis": "King: Nonlinear feedback controllers and state estimators (PhD thesis)",
-    "stumfoll": "Stumfoll: Discrete-time neural network based state observer ... (MS thesis)",
-    "aranovskiy": "Aranovskiy et al.: Bias propagation and estimation in homogeneous differentiators",
-}
-RULES = ("close", "in_ci", "below", "true", "false", "ge", "le", "ratio_ge")
-
-
-@dataclass(frozen=True)
-class Check:
-    """One comparison of a run's result with the document. ``key`` (and ``other``) are paths into
-    ``metrics.json["results"]`` with ``/`` between levels (a list level takes an integer index).
-
-    rule: ``close`` |ours - value| <= tol |value| (``other``'s value in place of ``value`` when given); ``in_ci`` value inside ours' 95% interval; ``below`` ours'
-    interval entirely below ``other``'s (entirely above: fails; overlapping: undecided; a value without interval
-    counts as a point); ``true``/``false`` a boolean result; ``ge``/``le`` ours >= / <= value; ``ratio_ge``
-    ours / other >= value.
-    """
-
-    exp: str
-    rule: str
-    key: str
-    label: str
-    value: float | None = None
-    other: str | None = None
-    tol: float | None = None
-    ci: str | None = None  # path of key's interval when it is not the sibling ``<key>_ci95``
-    other_ci: str | None = None
-
-    def __post_init__(self):
-        if self.rule not in RULES:
-            raise ValueError(f"{self.key}: unknown rule {self.rule!r}")
-        if self.rule in ("below", "ratio_ge") and self.other is None:
-            raise ValueError(f"{self.key}: rule {self.rule} needs other")
-        if self.rule == "close" and (self.value is None) == (self.other is None):
-            raise ValueError(f"{self.key}: rule close needs value or other")
-        if self.rule in ("in_ci", "ge", "le", "ratio_ge") and self.value is None:
-            raise ValueError(f"{self.key}: rule {self.rule} needs value")
-        if self.rule == "close" and self.tol is None:
-            raise ValueError(f"{self.key}: rule close needs tol")
-
-
-@dataclass(frozen=True)
-class Claim:
-    id: str
-    where: str  # section and the document's own words that locate it
-    claim: str  # what the document claims, in our words, with its numbers
-    document: str  # the document's number(s) as text
-    exp: str | None = None  # the jaxdip experiment that addresses it
-    keys: str = ""  # config keys / readings that address it
-    checks: tuple[Check, ...] = ()
-    readings: bool = False
-    test: str | None = None
-    input: bool = False
-    not_attempted: str | None = None
-    notes: str = ""
-
-    @property
-    def doc(self) -> str:
-        return self.id.split(":", 1)[0]
-
-    def __post_init__(self):
-        doc, _, rest = self.id.partition(":")
-        if doc not in DOCUMENTS or not rest or "-" not in rest:
-            raise ValueError(f"{self.id}: not <doc>:<kind>-<number>")
-        ways = [bool(self.readings or self.checks), self.test is not None, self.input,
-                self.not_attempted is not None]
-        if sum(ways) != 1:
-            raise ValueError(f"{self.id}: give exactly one of readings/checks, test, input, not_attempted")
-        if any(c.exp != self.exp for c in self.checks):
-            raise ValueError(f"{self.id}: a check names another experiment than the claim's")
-
-
-@dataclass(frozen=True)
-class Qualitative:
-    id: str
-    what: str
-    doc: str = field(init=False)
-
-    def __post_init__(self):
-        object.__setattr__(self, "doc", self.id.split(":", 1)[0])
-
-
-def _below(exp, a, b, label, **kw):
-    return Check(exp, "below", a, label, other=b, **kw)
-
+from fidelity_claim_types import (  # noqa: F401  (re-exported: the inventory's API)
+    DOCUMENTS, RULES, SUPPORT, Check, Choice, Claim, Qualitative, _below)
+import fidelity_claims_twip as _twip
 
 # --------------------------------------------------------------------------------------------------------------
 # the checks shared by the paper's Table 1 and the thesis's Table 3.2 (the same laboratory table, printed twice)
@@ -127,6 +46,16 @@ _TABLE1_NUMBERS = ("lab, one run each: CPX xc mean -0.002 cm var 5.52 cm^2, alph
                    "-.45 deg / 3.89 deg^2; LDF -0.119 / 5.98, 1.21 / 41.8, -.867 / 6.78")
 _GAMMA = Check("dip-cpx-ldf", "close", "gamma_criterion/gamma", "gamma criterion of Prop. 1.4.3 at 1 ms (outputs "
                "xc, alpha, theta), within 1% of 24400", value=24400.0, tol=0.01)
+# Table 3.3 lists Mw; the printed equations of §3.1.1 never use it; the default puts it on the cart
+_MW = Choice("Mw on the cart", "contradicts", "the cart's mass in the printed equations of §3.1.1 leaves out "
+             "Table 3.3's extra weight Mw", "29148 with the equations as printed (19% above 24400)",
+             key="gamma_criterion/gamma_without_Mw")
+# chapter 4 prints its formulas and theorem for any parameters; the checks run them at ours
+_IFN = Choice("parameters of our choosing (R0 = 3)", "supported", "ch. 4 prints no parameter values",
+              "not run at other parameters")
+_OSC_ORDERING = ("theta_dot RMS error at two gamma pairs only; the printed 'large amplitude high frequency "
+                 "oscillations' are not measured, and the RMS error over the gamma sweep is not monotone (it falls "
+                 "from gamma 1 to about 5600, below the criterion, and rises only past it)")
 _GAMMA_OSC = (
     _below("dip-cpx-ldf", "velocity_trial/theta_dot_rms_err_cpx", "velocity_trial/theta_dot_rms_err_cpx_criterion",
            "theta_dot RMS error (rad/s), seed 0: gamma 150 below gamma at the criterion"),
@@ -134,7 +63,7 @@ _GAMMA_OSC = (
            "theta_dot RMS error (rad/s) of the gamma sweep: gamma 1 below gamma 1e5"),
 )
 
-CLAIMS: list[Claim] = [
+_CLAIMS_DIP: list[Claim] = [
     # ---------------------------------------------------------------------------------------------- paper
     Claim("paper:table-1", "§5, Table 1 (6.5 s of stabilisation, laboratory DIP)",
           "Power-series control fed by CPX (gamma 150) keeps the DIP closer to upright and with less variance in "
@@ -154,12 +83,13 @@ CLAIMS: list[Claim] = [
           test="tests/test_theory_mhe.py::test_prop_1_4_2_cpx_and_1_5_1_scpx (same recursion as thesis Prop. 1.4.2)"),
     Claim("paper:prop-2", "§2, Proposition 2 and §5 'gamma >= 24400 for the DIP system'",
           "With fixed gamma > (||Phi|| - 1)/lambda_min the estimate error stays bounded; for the DIP this asks for "
-          "gamma >= 24400.", "24400", exp="dip-cpx-ldf", keys="dip-cpx-ldf (gamma_criterion)", checks=(_GAMMA,)),
+          "gamma >= 24400.", "24400", exp="dip-cpx-ldf", keys="dip-cpx-ldf (gamma_criterion)", checks=(_GAMMA,),
+          choices=(_MW,)),
     Claim("paper:claim-5-gamma-oscillation", "§5, last paragraph",
           "With gamma above the criterion the CPX velocity estimates oscillate with large amplitude at high "
           "frequency, unusable for control; gamma had to be lowered by two orders of magnitude (to 150-ish).",
           "gamma 24400 -> ~244 (two orders); lab observation", exp="dip-cpx-ldf",
-          keys="dip-cpx-ldf (gamma_sweep, velocity_trial)", checks=_GAMMA_OSC,
+          keys="dip-cpx-ldf (gamma_sweep, velocity_trial)", checks=_GAMMA_OSC, ordering=_OSC_ORDERING,
           notes="Simulation: the loop still stabilises past the criterion; only the estimate error grows."),
     # ---------------------------------------------------------------------------------------------- thesis ch. 1
     Claim("thesis:thm-1.3.2", "§1.3, Theorem 1.3.2",
@@ -174,7 +104,7 @@ CLAIMS: list[Claim] = [
           "Prop. 1).", "an identity", test="tests/test_theory_mhe.py::test_prop_1_4_2_ltv_horizon"),
     Claim("thesis:prop-1.4.3", "§1.4, Proposition 1.4.3; §3.3 'gamma >= 24400 for the DIP system'",
           "Fixed gamma above (||Phi|| - 1)/lambda_min bounds the error by kappa/(1 - r); 24400 for the DIP.",
-          "24400", exp="dip-cpx-ldf", keys="dip-cpx-ldf (gamma_criterion)", checks=(_GAMMA,),
+          "24400", exp="dip-cpx-ldf", keys="dip-cpx-ldf (gamma_criterion)", checks=(_GAMMA,), choices=(_MW,),
           notes="The bound itself: tests/test_theory_mhe.py::test_prop_1_4_3_bound_1000_seeds."),
     Claim("thesis:prop-1.5.2", "§1.5.2, Proposition 1.5.2", "Stability of the subspace (SCPX) estimates.",
           "a proposition", test="tests/test_propositions_mhe.py::test_prop_1_5_2_subspace_bound"),
@@ -226,13 +156,18 @@ CLAIMS: list[Claim] = [
                         "LQR's (slower to come near)", value=1.0, other="steps_to_reach/1/lqr"),
                   _below("eki-linear", "steps_to_reach/0.01/rp", "steps_to_reach/0.01/lqr",
                          "steps to ||x|| < 1e-2: RP fewer than the LQR")),
+          choices=(Choice("our search's v, and the thesis's gamma kept", "contradicts", "§2.7.1 tuned gamma so that "
+                          "RP's largest |u| matched the LQR's", "not measured with a matched gamma; with ours RP's "
+                          "largest |u| is several times the LQR's (max_abs_u in metrics.json: 140 vs 20 in --quick)"),),
           notes="The thesis tuned gamma so that RP's largest |u| matched the LQR's for its v; we keep its gamma, "
                 "so with our v RP's largest |u| is larger (max_abs_u in metrics.json)."),
     Claim("thesis:fig-2.2", "§2.7.1, Fig. 2.2 (log scale)", "The relaxed projection's convergence rate grows as the "
           "state nears the origin (superlinear on the log plot), the LQR's stays constant.", "visual",
           exp="eki-linear", keys="eki-linear (steps_to_reach)",
           checks=(_below("eki-linear", "steps_to_reach/0.0001/rp", "steps_to_reach/0.01/lqr",
-                         "steps to ||x|| < 1e-4 by RP below the LQR's steps to 1e-2"),)),
+                         "steps to ||x|| < 1e-4 by RP below the LQR's steps to 1e-2"),),
+          ordering="the convergence rates are compared through steps to two radii, not through the slope of Fig. "
+                   "2.2's log plot"),
     Claim("thesis:claim-2.7.2-v", "§2.7.2, 'after about 250 iterations the ensemble mean was' v = [.995, .1003]",
           "On the nonlinear example the search (J = 100, K = 4) ends at a stabilising v close to [0.995, 0.1003].",
           "v = [0.995, 0.1003], ~250 iterations", exp="eki-nonlinear",
@@ -243,7 +178,9 @@ CLAIMS: list[Claim] = [
                   Check("eki-nonlinear", "ge", "alignment_with_thesis_v", "|cos| with the thesis's v, at least "
                         "0.99", value=0.99)), readings=True),
     Claim("thesis:fig-2.3", "§2.7.2, Fig. 2.3", "Relaxed projection with the found P stabilises the nonlinear "
-          "example smoothly.", "visual", exp="eki-nonlinear", keys="eki-nonlinear",
+          "example smoothly.", "visual", exp="eki-nonlinear", choices=(Choice(
+              "our search's P", "unprinted", "Fig. 2.3 uses the P of the printed v = [.995, .1003]", "not run with "
+              "the printed v (our searches end there in about half the cases: thesis:claim-2.7.2-v)"),), keys="eki-nonlinear",
           checks=(Check("eki-nonlinear", "ge", "stabilized_fraction_of_initial_states", "random initial states "
                         "brought below 1e-3, at least 0.99", value=0.99),)),
     # ---------------------------------------------------------------------------------------------- thesis ch. 3
@@ -255,7 +192,9 @@ CLAIMS: list[Claim] = [
           notes="Not attempted before issue 16."),
     Claim("thesis:claim-3.2.1-search", "§3.2.1, 'J = 80 for a maximum of 1000 iterations ... gamma = 10'",
           "The two-vector search finds a P (3.6) that stabilises the DIP model.", "J = 80, 1000 iterations",
-          exp="eki-dip", keys="eki-dip",
+          exp="eki-dip", keys="eki-dip", choices=(Choice(
+              "state noise 5e-5 read as a standard deviation", "supported", "§3.2.1's N(0, 5 x 10^-5) does not say "
+              "std or variance", "read as a variance no search stabilises (thesis:procedure-1 rows: 0 of 200)"),),
           checks=(Check("eki-dip", "ge", "judge/stabilized_fraction", "RP (gamma 40) with the found P from random "
                         "states, at least 0.95", value=0.95),
                   Check("eki-dip", "le", "performance/failed", "failed held-out performance runs, none",
@@ -279,6 +218,8 @@ CLAIMS: list[Claim] = [
                           "from the thesis's x0") for c in ("lqr", "ps", "rp")),
                   _below("dip-controllers", "lqr/from_thesis_x0/max_abs_u", "rp/from_thesis_x0/max_abs_u",
                          "max |u| (V): LQR below RP (library P)")),
+          choices=(Choice("the library's P in RP", "unprinted", "§3.2.2 simulates RP with (3.6)", "with (3.6) as "
+                          "printed RP does not stabilise the printed model at all (thesis:eq-3.6)"),),
           notes="RP here uses the library's P; the published P does not stabilise the model (thesis:eq-3.6)."),
     Claim("thesis:table-3.1", "§3.2.2, Table 3.1 (laboratory, a typical 20 s)",
           "RP keeps the smallest mean |state| and variance of every state; its mean |u| is almost twice the "
@@ -300,7 +241,7 @@ CLAIMS: list[Claim] = [
           readings=True),
     Claim("thesis:claim-3.3-gamma-oscillation", "§3.3, last paragraph (= paper §5)",
           "As paper:claim-5-gamma-oscillation.", "gamma 24400 -> two orders lower", exp="dip-cpx-ldf",
-          keys="dip-cpx-ldf (gamma_sweep, velocity_trial)", checks=_GAMMA_OSC),
+          keys="dip-cpx-ldf (gamma_sweep, velocity_trial)", checks=_GAMMA_OSC, ordering=_OSC_ORDERING),
     Claim("thesis:claim-3.3-ekf", "§3.3, 'an extended Kalman filter was not able to supply state estimates to a "
           "power-series controller such that the system could be stabilized even in simulations'",
           "Bernstein's EKF-fed power-series control fails on the noisy nonlinear DIP model.", "no number",
@@ -308,24 +249,24 @@ CLAIMS: list[Claim] = [
                         "results"),
     # ---------------------------------------------------------------------------------------------- thesis ch. 4
     Claim("thesis:eq-4.4", "§4.3.1, (4.1)-(4.4)", "E[I] = R0 - integral of g over the protected set; R0 = "
-          "beta gamma/(eta (gamma + delta)).", "formulas (R0 = 3 with our parameters)", exp="ifn-protection",
+          "beta gamma/(eta (gamma + delta)).", "formulas (R0 = 3 with our parameters)", exp="ifn-protection", choices=(_IFN,),
           keys="ifn-protection", checks=(
               Check("ifn-protection", "true", "model/R0_in_ci", "R0 formula inside the Monte Carlo 95% interval"),
               Check("ifn-protection", "true", "model/E_Z_in_ci", "E[Z] = beta/eta inside the interval"),
               Check("ifn-protection", "true", "controls_mc/level set, uniform h/quadrature_in_ci",
                     "E[I] of the uniform-cost level set: (4.4) inside the interval"))),
     Claim("thesis:thm-4.4.1", "§4.4.1, Theorem 4.4.1", "The optimal protected set is the upper level set of g/h "
-          "at r-bar: no other set with the same E[I] costs less.", "a theorem", exp="ifn-protection",
+          "at r-bar: no other set with the same E[I] costs less.", "a theorem", exp="ifn-protection", choices=(_IFN,),
           keys="ifn-protection",
           checks=tuple(Check("ifn-protection", "true", f"theorem/{h}/level_set_cheapest", f"{h} cost: level set "
                              "cheaper than every tuned competitor") for h in ("uniform", "distance", "shell"))),
     Claim("thesis:claim-4.4-F", "§4.4.1, (4.7)-(4.8)", "F(r) is nonincreasing (and upper semi-continuous); r-bar "
-          "is where it crosses V.", "properties", exp="ifn-protection", keys="ifn-protection",
+          "is where it crosses V.", "properties", exp="ifn-protection", choices=(_IFN,), keys="ifn-protection",
           checks=tuple(Check("ifn-protection", "true", f"F_properties/{h}/nonincreasing_within_brackets",
                              f"F nonincreasing ({h} cost)") for h in ("uniform", "distance", "shell", "flat"))),
     Claim("thesis:claim-4.4.2-corollary", "§4.4.1, Corollary 4.4.2 and the non-unique case",
           "The level set is the unique optimum when F(r-bar) = V; otherwise many sets are optimal.",
-          "no number", exp="ifn-protection", keys="ifn-protection (flat_case)",
+          "no number", exp="ifn-protection", choices=(_IFN,), keys="ifn-protection (flat_case)",
           checks=(Check("ifn-protection", "false", "flat_case/unique", "the flat-ratio case is not unique"),
                   Check("ifn-protection", "close", "flat_case/sets/flat set after t_c/h", "a second optimal set "
                         "costs V/r-bar (1e-6 relative)", other="flat_case/optimal_cost_V_over_r_bar", tol=1e-6))),
@@ -333,194 +274,36 @@ CLAIMS: list[Claim] = [
           "A cell-autonomous rule can realise the optimal protection as a threshold on the local signal.",
           "no number", not_attempted="no scored metric: implemented in jaxdip.immune (docs/immune.md) without a "
                                      "results key to compare"),
-    # ---------------------------------------------------------------------------------------------- Stumfoll
-    Claim("stumfoll:table-4.1", "§4.1, Table 4.1", "TWIP physical parameters.", "the table", input=True),
-    Claim("stumfoll:table-4.2", "§4.2.2, Table 4.2", "DC motor parameters.", "the table", input=True),
-    Claim("stumfoll:table-4.3", "§4.2.3, Table 4.3", "Gyroscope specifications.", "the table", input=True),
-    Claim("stumfoll:table-4.4", "§4.2.3, Table 4.4", "Accelerometer specifications.", "the table", input=True),
-    Claim("stumfoll:fig-5.5", "§5.3, Fig. 5.5 (stability test from theta = 10 deg)",
-          "Uncontrolled from 10 deg the pendulum swings about the hanging position with damped oscillation (motor "
-          "dynamics as friction) and the position settles at a positive offset proportional to the start angle.",
-          "10 deg start; visual", exp="twip-dmso", keys="fid-twip readings study", readings=True,
-          notes="Not attempted before issue 16."),
-    Claim("stumfoll:table-7.1", "§7.4, Table 7.1", "Noise parameters of the simulated sensors (white noise, "
-          "Gauss-Markov walking bias, encoder step 0.000147 m).", "the table", input=True),
-    Claim("stumfoll:fig-7.1", "§7.4, Fig. 7.1", "The Allan variance of the simulated gyroscope (Table 7.1 model) "
-          "follows the measured one closely, better than white noise alone.", "Table 7.1 parameters; visual",
-          exp="twip-dmso", keys="fid-twip readings study", readings=True, notes="Not attempted before issue 16."),
-    Claim("stumfoll:table-8.1", "§8.1.1, Table 8.1", "TWIP parameters of the simulations.", "the table",
-          input=True),
-    Claim("stumfoll:table-8.2", "§8.1.2, Table 8.2", "Modified (true) TWIP parameters.", "the table", input=True),
-    Claim("stumfoll:claim-8.1-15s", "§8.1.1, 'reaching the desired states in 15 seconds'",
-          "The LQR drives the TWIP from x0 to the desired states in 15 s.", "15 s", exp="twip-dmso",
-          keys="fid-twip readings study", readings=True, notes="Not attempted before issue 16."),
-    Claim("stumfoll:fig-8.2", "§8.1.1, Fig. 8.2 'In all cases the DMSO is able to capture the true system state "
-          "to a higher degree of accuracy in a shorter time period'",
-          "Without noise or uncertainty the DMSO converges faster than the KF in every state.", "visual",
-          exp="twip-dmso", readings=True, keys="twip-dmso (kf, kf_printed, kf_posterior)",
-          checks=tuple(Check("twip-dmso", "true", f"findings/nominal/kf/dmso_converges_first/{s}",
-                             f"DMSO converges before the KF ({s})") for s in ("x", "x_dot", "phi", "phi_dot")),
-          notes="Against the KF's prediction (`kf`, dead-beat here); the full run also scores `kf_printed`, (170) "
-                "as printed, against which it holds in every state."),
-    Claim("stumfoll:fig-8.3", "§8.1.1, Fig. 8.3", "After the DMSO's early convergence, the KF ends with the better "
-          "tilt-rate estimate (nominal case).", "visual", exp="twip-dmso", keys="twip-dmso",
-          checks=(Check("twip-dmso", "true", "findings/nominal/kf/kf_ends_better_tilt_rate",
-                        "tail RMS phi_dot: KF below DMSO"),)),
-    Claim("stumfoll:claim-8.1.1-25pct", "§8.1.1, Fig. 8.4 'errors up to 25%'",
-          "The DMSO's uncertainty estimate follows f (153) within about 25% (nominal case).", "25%",
-          exp="twip-dmso", readings=True, keys="twip-dmso",
-          checks=tuple(Check("twip-dmso", "le", f"nominal/dmso/uncertainty_rel_error/{s}",
-                             f"relative RMS error of f-hat ({s} row) over the run, at most 0.25", value=0.25)
-                       for s in ("x_dot", "phi_dot"))),
-    Claim("stumfoll:claim-8.1.2-5deg", "§8.1.2, 'The tilt angle overshoots the desired value by 5 degrees'",
-          "With parameter uncertainty the tilt overshoots by 5 deg.", "5 deg", exp="twip-dmso",
-          keys="fid-twip readings study", readings=True, notes="Not attempted before issue 16."),
-    Claim("stumfoll:fig-8.6", "§8.1.2, Fig. 8.6 'an order of magnitude more accurate'",
-          "With parameter uncertainty the DMSO's estimates are better than the KF's in all states, on average an "
-          "order of magnitude.", "x10", exp="twip-dmso", readings=True, keys="twip-dmso",
-          checks=(Check("twip-dmso", "ratio_ge", "param/kf/rms_error_first_1s/x_dot", "first-second RMS x_dot: KF / "
-                        "DMSO at least 5 (an order of magnitude, halved)", value=5.0,
-                        other="param/dmso/rms_error_first_1s/x_dot"),
-                  Check("twip-dmso", "ratio_ge", "param/kf/rms_error_first_1s/phi_dot", "first-second RMS phi_dot: "
-                        "KF / DMSO at least 5", value=5.0, other="param/dmso/rms_error_first_1s/phi_dot"))),
-    Claim("stumfoll:fig-8.7", "§8.1.2, Fig. 8.7 'the Kalman filter does obtain a better estimate of the tilt rate "
-          "after five seconds'", "With parameter uncertainty the KF ends better on the tilt rate.", "after 5 s",
-          exp="twip-dmso", readings=True, keys="twip-dmso",
-          checks=(Check("twip-dmso", "true", "findings/param/kf/kf_ends_better_tilt_rate",
-                        "tail RMS phi_dot: KF below DMSO"),)),
-    Claim("stumfoll:fig-8.9", "§8.1.2, Fig. 8.9 'converges to the true uncertainty in .1 seconds as compared to "
-          ".25 seconds'", "Gamma = 0.5 makes the uncertainty estimate converge faster and closer than Gamma = 0.1.",
-          "0.1 s vs 0.25 s", exp="twip-dmso", keys="twip-dmso (param_gamma_variant)",
-          checks=(_below("twip-dmso", "findings/gamma_variant/settled_rel_error/variant/phi_dot",
-                         "findings/gamma_variant/settled_rel_error/gamma/phi_dot",
-                         "settled relative error of f-hat (phi_dot row): Gamma 0.5 below Gamma 0.1"),)),
-    Claim("stumfoll:fig-8.10", "§8.1.2, Fig. 8.10 'on average one order of magnitude smaller'",
-          "At dt = 0.001 s both estimators' errors are about ten times smaller than at 0.01 s.", "x10",
-          exp="twip-dmso", keys="twip-dmso (param_dt_fine)",
-          checks=(Check("twip-dmso", "ge", "findings/dt_fine/geometric_mean_ratio/dmso", "DMSO error ratio coarse/"
-                        "fine, at least 5 (an order of magnitude, halved)", value=5.0),
-                  Check("twip-dmso", "ge", "findings/dt_fine/geometric_mean_ratio/kf", "KF error ratio coarse/fine, "
-                        "at least 5", value=5.0))),
-    Claim("stumfoll:fig-8.11", "§8.1.2, Fig. 8.11 'on average two orders of magnitude more accurate'",
-          "At dt = 0.001 s the uncertainty estimates are about a hundred times more accurate.", "x100",
-          exp="twip-dmso", readings=True, keys="twip-dmso (param_dt_fine)",
-          checks=(Check("twip-dmso", "ge", "findings/dt_fine/uncertainty_rms_error_ratio_coarse_over_fine/phi_dot",
-                        "f-hat error ratio coarse/fine (phi_dot row), at least 50 (two orders, halved)",
-                        value=50.0),)),
-    Claim("stumfoll:fig-8.13", "§8.1.3, Fig. 8.13 'the Kalman filter takes 1.3 seconds ... the DMSO takes .15 "
-          "seconds'", "With noise and uncertainty the DMSO's tilt rate converges in 0.15 s, the KF's in 1.3 s.",
-          "DMSO 0.15 s, KF 1.3 s", exp="twip-dmso", keys="twip-dmso: kf, kf_printed, kf_posterior; fid-twip "
-          "readings", checks=(
-              Check("twip-dmso", "close", "noise/dmso/convergence_time_s/phi_dot", "DMSO phi_dot convergence "
-                    "time (s) within 30% of 0.15", value=0.15, tol=0.3, ci="noise/dmso/convergence_time_s_ci95/"
-                    "phi_dot"),
-              Check("twip-dmso", "close", "noise/kf/convergence_time_s/phi_dot", "KF phi_dot convergence time (s) "
-                    "within 30% of 1.3", value=1.3, tol=0.3, ci="noise/kf/convergence_time_s_ci95/phi_dot")),
-          readings=True),
-    Claim("stumfoll:claim-8.1.3-position", "§8.1.3, 'equal accuracy after 4 seconds in all states except the "
-          "position, where the DMSO provides an estimate error two orders of magnitude smaller'",
-          "With noise both filters end equal except in position, where the DMSO is 100x better.", "x100",
-          exp="twip-dmso", keys="twip-dmso", checks=(
-              Check("twip-dmso", "ratio_ge", "noise/kf/rms_error_tail/x", "tail RMS x: KF / DMSO at least 50",
-                    value=50.0, other="noise/dmso/rms_error_tail/x"),), readings=True),
-    Claim("stumfoll:claim-abstract-10x", "Abstract, 'state estimates orders of magnitude more accurate, and in "
-          "periods of time up to 10 times faster than the Discrete Kalman Filter'",
-          "With parameter uncertainty the DMSO converges up to ten times faster than the discrete KF.", "up to x10",
-          exp="twip-dmso", keys="twip-dmso (kf, kf_printed)",
-          checks=(Check("twip-dmso", "ratio_ge", "param/kf/convergence_time_s/x_dot", "convergence time x_dot, "
-                        "parameter uncertainty: KF / DMSO at least 5 (up to 10, halved)", value=5.0,
-                        other="param/dmso/convergence_time_s/x_dot"),),
-          notes="'Orders of magnitude more accurate' is scored in stumfoll:fig-8.6."),
-    Claim("stumfoll:table-8.3", "§8.2, Table 8.3 and 'on average 53.1% better than LQR control, and even 37.3% "
-          "better than the optimal LQR controller for the linear, or nominal, system'",
-          "LQR + extra control beats LQR alone in all four cases, by 53.1% on average, and the nominal system by "
-          "37.3%.", "LQR / LQR+extra / nominal: param 248.92 / 123.07 / 240.72; unmodeled 587.04 / 235.35 / "
-          "240.72; deadzone 358.42 / 181.53 / 326.10; deadzone+backlash 1451.9 / 688.17 / 1434.5; mean "
-          "improvement 53.1%", exp="twip-extra-control",
-          keys="twip-extra-control: virtual, nonlinear_truth, backlash, k1, gamma; fid-twip readings",
-          checks=(Check("twip-extra-control", "close", "mean_improvement_table_cases", "mean improvement over LQR "
-                        "(fraction) within 0.1 of 0.531", value=0.531, tol=0.1 / 0.531),
-                  Check("twip-extra-control", "close", "param/lqr/score_mean", "LQR score, parameter uncertainty, "
-                        "within 10% of 248.92", value=248.92, tol=0.1)),
-          readings=True),
-    Claim("stumfoll:fig-8.18", "§8.2.2, Fig. 8.18 (unmodeled gains 3/4 and 2/5)", "LQR alone goes unstable; LQR + "
-          "extra control keeps the TWIP up.", "visual", exp="twip-extra-control",
-          keys="twip-extra-control (unmodeled_unstable, variants, d_gains_unstable, d1_freq, init_spread); "
-               "fidelity_twip.py fig_8_18",
-          checks=(Check("twip-extra-control", "ge", "unmodeled_unstable/lqr_diverged_fraction", "LQR falls in at "
-                        "least 10% of the seeds", value=0.1),
-                  Check("twip-extra-control", "ge", "unmodeled_unstable/extra_bounded_fraction", "LQR + extra "
-                        "(thesis gains) keeps at least 95% up", value=0.95)), readings=True),
-    Claim("stumfoll:sec-8.3", "§8.3 and Figs. 8.24-8.27 (the robot)", "On the robot the DMSO is as accurate as the "
-          "KF, oscillations of about 1 deg remain, the position settles near -0.05 m.", "1 deg, -0.05 m",
-          not_attempted="laboratory hardware results; no model of the robot's deadzone, backlash and tilt bias"),
-    # ---------------------------------------------------------------------------------------------- Aranovskiy
-    Claim("aranovskiy:table-1", "§II, Table 1", "Parameters of the reaction-wheel pendulum.", "the table",
-          input=True),
-    Claim("aranovskiy:table-2", "§III-D, Table 2", "LQR gains K = [-582, -83, -1.2] and differentiator parameters "
-          "[5, 12, 0.9]; with B from (2)-(3) A - BK is Hurwitz.", "the table",
-          test="tests/test_rwp_theory.py (A - BK Hurwitz with the input column of (2)-(3))"),
-    Claim("aranovskiy:prop-1", "§III-B, Proposition 1", "The homogeneous differentiator (10)-(11) is finite-time "
-          "stable for alpha in (1/2, 1).", "a proposition", not_attempted="finite-time stability is not scored; "
-          "the differentiators are tested against their equations (tests/test_rwp_observers.py)"),
-    Claim("aranovskiy:fig-3", "§III-D, Fig. 3 'the homogeneous differentiators provide faster stabilization ... "
-          "if the initial position is increased to theta(0) = 0.15, the linearization-based observer does not "
-          "provide system stabilization'", "HOMD settles faster than the Luenberger observer from 0.1; from 0.15 the "
-          "Luenberger loop falls, the HOMD loop holds.", "theta(0) 0.1 and 0.15; visual", exp="rwp-bias",
-          keys="rwp-bias (current_limit, observer_current, luenberger_omega, luenberger_vref, settle_tol, "
-               "init_velocity_std, hold); fidelity_twip.py rwp_fig3",
-          checks=(_below("rwp-bias", "no_bias/homd/0.1/settle_time", "no_bias/luenberger/0.1/settle_time",
-                         "settle time from 0.1 (s): HOMD below Luenberger"),
-                  Check("rwp-bias", "le", "no_bias/luenberger/0.15/stabilized_fraction", "Luenberger from 0.15: "
-                        "stabilised fraction at most 0.5", value=0.5),
-                  Check("rwp-bias", "ge", "no_bias/homd/0.15/stabilized_fraction", "HOMD from 0.15: stabilised "
-                        "fraction at least 0.95", value=0.95)), readings=True),
-    Claim("aranovskiy:eq-15", "§III-C/D, (15) and Fig. 4 'x_p2 = e_p2 = -1.43 is predicted by (15)'",
-          "With bias d = -0.08 the velocity estimate settles at e_p2 = -1.43 (measured), as (15) predicts.",
-          "-1.43 (measured)", exp="rwp-bias", keys="rwp-bias",
-          checks=(Check("rwp-bias", "close", "bias/ep2_sim", "simulated e_p2 (rad/s) within 3% of -1.43",
-                        value=-1.43, tol=0.03),
-                  Check("rwp-bias", "close", "bias/ep2_formula", "(15) within 3% of -1.43", value=-1.43,
-                        tol=0.03))),
-    Claim("aranovskiy:eq-16", "§III-D, (16) and Fig. 4 'theta_r-dot = 138 radians per second'",
-          "With d = -0.08 the wheel keeps spinning at about 138 rad/s, as (16) predicts.", "138 (measured)",
-          exp="rwp-bias", keys="rwp-bias",
-          checks=(Check("rwp-bias", "close", "bias/thetar_dot_sim", "simulated wheel speed (rad/s) within 3% of "
-                        "138", value=138.0, tol=0.03),
-                  Check("rwp-bias", "close", "bias/thetar_dot_formula", "(16) within 3% of 138", value=138.0,
-                        tol=0.03))),
-    Claim("aranovskiy:remark-3", "§III-C, Remark 3", "A constant bias on the wheel angle does not bias the wheel "
-          "velocity estimate at equilibrium (e_r2 = 0).", "e_r2 = 0", exp="rwp-bias",
-          keys="fid-twip readings study", readings=True, notes="Not attempted before issue 16."),
-    Claim("aranovskiy:prop-2", "§IV, Proposition 2", "With the low-pass bias observer (17) the loop is stable for "
-          "gamma_d below a limit gamma-bar_d and unstable above.", "no number printed", exp="rwp-bias",
-          keys="rwp-bias", checks=(
-              Check("rwp-bias", "true", "gamma_d_bar_detail/simulations/0.95/stable_sim", "simulated loop stable "
-                    "at 0.95 gamma-bar_d"),
-              Check("rwp-bias", "false", "gamma_d_bar_detail/simulations/1.05/stable_sim", "simulated loop "
-                    "unstable at 1.05 gamma-bar_d"),
-              Check("rwp-bias", "close", "gamma_d_bar_detail/routh", "gamma-bar_d: Routh route equals the "
-                    "eigenvalue route (1e-9 relative)", other="gamma_d_bar_detail/eig", tol=1e-9))),
-    Claim("aranovskiy:fig-5", "§V-C, Fig. 5 'for gamma_d = 0.05 the system is stabilized in approximately 60 "
-          "seconds, and for gamma_d = 0.5 transients are faster but closed-loop oscillations appear'",
-          "gamma_d = 0.05 settles in about 60 s; gamma_d = 0.5 settles faster and oscillates.", "~60 s",
-          exp="rwp-bias", keys="rwp-bias",
-          checks=(Check("rwp-bias", "close", "lowpass_0.05/settle_time", "settle time at gamma_d 0.05 (s) within "
-                        "20% of 60", value=60.0, tol=0.2),
-                  Check("rwp-bias", "ge", "lowpass_0.5/oscillation_amplitude_rel", "gamma_d 0.5: overshoot of "
-                        "d-hat at least 10% of |d|", value=0.1)),
-          notes="--quick runs too short a horizon for the 0.05 case (no settle time)."),
-    Claim("aranovskiy:fig-6", "§V-C, Fig. 6", "The reduced-order bias observer (21), L = 0.01, stabilises the "
-          "pendulum with fast transients.", "visual", exp="rwp-bias", keys="rwp-bias",
-          checks=(Check("rwp-bias", "true", "reduced_order/stabilized", "stabilised"),
-                  Check("rwp-bias", "le", "reduced_order/settle_time", "settle time (s) at most 15 (well below "
-                        "the low-pass 0.05's ~60)", value=15.0))),
-    Claim("aranovskiy:eq-27", "§V-C, 'the matrix inequalities (27) are feasible for mu <= -0.2 and gamma = 0.62 "
-          "yielding s_M = 0.36'", "For L = 0.01 the LMIs (27) are feasible at gamma 0.62, mu -0.2, and (28) gives "
-          "s_M of about 0.36.", "mu <= -0.2, gamma 0.62, s_M 0.36", exp="rwp-bias", keys="rwp-bias (lmi; c0)",
-          checks=(Check("rwp-bias", "true", "lmi/feasible", "LMIs feasible at mu -0.2"),
-                  Check("rwp-bias", "close", "lmi/s_M", "s_M within 5% of 0.36", value=0.36, tol=0.05))),
 ]
+# Stumfoll and Aranovskiy et al. are in experiments/fidelity_claims_twip.py; the numbered propositions and
+# theorems of the documents in experiments/fidelity_claims_propositions.py, where that module exists.
+_CLAIMS_BASE = _CLAIMS_DIP + list(_twip.CLAIMS)
+
+
+def _propositions() -> list[Claim]:
+    try:
+        import fidelity_claims_propositions as mod
+    except ModuleNotFoundError as e:  # only the module's own absence; an error inside it is raised
+        if e.name != "fidelity_claims_propositions":
+            raise
+        return []
+    return list(mod.CLAIMS)
+
+
+def claims() -> list[Claim]:
+    """Every scored claim: ``CLAIMS``."""
+    if "CLAIMS" not in globals():
+        globals()["CLAIMS"] = _CLAIMS_BASE + _propositions()
+    return globals()["CLAIMS"]
+
+
+def __getattr__(name: str):
+    # CLAIMS is assembled on first use, not at import, so that the propositions module may import Claim and
+    # Check from here (at import, a circular import would see that module half-initialised, without its CLAIMS)
+    if name == "CLAIMS":
+        return claims()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 QUALITATIVE: list[Qualitative] = [
     Qualitative("paper:fig-1", "diagram and photograph of the DIP"),
@@ -565,7 +348,7 @@ QUALITATIVE: list[Qualitative] = [
 
 def by_id() -> dict[str, Claim]:
     out: dict[str, Claim] = {}
-    for c in CLAIMS:
+    for c in claims():
         if c.id in out:
             raise ValueError(f"claim id {c.id} twice")
         out[c.id] = c

@@ -5,13 +5,16 @@
 DIR holds one folder per experiment with its ``metrics.json`` (the output of ``jaxdip reproduce [--quick] --out
 DIR``, or of single ``jaxdip run <id> --out DIR/<id>`` runs). The claims are ``experiments/fidelity_claims.py``;
 the readings rows are every ``*.json`` in ``--readings`` (written by the ``experiments/fidelity*.py`` scripts).
-Nothing is run here: the numbers are the runs' and the rows'. Each claim's status, in this order:
+Nothing is run here: the numbers are the runs' and the rows'. Each claim's status is one class of
+``KIND_LABELS`` under the rules of ``VOCABULARY`` (printed at the top of the page):
 
-- rows under its id: **reproduced under reading X** when a row holds ("yes"), else **not reproduced under N
-  readings tried** (or **undecided under N readings** when none fails outright), the readings listed with their
-  numbers and commands in the section "Readings";
+- rows under its id (each given its support, and re-decided on its intervals where a threshold applies, by
+  ``fidelity_support.annotate``): the strongest support among the rows that hold, else not reproduced or
+  undecided, the readings listed with their numbers and commands in the section "Readings";
 - a claim that expects rows and has none: **readings pending** (with the default run's checks beside it);
-- checks on the runs' results: **reproduced** / **not reproduced** / **undecided** (default config, one reading);
+- checks on the runs' results (``fidelity_checks.evaluate``, on intervals where there are any): the weakest
+  support among the claim's ``choices``, or **an ordering holds** for an ordering claim, when every check holds;
+  else not reproduced / undecided;
 - a test, an input table, or **not attempted** with why.
 """
 
@@ -19,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import re
 import sys
@@ -27,13 +29,37 @@ from dataclasses import dataclass
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import fidelity_claims as FC  # noqa: E402
+import fidelity_support as FS  # noqa: E402
+from fidelity_checks import combine, evaluate, fmt, get, run_size  # noqa: E402,F401  (the generator's API)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 HOLDS = ("yes", "no", "undecided", "n/a")
-KIND_LABELS = {"reproduced": "reproduced (default config)", "reading": "reproduced under a reading",
-               "not reproduced": "not reproduced", "undecided": "undecided", "pending": "readings pending",
-               "no run": "without a run", "test": "checked by a test", "input": "input tables",
-               "not attempted": "not attempted"}
+# the classes of the status column, strongest first; each has one rule, stated at the top of the page (VOCABULARY)
+KIND_LABELS = {"printed": "reproduced as printed", "supported": "reproduced under a reading the text supports",
+               "ordering": "an ordering holds", "unprinted": "reproduced only with an unprinted value",
+               "contradicts": "reproduced only against the text", "not reproduced": "not reproduced",
+               "undecided": "undecided", "pending": "readings pending", "no run": "without a run",
+               "test": "checked by a test", "input": "input tables", "not attempted": "not attempted"}
+REPRODUCED = ("printed", "supported", "ordering", "unprinted", "contradicts")
+VOCABULARY = (
+    "*reproduced as printed*: every check holds on the default config, or a readings row holds, with the "
+    "document's equations and values as printed and a printed number decided on our interval; "
+    "*reproduced under a reading the text supports*: as before, but with a reading of something the text leaves "
+    "open (the row says where); "
+    "*an ordering holds* (weaker): the claim is checked only as an ordering on a metric we chose, not on a "
+    "number the document prints (the row says what the ordering leaves out); "
+    "*reproduced only with an unprinted value* / *only against the text*: it holds only with a value the "
+    "document does not print (\"needs an unprinted value\") or with a reading that contradicts what it prints "
+    "(\"contradicts the text\"); the row names it, and the number without it; "
+    "*not reproduced*: a check fails, or no reading holds (every reading is listed with its numbers); "
+    "*undecided*: a 95% interval straddles the claim's number, tolerance edge or threshold, or two intervals "
+    "overlap (the row gives the run size that would decide it, from the half-width scaling as 1/sqrt(n)); "
+    "*checked by a test*: a named test verifies it against an independent reference; *not attempted*: why not; "
+    "*readings pending*: a study is expected and has written no row. "
+    "A claim decided by readings takes the strongest class among the rows that hold; a row is as weak as the "
+    "weakest of its choices (column *text* under Readings: printed, supported, unprinted, contradicts). A "
+    "default-config claim takes the weakest class among the modelling choices it names. Tolerances are ours "
+    "(the documents state none) and are written into each check.")
 ROW_KEYS = ("claim", "reading", "what", "command", "ours", "document", "holds")
 
 
@@ -45,102 +71,6 @@ class Status:
     command: str = ""
 
 
-def get(results: dict, path: str):
-    """The value at ``a/b/c`` in nested dicts (an integer step indexes a list). KeyError when absent."""
-    cur = results
-    for step in path.split("/"):
-        if isinstance(cur, list):
-            try:
-                cur = cur[int(step)]
-            except (ValueError, IndexError):
-                raise KeyError(path) from None
-        elif isinstance(cur, dict) and step in cur:
-            cur = cur[step]
-        else:
-            raise KeyError(path)
-    return cur
-
-
-def _interval(results: dict, path: str, explicit: str | None):
-    try:
-        ci = get(results, explicit or f"{path}_ci95")
-    except KeyError:
-        return None
-    if (isinstance(ci, list) and len(ci) == 2 and all(isinstance(x, (int, float)) for x in ci)
-            and not any(math.isnan(x) for x in ci)):
-        return float(ci[0]), float(ci[1])
-    return None
-
-
-def fmt(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if v is None:
-        return "none"
-    if isinstance(v, (int, float)):
-        return f"{v:.4g}"
-    return str(v)
-
-
-def _with_ci(v, ci) -> str:
-    return fmt(v) + (f" [{ci[0]:.4g}, {ci[1]:.4g}]" if ci else "")
-
-
-def _number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v)
-
-
-def evaluate(check: FC.Check, results: dict) -> tuple[str, str]:
-    """(holds: yes/no/undecided, our number as text) of one check on a run's ``results``."""
-    try:
-        v = get(results, check.key)
-    except KeyError:
-        return "undecided", f"{check.label}: key {check.key} absent"
-    ci = _interval(results, check.key, check.ci)
-    ours = _with_ci(v, ci)
-    w = wci = None
-    if check.other is not None:
-        try:
-            w = get(results, check.other)
-        except KeyError:
-            return "undecided", f"{check.label}: key {check.other} absent"
-        wci = _interval(results, check.other, check.other_ci)
-        ours += " vs " + _with_ci(w, wci)
-    text = f"{check.label}: {ours}"
-    rule = check.rule
-    if rule in ("true", "false"):
-        if not isinstance(v, bool):
-            return "undecided", text
-        return ("yes" if v == (rule == "true") else "no"), text
-    if not _number(v) or (check.other is not None and not _number(w)):
-        return "undecided", text
-    if rule == "close":
-        target = check.value if check.other is None else w
-        return ("yes" if abs(v - target) <= check.tol * abs(target) else "no"), text
-    if rule == "in_ci":
-        if ci is None:
-            return "undecided", text
-        return ("yes" if ci[0] <= check.value <= ci[1] else "no"), text
-    if rule == "ge":
-        return ("yes" if v >= check.value else "no"), text
-    if rule == "le":
-        return ("yes" if v <= check.value else "no"), text
-    if rule == "ratio_ge":
-        if w == 0:
-            return "undecided", text
-        return ("yes" if v / w >= check.value else "no"), text + f" (ratio {v / w:.3g})"
-    # below: intervals where both have one, else the points
-    a = ci or (v, v)
-    b = wci or (w, w)
-    return ("yes" if a[1] < b[0] else "no" if a[0] > b[1] else "undecided"), text
-
-
-def combine(verdicts: list[str]) -> str:
-    if verdicts and all(v == "yes" for v in verdicts):
-        return "yes"
-    return "no" if "no" in verdicts else "undecided"
-
-
 def check_status(claim: FC.Claim, runs: dict[str, dict], quick: bool) -> Status:
     m = runs.get(claim.exp)
     command = f"`jaxdip run {claim.exp}{' --quick' if quick else ''}`"
@@ -148,23 +78,60 @@ def check_status(claim: FC.Claim, runs: dict[str, dict], quick: bool) -> Status:
         return Status(f"no run of {claim.exp} in --runs", "no run", "", command)
     verdicts, texts = [], []
     for c in claim.checks:
-        h, t = evaluate(c, m["results"])
+        h, t = evaluate(c, m["results"], m.get("seeds"))
         verdicts.append(h)
         texts.append(f"{t} (**{h}**)")
     v = combine(verdicts)
-    status = {"yes": "reproduced", "no": "not reproduced", "undecided": "undecided"}[v]
-    return Status(status + " (default config)", {"yes": "reproduced", "no": "not reproduced"}.get(v, "undecided"),
-                  "; ".join(texts), command + f" ({m['seeds']} seeds)")
+    ours = "; ".join(texts) + "".join(
+        f"; choice: {c.name} ({c.support}: {c.where}); without it: {c.without}" + _run_value(m, c.key)
+        for c in claim.choices)
+    command += f" ({m['seeds']} seeds)"
+    if v != "yes":
+        return Status(("not reproduced" if v == "no" else "undecided") + " (default config)",
+                      "not reproduced" if v == "no" else "undecided", ours, command)
+    kind = weakest(["printed"] + [c.support for c in claim.choices])
+    return held_status(claim, kind, "default config", ours, command)
 
 
-def readings_status(rows: list[dict]) -> Status:
-    """Status of a claim from its readings rows (rows with holds "n/a" are shown but not counted)."""
+def _run_value(m: dict, key: str | None) -> str:
+    if key is None:
+        return ""
+    try:
+        return f" (this run: {fmt(get(m['results'], key))})"
+    except KeyError:
+        return f" (this run: key {key} absent)"
+
+
+def weakest(supports: list[str]) -> str:
+    return max(supports, key=FC.SUPPORT.index)
+
+
+def held_status(claim: FC.Claim, support: str, how: str, ours: str, command: str) -> Status:
+    """A claim that holds, classed by how far its reading departs from the text and whether it is only an
+    ordering on a metric we chose."""
+    if claim.ordering and support in ("printed", "supported"):
+        return Status(f"an ordering holds ({how}): {claim.ordering}", "ordering", ours, command)
+    label = {"printed": "reproduced as printed", "supported": "reproduced under a reading the text supports",
+             "unprinted": "reproduced only with an unprinted value (needs an unprinted value)",
+             "contradicts": "reproduced only against the text (contradicts the text)"}[support]
+    return Status(f"{label} ({how})", support, ours, command)
+
+
+def readings_status(rows: list[dict], claim: FC.Claim | None = None) -> Status:
+    """Status of a claim from its readings rows (rows with holds "n/a" are shown but not counted): the strongest
+    ``support`` among the rows that hold."""
     counted = [r for r in rows if r["holds"] != "n/a"]
     yes = [r for r in counted if r["holds"] == "yes"]
     if yes:
-        names = "; ".join(r["reading"] for r in yes)
-        return Status(f"reproduced under reading {names} ({len(yes)} of {len(counted)} readings hold)", "reading",
-                      "; ".join(r["ours"] for r in yes), "<br>".join(f"`{r['command']}`" for r in yes))
+        best = min(FC.SUPPORT.index(r.get("support", "contradicts")) if r.get("support") in FC.SUPPORT
+                   else len(FC.SUPPORT) - 1 for r in yes)
+        top = [r for r in yes if r.get("support", "contradicts") == FC.SUPPORT[best]] or yes
+        names = "; ".join(f"{r['reading']}" + (f" [{r['support_where']}]" if r.get("support_where") else "")
+                          for r in top)
+        how = f"reading {names}; {len(yes)} of {len(counted)} readings hold"
+        st = held_status(claim or _NO_CLAIM, FC.SUPPORT[best], how, "; ".join(r["ours"] for r in top),
+                         "<br>".join(f"`{r['command']}`" for r in top))
+        return st
     n = len(counted)
     if not counted:
         return Status("readings pending (rows hold no verdict)", "pending")
@@ -177,6 +144,9 @@ def readings_status(rows: list[dict]) -> Status:
             status += f" ({undecided} undecided)"
     return Status(status + " (listed below)", kind, "; ".join(f"{r['reading']}: {r['ours']}" for r in counted[:1])
                   + (f"; ... {n - 1} more below" if n > 1 else ""), f"`{counted[0]['command']}` ...")
+
+
+_NO_CLAIM = FC.Claim("paper:none-0", "", "", "", input=True)
 
 
 def parent_of(row_id: str, known) -> str | None:
@@ -204,28 +174,40 @@ def group_rows(rows_by_id: dict[str, list[dict]], known) -> tuple[dict[str, dict
     return out, sorted(unknown)
 
 
-def parts_status(parts: dict[str, list[dict]]) -> Status:
-    """A claim scored in parts holds only if every part holds under some reading."""
-    if len(parts) == 1:
-        return readings_status(next(iter(parts.values())))
+def parts_status(parts: dict[str, list[dict]], claim: FC.Claim | None = None,
+                 default: Status | None = None) -> Status:
+    """A claim scored in parts holds only if every part holds under some reading; it is as weak as its weakest
+    part. ``default``: the default run's checks, one more part where the claim's own id has no rows (its rows
+    then score other statements of it only)."""
+    if len(parts) == 1 and default is None:
+        return readings_status(next(iter(parts.values())), claim)
     sts = {pid: readings_status(rows) for pid, rows in parts.items()}
-    held = [pid for pid, st in sts.items() if st.kind == "reading"]
+    if default is not None:
+        sts[f"{claim.id}-default-run"] = default
+    held = [pid for pid, st in sts.items() if st.kind in REPRODUCED]
     n_rows = sum(len([r for r in rows if r["holds"] != "n/a"]) for rows in parts.values())
     if len(held) == len(sts):
-        return Status(f"reproduced: all {len(sts)} parts hold, each under its reading(s) (listed below)", "reading",
-                      "; ".join(f"{pid.split(':')[1]}: {sts[pid].ours}" for pid in held[:3]), "see Readings")
+        kind = weakest([sts[pid].kind if sts[pid].kind in FC.SUPPORT else "printed" for pid in held])
+        return held_status(claim or _NO_CLAIM, kind, f"all {len(sts)} parts hold, each under its reading(s), "
+                           "listed below", "; ".join(f"{pid.split(':')[1]}: {sts[pid].ours}" for pid in held[:3]),
+                           "see Readings")
     kind = "undecided" if all(st.kind in ("undecided", "pending") for st in sts.values()) else "not reproduced"
     part_names = ", ".join(pid.split(":")[1] for pid in held) or "none"
+    ours = f"default run ({default.status}): {default.ours}" if default is not None else ""
     return Status(f"not reproduced: {len(held)} of {len(sts)} parts hold under some reading ({part_names}); "
-                  f"{n_rows} readings rows tried (listed below)", kind, "", "see Readings")
+                  f"{n_rows} readings rows tried (listed below)", kind, ours,
+                  "see Readings" + (f"; {default.command}" if default is not None else ""))
 
 
 def claim_status(claim: FC.Claim, rows, runs: dict[str, dict], quick: bool) -> Status:
     """``rows``: a list of rows of the claim, or {row id: rows} for a claim scored in parts."""
     if isinstance(rows, dict):
-        return parts_status(rows) if rows else claim_status(claim, [], runs, quick)
+        if not rows:
+            return claim_status(claim, [], runs, quick)
+        default = check_status(claim, runs, quick) if claim.checks and claim.id not in rows else None
+        return parts_status(rows, claim, default)
     if rows:
-        return readings_status(rows)
+        return readings_status(rows, claim)
     if claim.readings:
         if claim.checks:
             s = check_status(claim, runs, quick)
@@ -253,7 +235,8 @@ def load_rows(folder: str) -> tuple[dict[str, list[dict]], list[str]]:
             missing = [k for k in ROW_KEYS if k not in r]
             if missing or r["holds"] not in HOLDS:
                 raise ValueError(f"{name}: row {i}: missing {missing} or holds {r.get('holds')!r} not in {HOLDS}")
-            out.setdefault(r["claim"], []).append({**r, "file": name})
+            a = FS.annotate(r)
+            out.setdefault(a["claim"], []).append({**a, "file": name})
     return out, files
 
 
@@ -304,15 +287,11 @@ def render(rows_by_claim: dict[str, list[dict]], files: list[str], runs: dict[st
         f"**Scale.** Numbers decided by checks on runs come from {scale}. Numbers from readings rows come from "
         "the readings studies at the scale stated in their own pages (`docs/fidelity/*.md`).",
         "",
-        "**Status.** *reproduced (default config)*: every check of the claim holds on the default run; "
-        "*reproduced under reading X*: a readings row (one config variant) holds; *not reproduced under N "
-        "readings tried*: no row holds (all rows are listed under Readings with their numbers and commands); "
-        "*readings pending*: a readings study is expected and has written no row yet; *undecided*: the 95% "
-        "intervals overlap. Tolerances are ours (the documents state none) and are written into each check.",
+        "**Status.** " + VOCABULARY,
         "",
         "Documents: " + "; ".join(f"**{k}** = {v}" for k, v in FC.DOCUMENTS.items()) + ".",
         "",
-        "Summary: " + ", ".join(f"{v} {KIND_LABELS[k]}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
+        "Summary: " + ", ".join(f"{counts[k]} {label}" for k, label in KIND_LABELS.items() if counts.get(k))
         + f" ({len(claims)} claims; {len(FC.QUALITATIVE)} figures qualitative, not scored).",
         "",
     ]
@@ -331,6 +310,7 @@ def render(rows_by_claim: dict[str, list[dict]], files: list[str], runs: dict[st
                 f"`{c.id}`", c.where, c.claim + (f" *{c.notes}*" if c.notes else ""),
                 c.document, f"**{status}**", s.ours, s.command)) + " |")
         L.append("")
+    L += study_readings(grouped)
     L += ["## Qualitative figures, not scored", ""]
     L += [f"- `{q.id}`: {q.what}" for q in FC.QUALITATIVE]
     L += ["", "## Readings", ""]
@@ -345,9 +325,11 @@ def render(rows_by_claim: dict[str, list[dict]], files: list[str], runs: dict[st
         for pid, prs in parts.items():
             if len(parts) > 1 or pid != c.id:
                 L += [f"Part `{pid}`: **{readings_status(prs).status}**", ""]
-            L += ["| reading | what | ours | document | holds | command |", "|---|---|---|---|---|---|"]
-            L += ["| " + " | ".join(_cell(x) for x in (r["reading"], r["what"], r["ours"], r["document"],
-                                                      f"**{r['holds']}**", f"`{r['command']}`")) + " |" for r in prs]
+            L += ["| reading | text | what | ours | document | holds | command |", "|---|---|---|---|---|---|---|"]
+            L += ["| " + " | ".join(_cell(x) for x in (
+                r["reading"], f"{r.get('support', 'unclassified')}: {r.get('support_where', '')}", r["what"], r["ours"], r["document"],
+                f"**{r['holds']}**" + (f" (study: {r['holds_study']}" + (f"; {r['holds_why']}" if r["holds_why"]
+                                                                      else "") + ")" if "holds_study" in r else ""), f"`{r['command']}`")) + " |" for r in prs]
             L.append("")
     if unknown:
         L += ["## Rows whose claim id the inventory does not know", ""]
@@ -355,6 +337,29 @@ def render(rows_by_claim: dict[str, list[dict]], files: list[str], runs: dict[st
               + ", ".join(sorted({r['file'] for r in rows_by_claim[k]})) + ")" for k in unknown]
         L.append("")
     return "\n".join(L)
+
+
+def study_readings(grouped: dict[str, dict[str, list[dict]]]) -> list[str]:
+    """One consistent reading per study first (``FS.STUDIES``): how every claim of the study fares under it;
+    then every reading against every claim, which shows the readings that exclude each other."""
+    L = []
+    for st in FS.STUDIES:
+        rows = {cid: {r["reading"]: r for prs in grouped.get(cid, {}).values() for r in prs} for cid in st.claims}
+        L += [f"## {st.title}: one reading for all its claims", "", st.text, "",
+              "| claim | holds | ours |", "|---|---|---|"]
+        L += ["| " + " | ".join(_cell(x) for x in (f"`{cid}`", f"**{rows[cid][st.reading]['holds']}**",
+                                                  rows[cid][st.reading]["ours"])) + " |"
+              for cid in st.claims if st.reading in rows[cid]]
+        readings = list(dict.fromkeys(r for cid in st.claims for r in rows[cid]))
+        L += ["", st.exclusive, "", "| reading | text | " + " | ".join(f"`{c}`" for c in st.claims) + " |",
+              "|---|---|" + "---|" * len(st.claims)]
+        for name in readings:
+            first = next(rows[c][name] for c in st.claims if name in rows[c])
+            L.append("| " + " | ".join(_cell(x) for x in (
+                name, first["support"], *(rows[c][name]["holds"] if name in rows[c] else "" for c in st.claims)))
+                + " |")
+        L.append("")
+    return L
 
 
 def main(argv=None) -> int:

@@ -122,6 +122,22 @@ def test_gamma_criterion_matches_theory_and_thesis():
     assert abs(got["gamma"] / 24400.0 - 1) < 0.02
 
 
+def test_gamma_criterion_without_mw_is_the_printed_equations_number():
+    # the same route from the plain-function model with Table 3.3's Mw taken off the cart: the criterion the
+    # fidelity rows name beside the default's (29148 against 24362)
+    plant = dip.make("printed")
+    A, _ = linearize(plant.f, plant.default_params()._replace(Mw=0.0), jnp.zeros(6), 0.0)
+    A = np.asarray(A)
+    Cm = np.zeros((3, 6))
+    for i, n in enumerate(("xc", "alpha", "theta")):
+        Cm[i, plant.index(n)] = 1.0
+    ref, _, _ = mhe.cpx_gamma_criterion(jnp.asarray(sla.expm(A * 1e-3)), jnp.asarray(sla.expm(-A * 1e-3)),
+                                        jnp.asarray(Cm))
+    got = S.DipCpxLdf().gamma_criterion(dip.DIP(variant="printed", Mw=0.0))["gamma"]
+    assert abs(got / float(ref) - 1) < 1e-6
+    assert abs(got / 29148.0 - 1) < 1e-3 and abs(got / 24400.0 - 1) > 0.15
+
+
 def test_q_is_mapped_by_name():
     Q = np.diag(S.DipCpxLdf().weight())
     named = {n: Q[dip.STATE_NAMES.index(n)] for n in ("xc", "alpha", "theta")}

@@ -81,6 +81,18 @@ def test_seed_metrics_match_numpy():
         np.testing.assert_allclose(m[k], v, rtol=1e-9, err_msg=k)
     # the one-step reading is the one the existing metrics use
     np.testing.assert_allclose(m["u_rms_err"][0], m["unc_rms_err"], rtol=1e-14)
+    # convergence of fhat to f (Fig. 8.9): the first sample after which |fhat - f| stays inside p% of max |f|,
+    # by a plain loop over samples (fhat - f at index i belongs to sample i + 1)
+    dev = np.abs(rec["fhat"][1:] - fr[0])
+    for p in (10, 25):
+        want = []
+        for j in range(2):
+            inside = dev[:, j] <= p / 100 * np.abs(fr[0][:, j]).max()
+            k = len(inside)
+            while k > 0 and inside[k - 1]:
+                k -= 1
+            want.append((k + 1) * dt)
+        np.testing.assert_allclose(m[f"unc_conv_{p}"], want, rtol=1e-12, err_msg=p)
 
 
 def test_uncertainty_readings_are_per_seed_ratios():

@@ -126,7 +126,11 @@ def build(cfg: DipCpxLdfConfig) -> dict:
 
 
 def gamma_criterion(cfg: DipCpxLdfConfig) -> dict:
-    return {**scenario(cfg).gamma_criterion(), "thesis": THESIS_GAMMA_CRITERION}
+    sc = scenario(cfg)
+    # Table 3.3 lists the cart's extra weight Mw but the printed equations of §3.1.1 never use it; the default
+    # puts it on the cart, so the criterion without it is reported beside, for the reader to weigh that choice.
+    without = sc.gamma_criterion(dip.DIP(variant=cfg.variant, Mw=0.0))["gamma"]
+    return {**sc.gamma_criterion(), "gamma_without_Mw": without, "thesis": THESIS_GAMMA_CRITERION}
 
 
 # ---- statistics ---------------------------------------------------------------------------------------------

@@ -109,9 +109,10 @@ class DipCpxLdf:
         Q = np.asarray(self.Q, dtype=np.float64)
         return np.diag(Q) if Q.ndim == 1 else Q
 
-    def model(self):
-        """CPX's model (``Discrete``: ZOH of the linearisation at upright over dt) and output matrix."""
-        plant = self.plant()
+    def model(self, plant: Optional[dip.DIP] = None):
+        """CPX's model (``Discrete``: ZOH of the linearisation at upright over dt) and output matrix, of the
+        configured plant or of ``plant``."""
+        plant = self.plant() if plant is None else plant
         return jd.zoh(*jd.linearize(plant), self.dt), dip_sensors.output_matrix(plant.state_names)
 
     def cpx(self, gamma=None, output: Optional[str] = None) -> CPX:
@@ -155,11 +156,12 @@ class DipCpxLdf:
         return jd.Rollout(self.loop(estimator), jd.Ball(jnp.zeros(6), self.init_radius), self.steps, save=save,
                           save_every=save_every, metrics=self.metrics())
 
-    def gamma_criterion(self) -> dict:
-        """Prop. 1.4.3 for CPX on this model at this period (``jaxdip.theory.mhe.cpx_gamma_criterion``)."""
+    def gamma_criterion(self, plant: Optional[dip.DIP] = None) -> dict:
+        """Prop. 1.4.3 for CPX on this model (or on ``plant``) at this period
+        (``jaxdip.theory.mhe.cpx_gamma_criterion``)."""
         from jaxdip.theory.mhe import cpx_gamma_criterion
 
-        model, C = self.model()
+        model, C = self.model(plant)
         g, K, lam = cpx_gamma_criterion(model.Phi, model.Phi_inv, C)
         return {"gamma": float(g), "K_max": float(K), "lambda_min": float(lam)}
 

@@ -130,7 +130,9 @@ def seed_metrics(tr: dict, band, dt: float, tail_s: float, settle_s: float) -> d
     (what a log plot such as Figs. 8.3 and 8.7 shows as the lower line). ``u_*``: the uncertainty estimate
     against f under each of ``F_READINGS`` (shape (3, 2)): RMS of fhat - f and of f over the run and after
     ``settle_s``, the largest |fhat - f| over the run and after ``settle_s``, the largest |f|, the mean |fhat - f|
-    and |f| after ``settle_s`` and the median of the pointwise ratio |fhat - f| / |f| after ``settle_s``."""
+    and |f| after ``settle_s`` and the median of the pointwise ratio |fhat - f| / |f| after ``settle_s``;
+    ``unc_conv_<p>``: the time after which |fhat - f| stays within p% of the row's largest |f| (Fig. 8.9 prints
+    convergence times without a band, so two bands are kept)."""
     T = tr["x"].shape[0]
     err = tr["xhat"] - tr["x"]
     n1 = min(T, int(round(1.0 / dt)) + 1)
@@ -144,7 +146,15 @@ def seed_metrics(tr: dict, band, dt: float, tail_s: float, settle_s: float) -> d
     fr = tr["f_readings"]
     dr = tr["fhat"][None] - fr
     tiny = jnp.finfo(err.dtype).tiny
+    peak_f = jnp.max(jnp.abs(tr["f"]), axis=0)
+
+    def unc_conv(frac):
+        # dev[i] is at sample i + 1 (f needs the next state), so the first sample inside for good is last + 2
+        last = jnp.max(jnp.where(jnp.abs(dev) > frac * peak_f, jnp.arange(dev.shape[0])[:, None], -1), axis=0)
+        return (last + 2) * dt
+
     return {
+        "unc_conv_10": unc_conv(0.10), "unc_conv_25": unc_conv(0.25),
         "rms": rms(err[1:]), "rms_1s": rms(err[1:n1]), "rms_tail": rms(err[T - nt:]),
         "peak_1s": jnp.max(jnp.abs(err[1:n1]), axis=0),
         "logmean_tail": jnp.mean(jnp.log10(jnp.abs(err[T - nt:]) + tiny), axis=0),
