@@ -163,8 +163,9 @@ CLAIMS: list[Claim] = [
           "[5, 12, 0.9]; with B from (2)-(3) A - BK is Hurwitz.", "the table",
           test="tests/test_rwp_theory.py (A - BK Hurwitz with the input column of (2)-(3))"),
     Claim("aranovskiy:prop-1", "§III-B, Proposition 1", "The homogeneous differentiator (10)-(11) is finite-time "
-          "stable for alpha in (1/2, 1).", "a proposition", not_attempted="finite-time stability is not scored; "
-          "the differentiators are tested against their equations (tests/test_rwp_observers.py)"),
+          "stable for alpha in (1/2, 1).", "a proposition",
+          test="tests/test_rwp_observers.py::test_homd_error_reaches_zero_in_finite_time and "
+               "::test_homd_settling_time_scales_by_homogeneity (finite-time settling and its homogeneous scaling)"),
     Claim("aranovskiy:fig-3", "§III-D, Fig. 3 'the homogeneous differentiators provide faster stabilization ... "
           "if the initial position is increased to theta(0) = 0.15, the linearization-based observer does not "
           "provide system stabilization'", "HOMD settles faster than the Luenberger observer from 0.1; from 0.15 the "
