@@ -507,7 +507,7 @@ def run(cfg: TuneConfig, ctx: RunContext | None = None, progress: bool = True) -
                optimizer=optax.rprop(cfg.lr) if cfg.optimizer == "rprop" else None,
                common_random_numbers=cfg.crn, early_stop_patience=cfg.patience or None,
                checkpoint_path=ctx.checkpoint_path if ctx else None, resume=bool(ctx and ctx.resume),
-               fingerprint=ckpt.fingerprint(C.to_dict(cfg)), progress=progress, desc=f"tune {cfg.target}",
+               fingerprint=ctx.fingerprint if ctx else ckpt.fingerprint(C.to_dict(cfg)), progress=progress, desc=f"tune {cfg.target}",
                mode=cfg.mode)
     sims_grad = res.steps * cfg.seeds
     # random search with the same number of closed-loop simulations, on the same seeds and key
@@ -658,4 +658,5 @@ EXPERIMENT = Experiment(
     quick={"seeds": 4, "heldout_seeds": 16, "duration": 0.5, "steps": 6, "landscape_points": 5},
     source="the documents' hyperparameter values (CPX gamma = 150, paper §5) against gradient tuning",
     quick_effort="fast",  # compiling dominates its quick run (measured)
+    resumable=True,
 )
