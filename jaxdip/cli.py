@@ -243,6 +243,7 @@ def cmd_run(args, argv=None) -> int:
     from jaxdip.control.riccati import RiccatiError
     from jaxdip.experiments import run_experiment
     from jaxdip.experiments.base import run_context
+    from jaxdip.experiments.common import ResultError
     from jaxdip.outdir import OutputError
 
     flags = _flag_keys(args)
@@ -266,6 +267,8 @@ def cmd_run(args, argv=None) -> int:
             return _error(f"{e.key}: {e.why}")
         except CheckpointError as e:
             return _error(f"--resume: {e}")
+        except ResultError as e:
+            return _error(f"{e.key}: {e.why}")
         except RiccatiError as e:
             return _error(f"{_riccati_keys(cfg)}: {e}")
         except KeyboardInterrupt:

@@ -26,6 +26,7 @@ from jaxdip import checkpoint
 from jaxdip import config as cfgmod
 from jaxdip import distributed, outdir, resources
 from jaxdip.engine import effort
+from jaxdip.experiments.common import check_writable, drop_missing
 
 
 @dataclass
@@ -190,7 +191,9 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
                    compile_effort: str = "full") -> dict:
     """Run an experiment with a validated config and write its folder; returns metrics.json's content.
 
-    Raises ``ConfigError`` (resources) or ``outdir.OutputError`` (destination) before anything is compiled.
+    Raises ``ConfigError`` (resources), ``outdir.OutputError`` (destination) or ``CheckpointError`` (``resume``
+    without a checkpoint of this run) before anything is compiled, and ``ResultError`` instead of writing NaN,
+    inf or null.
     Experiments with long searches checkpoint beside ``out_dir`` (``ctx.checkpoint_path`` of the ``RunContext`` passed to ``run``) and, with
     ``resume``, continue from there; the checkpoint is removed once the folder is complete. ``stop_requested``
     is asked once more before the folder is moved into place, so an interrupt that a library swallowed still
@@ -220,6 +223,9 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
         with effort.effort(compile_effort), checkpoint.owning(uuid.uuid4().hex, ctx.info) as owner:
             outcome = exp.run(cfg, ctx)
         wall = time.perf_counter() - t0
+        # a statistic over no seed is left out, never written as NaN or null; anything else non-finite is refused
+        outcome.results = drop_missing(outcome.results)
+        check_writable(outcome.results, outcome.report)
         seeds = getattr(cfg, "seeds", 1)
         metrics = {**provenance(exp.id, seeds, wall, compile_effort), "results": outcome.results, "timing": outcome.timing}
         if not main:

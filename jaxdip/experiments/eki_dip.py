@@ -41,7 +41,7 @@ from jaxdip.resources import Load, steps_of
 from jaxdip import checkpoint
 from jaxdip import config as C
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.common import fmt_ci, loop_summary
+from jaxdip.experiments.common import failure_lines, fmt_ci, loop_summary
 from jaxdip.plants import dip
 from jaxdip.progress import Progress
 from jaxdip.scenarios import eki_dip as S
@@ -164,7 +164,7 @@ def judge(cfg, member, key_seed):
     rollout = S.judge_rollout(member_P(member), gamma=cfg.judge_gamma, dt=cfg.dt, duration=cfg.judge_duration,
                               radius=cfg.judge_radius, noise_std=cfg.noise_std)
     sol = jd.monte_carlo(rollout, jax.random.PRNGKey(key_seed), cfg.seeds, progress=True, desc="eki-dip judge")
-    return loop_summary(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol)
+    return loop_summary(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt, bound=S.STATE_BOUND)
 
 
 class GradientLoss(NamedTuple):
@@ -323,6 +323,7 @@ def report(cfg, r, timing):
         f"- RP with gamma = {cfg.judge_gamma} from {cfg.seeds} random states in a ball of radius {cfg.judge_radius},"
         f" {cfg.judge_duration} s: stabilised fraction **{fmt_ci(r['stabilized_fraction'], r['stabilized_fraction_ci95'])}**"
         f", diverged {j['diverged']}",
+        *failure_lines(j, cfg.seeds),
     ]
     g = r["gradient"]
     if g:

@@ -461,7 +461,11 @@ def run(cfg: TwipDmsoConfig, ctx: RunContext | None = None, progress: bool = Tru
         if spec.name in ("nominal", "param", "noise"):
             figures[f"{tag}_log_errors"] = fig_errors(tag, shown, spec.dt, log=True)
         figures[f"{tag}_uncertainty"] = fig_uncertainty(tag, traces["dmso"], spec.dt)
+    fell = {f"{spec.name}/{est}": int(sim[(spec.name, est)][1].sum()) for spec in specs for est in spec.estimators
+            if sim[(spec.name, est)][1].any()}
     results["findings"] = findings(results)
+    if fell:  # seeds whose |phi| passed tilt_bound_deg (or whose state became non-finite), per case and estimator
+        results["failures"] = {"diverged": fell, "tilt_bound_deg": cfg.tilt_bound_deg}
     return Outcome(results=results, report=report(cfg, results), figures=figures)
 
 
@@ -594,8 +598,12 @@ def report(cfg: TwipDmsoConfig, r: dict) -> str:
         "module docstring); `kf_posterior` uses one more measurement; `kf_printed` is (170) as printed.",
         "",
     ]
+    if "failures" in r:
+        lines += [f"Diverged seeds (|phi| over {r['failures']['tilt_bound_deg']:g} deg): "
+                  + ", ".join(f"{k} {v}" for k, v in r["failures"]["diverged"].items())
+                  + "; statistics are over the others, n/a where none is left.", ""]
     for case, res in r.items():
-        if case == "findings":
+        if case in ("findings", "failures"):
             continue
         lines += [f"## {case} ({res['section']})", "",
                   f"Truth {res['truth']}, sensors {res['sensors']}, dt = {res['dt']} s, Gamma = {res['gamma']}, "

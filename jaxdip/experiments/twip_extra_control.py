@@ -304,6 +304,10 @@ def run(cfg: TwipExtraControlConfig, ctx: RunContext | None = None, progress: bo
     figures["twip-extra-variants"] = fig_variants(cfg, results)
     imps = [results[c]["improvement"] for c in cfg.cases if c in THESIS]
     results["mean_improvement_table_cases"] = float(np.mean(imps)) if imps else float("nan")
+    fell = {f"{case}/{name}": int(res[(case, name)][1].sum()) for case, name in rows(cfg) if res[(case, name)][1].any()}
+    if fell:  # seeds that left tilt_bound_deg or state_bound (or became non-finite), per case and controller
+        results["failures"] = {"diverged": fell, "of_seeds": cfg.seeds, "tilt_bound_deg": cfg.tilt_bound_deg,
+                               "state_bound": list(cfg.state_bound)}
     results["horizon_s"] = cfg.duration
     results["dt_s"] = cfg.dt
     results["score_terms"] = n_steps(cfg)
@@ -373,6 +377,11 @@ def report(cfg: TwipExtraControlConfig, r: dict) -> str:
     out += ["", f"Mean improvement over the thesis's four cases: ours {_g(r['mean_improvement_table_cases'], 3)}, "
             f"thesis 0.531 (its 53.1%). Main extra control: virtual = {cfg.virtual}, k1 = {cfg.k1:g}, "
             f"k2 = {cfg.k2:g}, gamma = {cfg.gamma}.", ""]
+    if "failures" in r:
+        f = r["failures"]
+        out += [f"Diverged seeds (of {f['of_seeds']}; |tilt| over {f['tilt_bound_deg']:g} deg or a state over "
+                f"its bound): " + ", ".join(f"{k} {v}" for k, v in f["diverged"].items())
+                + "; scores are over the others, n/a where none is left.", ""]
     for case in cfg.cases:
         c = r[case]
         extra_best = c["extra"]["score_mean"] < min(c["lqr"]["score_mean"], c["nominal"]["score_mean"])
