@@ -174,3 +174,15 @@ def test_a_finished_run_leaves_other_runs_checkpoints_alone(tmp_path, capsys, mo
         assert checkpoint.remove_own(other, owner) is False
         assert checkpoint.remove_own(ctx.checkpoint_path, owner) is True
     assert not os.path.exists(ctx.checkpoint_path) and os.path.exists(other)
+
+
+def test_resume_from_a_checkpoint_of_other_leaves_is_one_line(tmp_path, capsys, monkeypatch):
+    """The leaves are checked where the run loads them, after its programs are built: still one line, and the
+    staging folder is gone."""
+    monkeypatch.chdir(tmp_path)
+    tiny = ["seeds=4", "ensemble=6", "iterations=4", "chunk=2", "T=0.2", "t_star=0.1", "grad_steps=0",
+            "eval_states=2", "judge_duration=0.2", "early_stop=false", "min_success=2"]
+    path = _checkpoint_of("eki-dip", "o", get("eki-dip").quick_effort, sets=tiny)
+    line = _one_line(capsys, [*EKI, "--out", "o", "--resume", *[a for s in tiny for a in ("--set", s)]])
+    assert path in line and "structure" in line
+    assert sorted(os.listdir()) == [os.path.basename(path)]  # no output folder, no staging folder
