@@ -34,8 +34,9 @@ class RunContext:
     """Where the current run keeps its checkpoint, for experiments that checkpoint long searches.
 
     The checkpoint lies beside the output folder (the folder itself only appears, complete, at the end), under
-    a name made of the folder's name, the experiment and ``fingerprint`` (``run_fingerprint``): two runs that
-    could give different results never share a file, and a resume finds only a checkpoint of the same run.
+    a name made of the folder's name, the experiment and ``fingerprint`` (of ``info``: the experiment, the
+    resolved config and ``run_settings``; see ``run_context``): two runs that could give different results never
+    share a file, and a resume finds only a checkpoint of the same run.
     """
 
     out_dir: str
@@ -123,8 +124,9 @@ def check_resources(cfg, flag_keys: dict[str, str] | None = None) -> None:
 
 
 def run_settings(compile_effort: str = "full") -> dict:
-    """What besides the config changes a run's results in its last bits: recorded in config.toml's ``[jaxdip]``
-    table and in every checkpoint's fingerprint."""
+    """What besides the config changes a run's results in its last bits, all of it in a checkpoint's fingerprint.
+    config.toml's ``[jaxdip]`` table records the compile effort, the one a user chooses; the others belong to
+    the installation and the machine (metrics.json records them)."""
     import jaxdip
 
     return {"compile_effort": compile_effort, "dtype": "float64" if jax.config.jax_enable_x64 else "float32",
@@ -194,8 +196,9 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
     Raises ``ConfigError`` (resources), ``outdir.OutputError`` (destination) or ``CheckpointError`` (``resume``
     without a checkpoint of this run) before anything is compiled, and ``ResultError`` instead of writing NaN,
     inf or null.
-    Experiments with long searches checkpoint beside ``out_dir`` (``ctx.checkpoint_path`` of the ``RunContext`` passed to ``run``) and, with
-    ``resume``, continue from there; the checkpoint is removed once the folder is complete. ``stop_requested``
+    Experiments with long searches checkpoint beside ``out_dir`` (``ctx.checkpoint_path`` of the ``RunContext``
+    passed to ``run``) and, with ``resume``, continue from there; the checkpoint is removed once the folder is
+    complete, if this run wrote it or resumed from it. ``stop_requested``
     is asked once more before the folder is moved into place, so an interrupt that a library swallowed still
     leaves no folder behind. ``compile_effort``: how hard XLA optimises the programs (``jaxdip.engine.effort``;
     results agree across levels to the last bits), recorded in the provenance.
