@@ -163,7 +163,7 @@ def report(cfg, r) -> str:
                  f"**{'feasible' if lm['feasible'] else 'not feasible'}** ({lm['solver']}, {lm['status']}, "
                  f"margin {lm['margin']:.3g} with trace P = 1; eigenvalue check: min eig P {chk.get('min_eig_P', 0):.3g}, "
                  f"min eig Q {chk.get('min_eig_Q', 0):.2g}, max eig of the two decrease expressions "
-                 f"{chk.get('max_eig_Mm', 0):.3g}, {chk.get('max_eig_MM', 0):.3g}); s_M = {lm['s_M']:.4f} (paper ≈ 0.36); "
+                 f"{chk.get('max_eig_Mm', 0):.3g}, {chk.get('max_eig_MM', 0):.3g}); s_M = {_f(lm['s_M'], fmt='.4f')} (paper ≈ 0.36); "
                  f"largest feasible μ = {_f(lm['mu_max'])} (s_M = {_f(lm['s_M_at_mu_max'])}); Ω = {{sᵀPs < {_f(lm['C'])}}}.")
     L += ["", "## The paper's claims", ""]
     L += claims(cfg, r)
@@ -224,6 +224,6 @@ def claims(cfg, r):
     lm = r["lmi"]
     if not lm.get("skipped"):
         out.append(f"- (27) feasible for L0 = 0.01, γ = 0.62, μ = −0.2 with s_M ≈ 0.36: "
-                   f"{'feasible' if lm['feasible'] else 'not feasible'} with c0 = {lm['c0']:g}, s_M = {lm['s_M']:.3f}; "
+                   f"{'feasible' if lm['feasible'] else 'not feasible'} with c0 = {lm['c0']:g}, s_M = {_f(lm['s_M'], fmt='.3f')}; "
                    f"largest feasible μ {_f(lm['mu_max'])}. **{'Holds' if lm['feasible'] else 'Does not hold'}.**")
     return out
