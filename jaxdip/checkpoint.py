@@ -103,7 +103,9 @@ def _open(path: str):
     try:
         z = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        raise CheckpointError(f"checkpoint {path} is damaged or truncated (not an .npz archive: {e})") from None
+        # numpy's own text would suggest loading with pickle: never for a file that may come from anywhere
+        raise CheckpointError(f"checkpoint {path} is damaged or truncated: not an .npz archive "
+                              f"({type(e).__name__})") from None
     if not isinstance(z, np.lib.npyio.NpzFile):
         raise CheckpointError(f"checkpoint {path} is not an .npz archive")
     try:
@@ -121,7 +123,8 @@ def _array(path: str, z, name: str) -> np.ndarray:
     except KeyError:
         raise CheckpointError(f"checkpoint {path} is damaged: it has no {name}") from None
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, RuntimeError) as e:
-        raise CheckpointError(f"checkpoint {path} is damaged or truncated ({name}: {e})") from None
+        raise CheckpointError(f"checkpoint {path} is damaged or truncated: {name} cannot be read "
+                              f"({type(e).__name__})") from None
 
 
 def _meta(path: str, z) -> dict:
