@@ -227,18 +227,23 @@ def _riccati_keys(cfg) -> str:
 
 
 def _effort(args, exp) -> str:
-    """The compile effort of a run: the flag's, else the experiment's quick-run level with --quick, else full."""
+    """The compile effort of a run: the flag's, else the config file's (a run's own config.toml records it),
+    else the experiment's quick-run level with --quick, else full."""
+    from jaxdip.config import run_table
+
     if args.compile_effort:
         return args.compile_effort
-    return exp.quick_effort if args.quick else "full"
+    return run_table(getattr(args, "config", None)).get("compile_effort") or (
+        exp.quick_effort if args.quick else "full")
 
 
 def cmd_run(args, argv=None) -> int:
-    from jaxdip.checkpoint import CheckpointMismatch
+    from jaxdip.checkpoint import CheckpointError
     from jaxdip.config import ConfigError
     from jaxdip.control.riccati import RiccatiError
     from jaxdip.experiments import run_experiment
-    from jaxdip.experiments.base import RunContext
+    from jaxdip.experiments.base import run_context
+    from jaxdip.experiments.common import ResultError
     from jaxdip.outdir import OutputError
 
     flags = _flag_keys(args)
@@ -249,20 +254,21 @@ def cmd_run(args, argv=None) -> int:
     except KeyError as e:
         return _error(e.args[0])
     out = args.out or os.path.join("results", exp.id)
-    ckpt = RunContext(out).checkpoint_path
-    if args.resume and not os.path.exists(ckpt):
-        return _error(f"--resume: no checkpoint of an interrupted run at {ckpt}")
+    ckpt = None
     with _Signals() as sig:
         try:
+            level = _effort(args, exp)
+            ckpt = run_context(exp, cfg, out, compile_effort=level).checkpoint_path
             metrics = run_experiment(exp, cfg, out, resume=args.resume, force=args.force,
-                                     flag_keys=flags, stop_requested=sig.requested,
-                                     compile_effort=_effort(args, exp))
+                                     flag_keys=flags, stop_requested=sig.requested, compile_effort=level)
         except ConfigError as e:
             return _error(f"{e.key}: {e.why}")
         except OutputError as e:
             return _error(f"{e.key}: {e.why}")
-        except CheckpointMismatch as e:
+        except CheckpointError as e:
             return _error(f"--resume: {e}")
+        except ResultError as e:
+            return _error(f"{e.key}: {e.why}")
         except RiccatiError as e:
             return _error(f"{_riccati_keys(cfg)}: {e}")
         except KeyboardInterrupt:

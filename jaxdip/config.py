@@ -247,14 +247,40 @@ def read_toml(path: str) -> dict:
         raise ConfigError("--config", "not valid TOML: nested too deeply") from None
 
 
+# A written config.toml's table of run settings that change results besides the config (the compile effort):
+# read back by ``run_table`` so that re-running a run's own config.toml gives the same last bits
+RUN_TABLE = "jaxdip"
+EFFORTS = ("fast", "balanced", "full")
+
+
+def _run_table(data: dict) -> dict:
+    run = data.pop(RUN_TABLE, {})
+    if not isinstance(run, dict):
+        raise ConfigError(RUN_TABLE, "must be a table")
+    for k, v in run.items():
+        if k != "compile_effort":
+            raise ConfigError(f"{RUN_TABLE}.{k}", "unknown key (known: compile_effort)")
+        if v not in EFFORTS:
+            raise ConfigError(f"{RUN_TABLE}.{k}", f"must be one of {', '.join(EFFORTS)}")
+    return run
+
+
+def run_table(path: str | None) -> dict:
+    """The ``[jaxdip]`` run settings of the config file at ``path`` (empty without one), validated."""
+    return _run_table(read_toml(path)) if path is not None else {}
+
+
 def load(cls, path: str | None = None, quick: dict | None = None, seeds: int | None = None,
          sets: list[str] | None = None):
-    """Defaults <- ``--quick`` overrides <- the file at ``path`` <- ``seeds`` <- ``--set`` pairs, then validated."""
+    """Defaults <- ``--quick`` overrides <- the file at ``path`` <- ``seeds`` <- ``--set`` pairs, then validated.
+    The file's ``[jaxdip]`` table holds run settings, not config keys (``run_table``)."""
     data = to_dict(cls())
     if quick:
         _merge(data, quick)
     if path is not None:
-        _merge(data, read_toml(path))
+        file = read_toml(path)
+        _run_table(file)
+        _merge(data, file)
     if seeds is not None:
         data["seeds"] = seeds
     for item in sets or []:

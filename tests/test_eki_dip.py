@@ -15,6 +15,11 @@ TINY = {"seeds": 4, "ensemble": 6, "iterations": 6, "chunk": 2, "T": 0.3, "t_sta
         "eval_states": 2, "judge_duration": 0.3, "early_stop": False, "min_success": 2}
 
 
+def _checkpoints(folder) -> list[str]:
+    """The checkpoints beside the output folders, without their fingerprint."""
+    return sorted(p.name.rsplit(".", 3)[0] for p in folder.glob(".*.ckpt.npz"))
+
+
 def test_interrupted_search_resumes_to_the_same_P(tmp_path, monkeypatch):
     exp = get("eki-dip")
     cfg = C.load(exp.config_cls, quick=TINY)
@@ -33,14 +38,14 @@ def test_interrupted_search_resumes_to_the_same_P(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         run_experiment(exp, cfg, str(tmp_path / "resumed"))
     assert not (tmp_path / "resumed").exists()  # nothing half-written
-    assert (tmp_path / ".resumed.ckpt.npz").exists()
+    assert _checkpoints(tmp_path) == [".resumed.eki-dip"]
     monkeypatch.setattr(checkpoint, "save", real_save)
     resumed = run_experiment(exp, cfg, str(tmp_path / "resumed"), resume=True)["results"]
     assert resumed["iterations"] == full["iterations"] == 6
     assert json.dumps(resumed["P_basis"]) == json.dumps(full["P_basis"])
     assert json.dumps(resumed["P_singular_values"]) == json.dumps(full["P_singular_values"])
     assert resumed["history_mean_performance"] == full["history_mean_performance"]
-    assert not (tmp_path / ".resumed.ckpt.npz").exists()  # removed once the folder is complete
+    assert _checkpoints(tmp_path) == []  # removed once the folder is complete
 
 
 def test_resume_refuses_a_checkpoint_of_another_config(tmp_path, monkeypatch):
@@ -57,7 +62,8 @@ def test_resume_refuses_a_checkpoint_of_another_config(tmp_path, monkeypatch):
         run_experiment(exp, cfg, str(tmp_path / "o"))
     monkeypatch.setattr(checkpoint, "save", real_save)
     other = C.load(exp.config_cls, quick={**TINY, "gamma": 11.0})
-    with pytest.raises(ValueError, match="different config"):
+    # one line naming the difference, before anything compiles
+    with pytest.raises(checkpoint.CheckpointMismatch, match=r"gamma = .* \(this run: 11\.0\)"):
         run_experiment(exp, other, str(tmp_path / "o"), resume=True)
 
 

@@ -48,14 +48,21 @@ def kill_and_resume(tmp_path, argv, sig):
                                                                               sort_keys=True)
 
 
+def _checkpoint(tmp_path):
+    """The run's checkpoint: beside its folder, named after the folder, the experiment and the run's fingerprint."""
+    found = [p for p in tmp_path.glob(".run.*.ckpt.npz") if ".tmp." not in p.name]
+    return found[0] if found else None
+
+
 def _kill_and_resume(tmp_path, argv, sig):
-    ckpt = tmp_path / ".run.ckpt.npz"
     p = subprocess.Popen([sys.executable, "-m", "jaxdip.cli", *argv, "--out", "run"], cwd=tmp_path, env=_env(),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 300
-    while not ckpt.exists() and p.poll() is None and time.time() < deadline:
+    while _checkpoint(tmp_path) is None and p.poll() is None and time.time() < deadline:
         time.sleep(0.01)
-    assert ckpt.exists(), "no checkpoint appeared"
+    ckpt = _checkpoint(tmp_path)
+    assert ckpt is not None, "no checkpoint appeared"
+    assert ckpt.name.startswith(f".run.{argv[1]}.")
     p.send_signal(sig)
     _, err = p.communicate(timeout=120)
     assert p.returncode != 0, "the run finished before the signal: make the test's search longer"

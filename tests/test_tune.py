@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from jaxdip import config as C
-from jaxdip.experiments import tune as T
+from jaxdip.experiments import tune_config as T
+from jaxdip.experiments import tune_targets as TT
 from jaxdip.tune import (Bounded, Log, Softplus, SPDFactor, random_search, to_constrained,
                          to_unconstrained, tune, value_and_grad_fn)
 
@@ -109,7 +110,7 @@ def test_unknown_target_is_a_config_error():
 
 def _tiny_cpx(quanta):
     cfg = C.load(T.TuneConfig, sets=["duration=0.06", "substeps=2"])
-    return T.make_target(cfg, quanta=quanta)
+    return TT.make_target(cfg, quanta=quanta)
 
 
 def test_cpx_gradient_matches_central_differences():
@@ -170,7 +171,7 @@ def test_reverse_mode_with_checkpointed_chunks_matches_forward():
 def test_rwp_gradient_matches_central_differences():
     """k_p1, k_p2, alpha_p, L0 through their transforms; unquantised encoders make the loss smooth."""
     cfg = C.load(T.TuneConfig, sets=["target=rwp", "duration=0.2", "substeps=2"])
-    tg = T.make_target(cfg, quantize=False)
+    tg = TT.make_target(cfg, quantize=False)
     J = tg.objective(np.arange(2), smooth=False)
     key = jax.random.PRNGKey(0)
     u0 = to_unconstrained(tg.spec, tg.paper)
@@ -205,14 +206,14 @@ def _check_fd(tg, J, h=1e-5):
 def test_dmso_gradient_matches_central_differences():
     """Gamma and diag K_MSO through log, noisy TWIP case (sensor noise on, encoder quantum 0: smooth)."""
     cfg = C.load(T.TuneConfig, sets=["target=dmso", "duration=0.2"])
-    tg = T.make_target(cfg, quantum=0.0)
+    tg = TT.make_target(cfg, quantum=0.0)
     _check_fd(tg, tg.objective(np.arange(2), smooth=False))
 
 
 def test_rp_gradient_matches_central_differences():
     """gamma of (2.14) through log, DIP with the fixed LQR-derived P; log (2.24) (no seed fails here)."""
     cfg = C.load(T.TuneConfig, sets=["target=rp", "duration=0.3"])
-    tg = T.make_target(cfg)
+    tg = TT.make_target(cfg)
     _check_fd(tg, tg.objective(np.arange(2), smooth=False))
 
 
@@ -222,7 +223,7 @@ def test_extra_gradient_matches_central_differences():
     from zero weights, so over a shorter horizon the learning rates' derivatives drop towards 1e-6 of J's scale
     and central differences lose their digits to rounding; h = 1e-3 is where both errors are small."""
     cfg = C.load(T.TuneConfig, sets=["target=extra", "duration=1.0", "substeps=2"])
-    tg = T.make_target(cfg)
+    tg = TT.make_target(cfg)
     J = tg.objective(np.arange(2), smooth=False)
     assert not np.any(np.asarray(J.diverged(tg.paper, jax.random.PRNGKey(0))))
     _check_fd(tg, J, h=1e-3)
@@ -236,7 +237,7 @@ def test_extra_seeds_are_the_studys_seeds():
     from jaxdip.scenarios.twip_initial import thesis_x0
 
     cfg = C.load(T.TuneConfig, sets=["target=extra", "duration=0.3", "substeps=2"])
-    tg = T.make_target(cfg)
+    tg = TT.make_target(cfg)
     seeds = np.asarray([0, 1, T.HELDOUT_OFFSET])
     mine = np.asarray(tg.objective(seeds, smooth=False).per_seed(tg.paper, jax.random.PRNGKey(0)))
     lp = S.loop("unmodeled", "extra", S.controller(), substeps=2)
@@ -270,7 +271,7 @@ def test_extra_tiny_cli_run(tmp_path):
             "substeps=2"]
     res, out = _cli(tmp_path, *[a for s in sets for a in ("--set", s)])
     r = res["extra"]
-    assert set(r["tuned_value"]) == set(T.ExtraTarget.KEYS)
+    assert set(r["tuned_value"]) == set(TT.ExtraTarget.KEYS)
     assert r["paper_value"] == {"k1": 2.5, "k2": 2.5, "gamma11": 0.1, "gamma12": 0.1, "gamma21": 0.1,
                                 "gamma22": 0.1}
     assert r["simulations_used"] == r["random_search_simulations"] == 4
@@ -325,7 +326,7 @@ def test_heldout_spreads_are_validated():
 @pytest.mark.parametrize("target", ["rwp", "rp"])
 def test_heldout_scenarios_change_each_seed_and_spread_zero_is_the_tuning_scenario(target):
     cfg = C.load(T.TuneConfig, sets=[f"target={target}", "duration=0.2", "substeps=2"])
-    tg = T.make_target(cfg, **({"quantize": False} if target == "rwp" else {}))
+    tg = TT.make_target(cfg, **({"quantize": False} if target == "rwp" else {}))
     key, seeds = jax.random.PRNGKey(0), np.arange(4)
     nominal = np.asarray(tg.objective(seeds, smooth=False).per_seed(tg.paper, key))
     zero = {k: 0.0 for k in T.SCENARIO_KINDS}

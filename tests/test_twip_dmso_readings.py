@@ -12,6 +12,7 @@ from scipy.stats import gmean
 import jaxdip  # noqa: F401  (float64)
 from jaxdip import config as C
 from jaxdip.experiments import twip_dmso as E
+from jaxdip.experiments import twip_dmso_report as ER
 from jaxdip.scenarios import twip_dmso as S
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -120,7 +121,7 @@ def test_comparison_readings():
           "rms_error": _est([1.0, 1.0, 1.0, 1.0]), "logmean_error_tail": _est([-5.0, -5.0, -5.0, -5.0])}
     kf = {"rms_error_first_1s": _est([10.0, 1.0, 40.0, 16.0]), "peak_error_first_1s": _est([2.0, 3.0, 4.0, 5.0]),
           "rms_error": _est([0.5, 1.0, 2.0, 3.0]), "logmean_error_tail": _est([-4.0, -4.0, -4.0, -6.0])}
-    c = E.comparison_readings(dm, kf)
+    c = ER.comparison_readings(dm, kf)
     ratio = [10.0, 0.5, 10.0, 2.0]
     assert list(c["first_1s_rms_ratio_kf_over_dmso"].values()) == ratio
     assert c["first_1s_rms_ratio_means"]["all"]["geometric"] == pytest.approx(gmean(ratio), rel=1e-14)
@@ -138,7 +139,7 @@ def test_uncertainty_ratio_readings():
                                                                "peak_error_settled", "rel_rms", "rel_rms_settled")}
         return {"dt": dt, "gamma": gamma, "dmso": {"uncertainty_readings": {"one_step": one}}}
 
-    r = E.uncertainty_ratio_readings(case(0.01, 0.1, 3.0), case(0.001, 0.5, 0.05))
+    r = ER.uncertainty_ratio_readings(case(0.01, 0.1, 3.0), case(0.001, 0.5, 0.05))
     assert r["gamma"] == {"coarse": 0.1, "fine": 0.5}
     assert r["rms_error"]["x_dot"] == pytest.approx(60.0) and r["rms_error"]["geometric"] == pytest.approx(60.0)
     assert r["rms_error_per_unit_time"]["phi_dot"] == pytest.approx(6.0)

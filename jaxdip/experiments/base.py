@@ -16,28 +16,46 @@ import json
 import math
 import os
 import time
+import uuid
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import jax
 
+from jaxdip import checkpoint
 from jaxdip import config as cfgmod
 from jaxdip import distributed, outdir, resources
 from jaxdip.engine import effort
+from jaxdip.experiments.common import check_writable, drop_missing
 
 
 @dataclass
 class RunContext:
-    """Where the current run writes, for experiments that checkpoint long searches."""
+    """Where the current run keeps its checkpoint, for experiments that checkpoint long searches.
+
+    The checkpoint lies beside the output folder (the folder itself only appears, complete, at the end), under
+    a name made of the folder's name, the experiment and ``fingerprint`` (of ``info``: the experiment, the
+    resolved config and ``run_settings``; see ``run_context``): two runs that could give different results never
+    share a file, and a resume finds only a checkpoint of the same run.
+    """
 
     out_dir: str
     resume: bool = False
+    exp_id: str = "run"
+    fingerprint: str = ""
+    info: dict | None = None  # what the fingerprint is made of, recorded in the checkpoint
 
     @property
     def checkpoint_path(self) -> str:
-        # beside the output folder, not inside it: the folder itself only appears, complete, at the end
-        return os.path.join(os.path.dirname(os.path.abspath(self.out_dir)),
-                            f".{os.path.basename(os.path.abspath(self.out_dir))}.ckpt.npz")
+        return os.path.join(self.checkpoint_dir, f"{self.checkpoint_prefix}{self.fingerprint or 'any'}.ckpt.npz")
+
+    @property
+    def checkpoint_dir(self) -> str:
+        return os.path.dirname(os.path.abspath(self.out_dir))
+
+    @property
+    def checkpoint_prefix(self) -> str:
+        return f".{os.path.basename(os.path.abspath(self.out_dir))}.{self.exp_id}."
 
 
 @dataclass
@@ -63,6 +81,8 @@ class Experiment:
     # dominates the quick run, "balanced" where running the compiled code weighs too, "full" (XLA's default, and
     # every full run's) where the results amplify the last bits in which the levels differ, or not measured
     quick_effort: str = "full"
+    # True for experiments whose run checkpoints (``RunContext``) and so can continue with --resume
+    resumable: bool = False
 
 
 def _jsonable(o):
@@ -103,14 +123,82 @@ def check_resources(cfg, flag_keys: dict[str, str] | None = None) -> None:
         resources.check(cfg.loads(), flag_keys=flag_keys)
 
 
+def run_settings(compile_effort: str = "full") -> dict:
+    """What besides the config changes a run's results in its last bits, all of it in a checkpoint's fingerprint.
+    config.toml's ``[jaxdip]`` table records the compile effort, the one a user chooses; the others belong to
+    the installation and the machine (metrics.json records them)."""
+    import jaxdip
+
+    return {"compile_effort": compile_effort, "dtype": "float64" if jax.config.jax_enable_x64 else "float32",
+            "jaxdip": jaxdip.__version__, "devices": jax.device_count(), "processes": jax.process_count()}
+
+
+def config_toml(exp: Experiment, cfg, compile_effort: str = "full") -> str:
+    """The written config.toml: the resolved config and, in its ``[jaxdip]`` table, the compile effort, so that
+    ``jaxdip run <id> --config <out>/config.toml`` (with or without ``--quick``) repeats the run to the last bit."""
+    return (cfgmod.to_toml(cfgmod.to_dict(cfg), header=f"# resolved config of {exp.id}")
+            + f"\n# run settings that change the last bits of the results\n[{cfgmod.RUN_TABLE}]\n"
+            + f"compile_effort = \"{compile_effort}\"\n")
+
+
+def run_context(exp: Experiment, cfg, out_dir: str, resume: bool = False,
+                compile_effort: str = "full") -> RunContext:
+    """The run's ``RunContext``; with ``resume``, a ``CheckpointError`` unless a checkpoint of this very run
+    (same experiment, config and settings) is there to continue from."""
+    info = {"experiment": exp.id, "config": cfgmod.to_dict(cfg), **run_settings(compile_effort)}
+    ctx = RunContext(out_dir, resume, exp.id, checkpoint.fingerprint(info), info)
+    if resume:
+        _check_resume(exp, ctx, info)
+    return ctx
+
+
+def _check_resume(exp: Experiment, ctx: RunContext, info: dict) -> None:
+    if not exp.resumable:
+        raise checkpoint.CheckpointError(f"{exp.id} keeps no checkpoint, so there is nothing to resume")
+    if os.path.lexists(ctx.checkpoint_path):
+        checkpoint.read_meta(ctx.checkpoint_path)  # damaged: say so now, before anything compiles
+        return
+    try:
+        others = sorted(n for n in os.listdir(ctx.checkpoint_dir)
+                        if n.startswith(ctx.checkpoint_prefix) and n.endswith(".ckpt.npz"))
+    except OSError:
+        others = []
+    for name in others:
+        path = os.path.join(ctx.checkpoint_dir, name)
+        try:
+            run = checkpoint.read_meta(path).get("run")
+        except checkpoint.CheckpointError:
+            continue
+        if isinstance(run, dict):
+            raise checkpoint.CheckpointMismatch(
+                f"the checkpoint of {exp.id} into {ctx.out_dir} ({path}) was written by a run with "
+                f"{_difference(run, info)}: resume with the same settings, or run without --resume")
+    raise checkpoint.CheckpointError(f"no checkpoint of an interrupted {exp.id} run into {ctx.out_dir} "
+                                     f"(looked for {ctx.checkpoint_path})")
+
+
+def _difference(theirs: dict, ours: dict) -> str:
+    """The first few settings and config keys in which a checkpoint's run differs from this one."""
+    diff = [f"{k} {theirs.get(k)!r} (this run: {v!r})" for k, v in ours.items()
+            if k not in ("config", "experiment") and theirs.get(k) != v]
+    a, b = theirs.get("config"), ours["config"]
+    if isinstance(a, dict):
+        diff += [f"{k} = {json.dumps(a.get(k), default=str)} (this run: {json.dumps(b.get(k), default=str)})"
+                 for k in sorted(set(a) | set(b)) if a.get(k) != json.loads(json.dumps(b.get(k), default=str))]
+    return ", ".join(diff[:3]) or "different settings"
+
+
 def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, force: bool = False,
                    flag_keys: dict[str, str] | None = None, stop_requested: Callable[[], bool] | None = None,
                    compile_effort: str = "full") -> dict:
     """Run an experiment with a validated config and write its folder; returns metrics.json's content.
 
-    Raises ``ConfigError`` (resources) or ``outdir.OutputError`` (destination) before anything is compiled.
-    Experiments with long searches checkpoint beside ``out_dir`` (``ctx.checkpoint_path`` of the ``RunContext`` passed to ``run``) and, with
-    ``resume``, continue from there; the checkpoint is removed once the folder is complete. ``stop_requested``
+    Raises ``ConfigError`` (resources), ``outdir.OutputError`` (destination) or ``CheckpointError`` (``resume``
+    without a checkpoint of this run) before anything is compiled, and ``ResultError`` instead of writing NaN,
+    inf or null.
+    Experiments with long searches checkpoint beside ``out_dir`` (``ctx.checkpoint_path`` of the ``RunContext``
+    passed to ``run``) and, with ``resume``, continue from there; the checkpoint is removed once the folder is
+    complete, if this run wrote it or resumed from it. ``stop_requested``
     is asked once more before the folder is moved into place, so an interrupt that a library swallowed still
     leaves no folder behind. ``compile_effort``: how hard XLA optimises the programs (``jaxdip.engine.effort``;
     results agree across levels to the last bits), recorded in the provenance.
@@ -121,6 +209,7 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
     import matplotlib.pyplot as plt
 
     check_resources(cfg, flag_keys)
+    ctx = run_context(exp, cfg, out_dir, resume, compile_effort)
     # With jax.distributed every process runs the experiment (its Monte Carlo is split over all of them) and
     # process 0 alone writes; the others learn whether process 0 could prepare its folder before computing.
     main = distributed.is_main()
@@ -132,12 +221,14 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
             refused = e
     if not distributed.agree(refused is None):
         raise refused or outdir.OutputError("--out", f"process 0 cannot write {out_dir} (see its error)")
-    ctx = RunContext(out_dir, resume)
     try:
         t0 = time.perf_counter()
-        with effort.effort(compile_effort):
+        with effort.effort(compile_effort), checkpoint.owning(uuid.uuid4().hex, ctx.info) as owner:
             outcome = exp.run(cfg, ctx)
         wall = time.perf_counter() - t0
+        # a statistic over no seed is left out, never written as NaN or null; anything else non-finite is refused
+        outcome.results = drop_missing(outcome.results)
+        check_writable(outcome.results, outcome.report)
         seeds = getattr(cfg, "seeds", 1)
         metrics = {**provenance(exp.id, seeds, wall, compile_effort), "results": outcome.results, "timing": outcome.timing}
         if not main:
@@ -159,7 +250,7 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
             if outcome.figures:
                 fh.write("\n## Figures\n\n" + "".join(f"![{n}]({n}.png)\n" for n in outcome.figures))
         with open(os.path.join(tmp, "config.toml"), "w") as fh:
-            fh.write(cfgmod.to_toml(cfgmod.to_dict(cfg), header=f"# resolved config of {exp.id}"))
+            fh.write(config_toml(exp, cfg, compile_effort))
         for name, fig in outcome.figures.items():
             fig.savefig(os.path.join(tmp, f"{name}.png"), dpi=120, bbox_inches="tight")
             plt.close(fig)
@@ -169,6 +260,5 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
     finally:
         if staging is not None:
             staging.discard()  # a no-op once committed
-    if os.path.exists(ctx.checkpoint_path):
-        os.remove(ctx.checkpoint_path)
+    checkpoint.remove_own(ctx.checkpoint_path, owner)  # never a checkpoint another run keeps there
     return metrics

@@ -29,7 +29,8 @@ from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.common import fmt_ci, weight_matrix
+from jaxdip.experiments.common import failure_lines, failure_summary, fmt, fmt_ci, na, weight_matrix
+from jaxdip.experiments.dip_cpx_ldf_figures import sweep_figure, velocity_figure
 from jaxdip.plants import dip
 from jaxdip.scenarios import dip_cpx_ldf as S
 from jaxdip.sim import dip_sensors
@@ -145,6 +146,10 @@ def summarize(cfg, sol: jd.Solution) -> dict:
     stab = ok & np.all(m["tail"][:, [1, 2]] < cfg.stabilized_tol, axis=1)
     frac, fci = stats.wilson(int(stab.sum()), len(stab))
     out = {"diverged": int(div.sum()), "stabilized_fraction": frac, "stabilized_fraction_ci95": fci}
+    if div.any():
+        out["failures"] = failure_summary(sol, dip.STATE_NAMES, cfg.dt, cfg.state_bound)
+    if not ok.any():
+        return out  # no seed to average over: the failures block says how they failed
     for name in ("xc", "alpha", "theta"):
         k, unit = SCALE[name]
         i = dip.STATE_NAMES.index(name)
@@ -177,9 +182,9 @@ def gamma_sweep(cfg, rollout: jd.Rollout, progress=True) -> dict:
         mean, ci = stats.mean_ci(DEG**2 * m["x"]["var"][j, :, i_th], ~div)
         e, _ = stats.mean_ci(m["err"][j, :, i_thd], ~div)
         f, fci = stats.wilson(int(div.sum()), len(div))
-        out["theta_var"].append(mean)
-        out["theta_var_ci95"].append(ci)
-        out["theta_dot_rms_err"].append(e)
+        out["theta_var"].append(na(mean))  # "n/a" at a gamma where every seed diverged
+        out["theta_var_ci95"].append(na(ci))
+        out["theta_dot_rms_err"].append(na(e))
         out["diverged_fraction"].append(f)
         out["diverged_fraction_ci95"].append(fci)
     return out
@@ -205,58 +210,6 @@ def velocity_trial(cfg, gamma_crit) -> dict:
     tr = {k: np.asarray(v)[0] for k, v in sol.saved.items()}
     tr["diverged"] = bool(np.asarray(sol.result)[0] != jd.RESULTS.ok)
     return tr
-
-
-def velocity_figure(cfg, tr, gamma_crit):
-    import matplotlib.pyplot as plt
-
-    i = dip.STATE_NAMES.index("theta_dot")
-    t = np.arange(tr["x"].shape[0]) * cfg.dt
-    win = t <= min(1.0, t[-1])
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-    ax = axes[0]
-    ax.plot(t[win], tr["ldf"][win, i], lw=0.9, label="LDF")
-    ax.plot(t[win], tr["cpx"][win, i], lw=0.9, label=f"CPX, gamma = {cfg.cpx_gamma:g}")
-    ax.plot(t[win], tr["x"][win, i], "k", lw=1.2, label="truth")
-    ax.set_ylabel("theta_dot (rad/s)")
-    ax.legend(fontsize=8, loc="upper right")
-    ax.set_title("one CPX-controlled trial: estimates of theta_dot from the same encoder readings (cf. Fig. 3.5)")
-    ax = axes[1]
-    ax.plot(t[win], tr["cpx_crit"][win, i], lw=0.7, color="C3", label=f"CPX, gamma = {gamma_crit:.0f} (criterion)")
-    ax.plot(t[win], tr["x"][win, i], "k", lw=1.2, label="truth")
-    ax.set_ylabel("theta_dot (rad/s)")
-    ax.set_xlabel("time (s)")
-    ax.legend(fontsize=8, loc="upper right")
-    for a in axes:
-        a.grid(alpha=0.3)
-    fig.tight_layout()
-    return fig
-
-
-def sweep_figure(cfg, sw, gamma_crit):
-    import matplotlib.pyplot as plt
-
-    g = np.asarray(sw["gamma"])
-    v = np.asarray(sw["theta_var"], dtype=float)
-    ci = np.asarray(sw["theta_var_ci95"], dtype=float)
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
-    a1.fill_between(g, ci[:, 0], ci[:, 1], alpha=0.3)
-    a1.plot(g, v, "o-", ms=3)
-    a1.set_yscale("log")
-    a1.set_ylabel("var theta (deg^2), non-diverged")
-    a2.plot(g, sw["diverged_fraction"], "o-", ms=3, color="C3")
-    a2.set_ylabel("diverged fraction")
-    a2.set_ylim(-0.03, 1.03)
-    a2.set_xlabel("CPX gamma")
-    for a in (a1, a2):
-        a.set_xscale("log")
-        a.axvline(gamma_crit, color="k", ls="--", lw=1, label=f"Prop. 1.4.3 criterion {gamma_crit:.0f}")
-        a.axvline(cfg.cpx_gamma, color="C2", ls=":", lw=1, label=f"paper's gamma {cfg.cpx_gamma:g}")
-        a.grid(alpha=0.3, which="both")
-    a1.legend(fontsize=8)
-    a1.set_title(f"CPX gamma sweep: {sw['seeds']} seeds per gamma, {cfg.duration} s")
-    fig.tight_layout()
-    return fig
 
 
 # ---- run and report -----------------------------------------------------------------------------------------
@@ -290,9 +243,9 @@ def _row(label, r):
     cells = []
     for name in ("xc", "alpha", "theta"):
         unit = SCALE[name][1]
-        cells += [fmt_ci(r[f"{name}_mean_{unit}"], r[f"{name}_mean_{unit}_ci95"], 3),
-                  fmt_ci(r[f"{name}_abs_trial_mean_{unit}"], r[f"{name}_abs_trial_mean_{unit}_ci95"], 3),
-                  fmt_ci(r[f"{name}_var"], r[f"{name}_var_ci95"], 3)]
+        cells += [fmt_ci(r.get(f"{name}_mean_{unit}"), r.get(f"{name}_mean_{unit}_ci95"), 3),
+                  fmt_ci(r.get(f"{name}_abs_trial_mean_{unit}"), r.get(f"{name}_abs_trial_mean_{unit}_ci95"), 3),
+                  fmt_ci(r.get(f"{name}_var"), r.get(f"{name}_var_ci95"), 3)]
     return f"| {label} | " + " | ".join(cells) + f" | {r['diverged']} |"
 
 
@@ -326,13 +279,14 @@ def report(cfg, r) -> str:
     lines += [
         "",
         "RMS error of the velocity estimates handed to the controller (rad/s, m/s): "
-        + "; ".join(f"{k.upper()}: " + ", ".join(f"{n} {r[k][f'{n}_rms_err']:.3g}"
+        + "; ".join(f"{k.upper()}: " + ", ".join(f"{n} {fmt(r[k].get(f'{n}_rms_err'), '.3g')}"
                                                for n in ("xc_dot", "alpha_dot", "theta_dot")) for k in ("cpx", "ldf"))
         + ".",
         "",
         f"Closer to upright with CPX than with the LDF (seed-mean |trial mean| of xc, alpha, theta all smaller): "
-        f"{'yes' if _closer(c, l) else 'no'}; less variance with CPX (all three variances smaller): "
-        f"{'yes' if _less_var(c, l) else 'no'}.",
+        f"{_closer(c, l)}; less variance with CPX (all three variances smaller): {_less_var(c, l)}.",
+        *[line for k in ("cpx", "ldf") for line in
+          ([f"- {k.upper()}:"] + failure_lines(r[k], cfg.seeds) if r[k].get("failures") else [])],
         "",
         "## The gamma criterion and the sweep",
         "",
@@ -345,15 +299,17 @@ def report(cfg, r) -> str:
         lines += ["| gamma | var theta (deg^2) | theta_dot rms err (rad/s) | diverged fraction |", "|---|---|---|---|"]
         for g, v, vci, e, f in zip(sw["gamma"], sw["theta_var"], sw["theta_var_ci95"], sw["theta_dot_rms_err"],
                                    sw["diverged_fraction"]):
-            lines.append(f"| {g:.4g} | {fmt_ci(v, vci, 3)} | {e:.3g} | {f:.3f} |")
+            lines.append(f"| {g:.4g} | {fmt_ci(v, vci, 3)} | {fmt(e, '.3g')} | {f:.3f} |")
     vt = r.get("velocity_trial")
     if vt is None:
         return "\n".join(lines)
     lines += [
         "",
         f"One trial (seed {vt['seed']}), estimates from the same readings: RMS error of theta_dot LDF "
-        f"{vt['theta_dot_rms_err_ldf']:.3g}, CPX at gamma = {cfg.cpx_gamma:g} {vt['theta_dot_rms_err_cpx']:.3g}, "
-        f"CPX at the criterion's gamma {vt['theta_dot_rms_err_cpx_criterion']:.3g} rad/s.",
+        f"{fmt(vt.get('theta_dot_rms_err_ldf'), '.3g')}, CPX at gamma = {cfg.cpx_gamma:g} "
+        f"{fmt(vt.get('theta_dot_rms_err_cpx'), '.3g')}, CPX at the criterion's gamma "
+        f"{fmt(vt.get('theta_dot_rms_err_cpx_criterion'), '.3g')} rad/s"
+        + (" (the trial diverged)." if vt["diverged"] else "."),
     ]
     return "\n".join(lines)
 
@@ -371,13 +327,19 @@ def _readings_text(cfg) -> str:
     return (" Readings: " + "; ".join(parts) + ".") if parts else ""
 
 
-def _closer(c, l):
-    return all(c[f"{n}_abs_trial_mean_{SCALE[n][1]}"] < l[f"{n}_abs_trial_mean_{SCALE[n][1]}"]
-               for n in ("xc", "alpha", "theta"))
+def _compare(c, l, keys) -> str:
+    """yes / no: CPX's value below the LDF's for every key; n/a where either has no surviving seed."""
+    if any(k not in c or k not in l for k in keys):
+        return "n/a (no surviving seed)"
+    return "yes" if all(c[k] < l[k] for k in keys) else "no"
 
 
-def _less_var(c, l):
-    return all(c[f"{n}_var"] < l[f"{n}_var"] for n in ("xc", "alpha", "theta"))
+def _closer(c, l) -> str:
+    return _compare(c, l, [f"{n}_abs_trial_mean_{SCALE[n][1]}" for n in ("xc", "alpha", "theta")])
+
+
+def _less_var(c, l) -> str:
+    return _compare(c, l, [f"{n}_var" for n in ("xc", "alpha", "theta")])
 
 
 EXPERIMENT = Experiment(

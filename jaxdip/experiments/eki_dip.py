@@ -28,7 +28,6 @@ they used (a gradient step counts its forward simulations; its backward pass cos
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -42,7 +41,7 @@ from jaxdip.resources import Load, steps_of
 from jaxdip import checkpoint
 from jaxdip import config as C
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.common import fmt_ci, loop_summary
+from jaxdip.experiments.common import failure_lines, fmt_ci, loop_summary
 from jaxdip.plants import dip
 from jaxdip.progress import Progress
 from jaxdip.scenarios import eki_dip as S
@@ -165,7 +164,7 @@ def judge(cfg, member, key_seed):
     rollout = S.judge_rollout(member_P(member), gamma=cfg.judge_gamma, dt=cfg.dt, duration=cfg.judge_duration,
                               radius=cfg.judge_radius, noise_std=cfg.noise_std)
     sol = jd.monte_carlo(rollout, jax.random.PRNGKey(key_seed), cfg.seeds, progress=True, desc="eki-dip judge")
-    return loop_summary(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol)
+    return loop_summary(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt, bound=S.STATE_BOUND)
 
 
 class GradientLoss(NamedTuple):
@@ -202,11 +201,12 @@ def build(cfg: EkiDipConfig, base):
 def ensemble_search(cfg: EkiDipConfig, eki, state, ctx: RunContext | None):
     """run_eki to ``cfg.iterations`` (or the early stop), checkpointed after every chunk to
     ``ctx.checkpoint_path`` and continued from it with ``ctx.resume``. Returns (state, history, wall time)."""
-    fp = checkpoint.fingerprint(C.to_dict(cfg))
+    fp = ctx.fingerprint if ctx is not None else checkpoint.fingerprint(C.to_dict(cfg))
     hist_prev = np.zeros((0, 1))
     wall_before = 0.0
-    if ctx is not None and ctx.resume and os.path.exists(ctx.checkpoint_path):
-        (state, hist_prev), meta = checkpoint.load(ctx.checkpoint_path, (state, jnp.zeros((1, 1))), fp)
+    if ctx is not None and ctx.resume:  # run_experiment has checked that the checkpoint is there
+        # the history's length is the iterations done so far: a leading 0 accepts any
+        (state, hist_prev), meta = checkpoint.load(ctx.checkpoint_path, (state, jnp.zeros((0, 1))), fp)
         hist_prev = np.asarray(hist_prev)[: int(state.iteration)]
         wall_before = meta.get("wall_s", 0.0)
     t0 = time.perf_counter()
@@ -323,6 +323,7 @@ def report(cfg, r, timing):
         f"- RP with gamma = {cfg.judge_gamma} from {cfg.seeds} random states in a ball of radius {cfg.judge_radius},"
         f" {cfg.judge_duration} s: stabilised fraction **{fmt_ci(r['stabilized_fraction'], r['stabilized_fraction_ci95'])}**"
         f", diverged {j['diverged']}",
+        *failure_lines(j, cfg.seeds),
     ]
     g = r["gradient"]
     if g:
@@ -345,4 +346,5 @@ EXPERIMENT = Experiment(
     run=run, quick={"seeds": 32, "ensemble": 8, "iterations": 4, "chunk": 2, "T": 1.0, "t_star": 0.5,
                     "grad_steps": 3, "grad_x0": 2, "eval_states": 8, "judge_duration": 2.0},
     source="thesis §3.2.1, Procedure 1, (2.20), (2.24)",
-    quick_effort="fast")  # compiling dominates its quick run (measured)
+    quick_effort="fast",  # compiling dominates its quick run (measured)
+    resumable=True)

@@ -35,6 +35,7 @@ from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
+from jaxdip.experiments.common import fmt_ci
 from jaxdip.plants import lorenz
 from jaxdip.scenarios import lorenz_mhe as scenario
 from jaxdip.scenarios.lorenz_mhe import METHODS
@@ -170,16 +171,23 @@ def summarize(cfg: LorenzMheConfig, s: dict) -> tuple[dict, dict]:
             r.update(stats.with_ci("mean_norm_error_current", s["norm_cur"][:, j] / n[:, j], ok))
             r.update(stats.with_ci("mean_xL_error_current", s["xl_cur"][:, j] / n[:, j], ok))
         results[m] = r
+    if div.any():
+        # a method's trial diverges when its estimate becomes non-finite or its error passes divergence_bound
+        results["failures"] = {"bound": cfg.divergence_bound,
+                               "diverged": {m: int(div[:, j].sum()) for j, m in enumerate(METHODS)}}
     return results, per_trial
 
 
 def _fmt(v, ci):
-    return f"{v:.4g} [{ci[0]:.4g}, {ci[1]:.4g}]"
+    return fmt_ci(v, ci, missing="n/a (every trial diverged)")
 
 
 def _below(r, a, b, key):
-    """'yes' when a's interval lies below b's, 'no' when above, 'overlap' otherwise."""
-    ca, cb = r[a][f"{key}_ci95"], r[b][f"{key}_ci95"]
+    """'yes' when a's interval lies below b's, 'no' when above, 'overlap' otherwise ('n/a': no interval, every
+    trial of one of them diverged)."""
+    ca, cb = r[a].get(f"{key}_ci95"), r[b].get(f"{key}_ci95")
+    if ca is None or cb is None or not np.all(np.isfinite(ca + cb)):
+        return "n/a"
     if ca[1] < cb[0]:
         return "yes"
     if ca[0] > cb[1]:
@@ -215,6 +223,8 @@ def _verdict(vs: list[str]) -> str:
         return "holds"
     if any(v == "no" for v in vs):
         return "does not hold"
+    if any(v == "n/a" for v in vs):
+        return "undecided (every trial of a method diverged)"
     return "undecided (intervals overlap)"
 
 
@@ -266,9 +276,9 @@ def report(cfg: LorenzMheConfig, r: dict) -> str:
     ]
     for m in METHODS:
         s = r[m]
-        lines.append(f"| {LABELS[m]} | {_fmt(s['mean_norm_error'], s['mean_norm_error_ci95'])} | "
-                     f"{_fmt(s['mean_xL_error'], s['mean_xL_error_ci95'])} | "
-                     f"{_fmt(s['mean_xL_error_at_extrema'], s['mean_xL_error_at_extrema_ci95'])} | "
+        lines.append(f"| {LABELS[m]} | {_fmt(s.get('mean_norm_error'), s.get('mean_norm_error_ci95'))} | "
+                     f"{_fmt(s.get('mean_xL_error'), s.get('mean_xL_error_ci95'))} | "
+                     f"{_fmt(s.get('mean_xL_error_at_extrema'), s.get('mean_xL_error_at_extrema_ci95'))} | "
                      f"{s['diverged']} |")
     if cfg.alignment == "filtered":
         current = ("All four are scored on their estimate of x_k from the measurements up to y_k (CPX/SCPX: their "
@@ -279,8 +289,8 @@ def report(cfg: LorenzMheConfig, r: dict) -> str:
         current = (f"CPX/SCPX errors are those of the prediction handed out one sample ahead (the thesis's "
                    f"x~_{{k+2}}), {who}; the CPX/SCPX current estimates xhat_k give: "
                    + "; ".join(f"{LABELS[m]} e = "
-                               f"{_fmt(r[m]['mean_norm_error_current'], r[m]['mean_norm_error_current_ci95'])},"
-                               f" e_xL = {_fmt(r[m]['mean_xL_error_current'], r[m]['mean_xL_error_current_ci95'])}"
+                               f"{_fmt(r[m].get('mean_norm_error_current'), r[m].get('mean_norm_error_current_ci95'))},"
+                               f" e_xL = {_fmt(r[m].get('mean_xL_error_current'), r[m].get('mean_xL_error_current_ci95'))}"
                                for m in ("cpx", "scpx")) + ".")
         if cfg.alignment == "mixed":  # the default's sentence as it always read
             current = current.replace(", the EKFs' on their filtered estimates x+_k;", ";").replace(

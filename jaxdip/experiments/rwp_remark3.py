@@ -18,6 +18,7 @@ import numpy as np
 
 from jaxdip import config as C
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
+from jaxdip.experiments.common import fmt_ci
 from jaxdip.resources import Load
 
 
@@ -87,18 +88,22 @@ def compute(cfg: RwpRemark3Config) -> dict:
         ok = (res == 0) & ok0
         m, ci = stats.mean_ci(e[ok])
         dm, dci = stats.mean_ci(e[ok] - e0[ok])
-        h = (dci[0] <= 0 <= dci[1]) or (abs(dci[0]) <= cfg.tolerance and abs(dci[1]) <= cfg.tolerance)
+        h = ok.any() and ((dci[0] <= 0 <= dci[1]) or (abs(dci[0]) <= cfg.tolerance and abs(dci[1]) <= cfg.tolerance))
         return {"d_r": d_r, "d": d, "error_mean": m, "error_ci95": ci, "paired_mean": dm, "paired_ci95": dci,
                 "diverged": int((res != 0).sum()), "kept": int(ok.sum()), "holds": bool(h)}
 
     out["wheel"] = [case(d_r, 0.0) for d_r in cfg.wheel_biases]
     if cfg.pendulum_bias != 0:
         out["contrast"] = case(0.0, cfg.pendulum_bias)
+    rows = [out["reference"], *out["wheel"], *([out["contrast"]] if "contrast" in out else [])]
+    if any(c["diverged"] for c in rows):  # a seed diverged in a row: its pairs are left out of every comparison
+        out["failures"] = {"diverged": {f"d_r={c['d_r']:g}, d={c['d']:g}": c["diverged"] for c in rows},
+                           "of_seeds": cfg.seeds}
     return out
 
 
 def _ci(v, ci) -> str:
-    return f"{v:.3g} [{ci[0]:.3g}, {ci[1]:.3g}]"
+    return fmt_ci(v, ci, 3, missing="n/a (no seed kept)")
 
 
 def report(cfg: RwpRemark3Config, r: dict) -> str:
@@ -115,10 +120,14 @@ def report(cfg: RwpRemark3Config, r: dict) -> str:
     ref = r["reference"]
     L.append(f"| 0 | 0 | {_ci(ref['error_mean'], ref['error_ci95'])} | — | {ref['diverged']} | — |")
     for c in r["wheel"] + ([r["contrast"]] if "contrast" in r else []):
-        h = "yes" if c["holds"] else "no"
+        h = ("yes" if c["holds"] else "no") if c["kept"] else "n/a"
         L.append(f"| {c['d_r']:g} | {c['d']:g} | {_ci(c['error_mean'], c['error_ci95'])} | "
                  f"{_ci(c['paired_mean'], c['paired_ci95'])} | {c['diverged']} | "
                  f"{h if c['d'] == 0 else '(contrast) ' + h} |")
+    if "failures" in r:
+        L += ["", f"Diverged seeds (of {r['failures']['of_seeds']}): "
+              + ", ".join(f"{k}: {v}" for k, v in r["failures"]["diverged"].items())
+              + "; a row keeps the seeds that diverged neither there nor at d_r = 0 (n/a: none kept)."]
     return "\n".join(L)
 
 

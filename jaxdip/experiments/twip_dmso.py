@@ -58,7 +58,6 @@ function of the DMSO is ``jaxdip.scenarios.twip_dmso.rms_error`` (gradients chec
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import jax
@@ -66,122 +65,18 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxdip as jd
-from jaxdip import config as C
+from jaxdip import stats
 from jaxdip.control.twip_lqr import TwipDesign
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.twip_dmso_report import (  # noqa: F401  (re-exported: the readings scripts use them)
-    ESTIMATORS, KF_READINGS, STATES, THESIS_NOISE_TILT_RATE_CONVERGENCE, UNCERTAIN_NAMES, UNCERTAINTY_METRICS, UNITS,
-    comparison_readings, fig_errors, fig_states, fig_uncertainty, findings, report, summarize,
-    uncertainty_ratio_readings, uncertainty_readings)
-from jaxdip.resources import Load, steps_of
+from jaxdip.experiments.twip_dmso_config import TwipDmsoConfig
+from jaxdip.experiments.twip_dmso_report import ESTIMATORS, STATES, UNCERTAIN_NAMES, UNITS, findings, report
 from jaxdip.scenarios import twip_dmso as S
 from jaxdip.scenarios.twip_initial import thesis_x0
 
-INF = float("inf")
 UNCERTAIN_ROWS = S.UNCERTAIN_ROWS
-CASES = ("nominal", "param", "noise")
-
-
-@dataclass
-class TwipDmsoConfig:
-    seeds: int = C.field(1000, C.positive, doc="Monte Carlo seeds of the noisy case (sensor-noise draws)")
-    det_seeds: int = C.field(64, C.positive,
-                             doc="initial states per noiseless case (seed 0 is the thesis's x0, eq. 179)")
-    seed: int = C.field(0, C.nonneg, doc="base PRNG key")
-    cases: list[str] = C.field(list(CASES), doc="which of nominal, param (with its variants), noise to run")
-    duration: float = C.field(20.0, C.positive_finite, doc="simulated time (s)")
-    dt: float = C.field(0.01, C.positive_finite, doc="sample period of sensors, estimators and control (s)")
-    dt_fine: float = C.field(0.001, C.positive_finite, doc="the param case's small-step variant (s)")
-    duration_fine: float = C.field(20.0, C.positive_finite, doc="simulated time of the small-step variant (s)")
-    rk4_step: float = C.field(0.001, C.positive_finite, doc="largest RK4 sub-step of the true plant (s)")
-    x0: list[float] = C.field([1.0, 0.3, 10.0, 1.0], C.finite, C.length(4),
-                              doc="true initial state [m, m/s, deg, deg/s] (179)")
-    init_spread: float = C.field(0.2, C.nonneg_finite,
-                                 doc="noiseless cases: seed i > 0 starts at x0 * (1 + U(-s, s)) per component")
-    noise_init_spread: float = C.field(0.0, C.nonneg_finite, doc="the same for the noisy case (0: x0 always)")
-    lqr_Q: list[float] = C.field([10.0, 10.0, 1e-5, 1e-4], C.nonneg_finite, C.length(4),
-                                 doc="LQR state weights on [x, x_dot, phi, phi_dot] (152)")
-    lqr_R: float = C.field(1000.0, C.positive_finite, doc="LQR input weight (151)")
-    u_max: float = C.field(11.1, C.positive_finite, doc="motor voltage saturation (V), §7.5.1")
-    dmso_K: list[float] | list[list[float]] = C.field([1.0, 1.0, 1.0, 1.0], C.finite,
-                                                      doc="K_MSO: 4 diagonal entries or a 4x4 matrix (174)")
-    dmso_gamma: float = C.field(0.1, C.nonneg_finite, doc="DMSO adaptation rate Gamma (175)")
-    dmso_gamma_variant: float = C.field(0.5, C.nonneg_finite, doc="Gamma of the param case's variant (Fig. 8.9)")
-    dt_fine_gamma: str = C.field("gamma", C.one_of("gamma", "variant"),
-                                 doc="Gamma of the small-step variant (Figs. 8.10-8.11): dmso_gamma, or "
-                                     "dmso_gamma_variant (the text comes to dt = 0.001 s after Fig. 8.9's Gamma)")
-    basis_scale: list[float] = C.field([1.0, 1.0, 1.0, 1.0], C.finite, C.length(4),
-                                       doc="s in the basis phi = [1, tanh(s_i x_i)] (thesis: 1)")
-    kf_Q: list[float] = C.field([1e-4, 1e-2, 1e-4, 1e-2], C.nonneg_finite, C.length(4),
-                                doc="KF process noise covariance diagonal (176)")
-    kf_R: list[float] = C.field([1e-6, 1e-5, 4e-6, 2e-5], C.positive_finite, C.length(4),
-                                doc="KF measurement noise covariance diagonal (177)")
-    kf_P0: float = C.field(0.01, C.positive_finite, doc="KF initial covariance P0 = this * I (178)")
-    kf_readings: bool = C.field(True, doc="also run the KF's posterior and printed readings (see module doc)")
-    tilt_var: float = C.field(4.0397e-6, C.nonneg_finite,
-                              doc="Table 7.1 tilt-angle white-noise variance (rad^2; printed 'rad')")
-    tilt_bias_var: float = C.field(1.8929e-7, C.nonneg_finite,
-                                   doc="Table 7.1 tilt walking-bias driving intensity (rad^2/s; printed 'rad/s')")
-    tilt_tau: float = C.field(2160.0, C.positive_finite, doc="Table 7.1 tilt walking-bias time constant (s)")
-    gyro_var: float = C.field(0.0012, C.nonneg_finite,
-                              doc="Table 7.1 gyro white-noise variance ((deg/s)^2; printed 'deg/s')")
-    gyro_bias_var: float = C.field(1.0986e-4, C.nonneg_finite,
-                                   doc="Table 7.1 gyro walking-bias driving intensity ((deg/s)^2/s; printed 'deg/s^2')")
-    gyro_tau: float = C.field(1610.0, C.positive_finite, doc="Table 7.1 gyro walking-bias time constant (s)")
-    encoder_quantum: float = C.field(0.000147, C.nonneg_finite, doc="encoder position step (m), §7.4")
-    encoder_gradient: str = C.field("exact", C.one_of("exact", "straight_through"),
-                                    doc="derivative of the encoder quantiser: its exact a.e. 0, or 1 (gradients only)")
-    bias_start: str = C.field("zero", C.one_of("zero", "stationary"),
-                              doc="walking biases start at zero (removed at start-up, §4.3) or stationary")
-    cf_alpha: float = C.field(0.99, C.nonneg_finite, doc="complementary filter weight alpha (37)")
-    cf_init: str = C.field("accel", C.one_of("accel", "zero"),
-                           doc="complementary filter starts at the first accelerometer tilt or at 0")
-    band_noiseless: list[float] = C.field([1e-3, 1e-3, 1e-4, 1e-3], C.positive, C.length(4),
-                                          doc="convergence band |error| per state, noiseless cases [m, m/s, rad, "
-                                              "rad/s]")
-    band_noise: list[float] = C.field([5e-4, 3e-2, 4e-3, 6e-3], C.positive, C.length(4),
-                                      doc="convergence band, noisy case: about 5x the RMS measurement error after "
-                                          "start-up (position one step ahead, velocity, CF tilt, gyro)")
-    tail_s: float = C.field(5.0, C.positive_finite, doc="'ends better': RMS error over the last tail_s seconds")
-    settle_s: float = C.field(0.25, C.nonneg_finite,
-                              doc="settled relative uncertainty error is measured after this (s; thesis: the "
-                                  "estimate converges in 0.25 s)")
-    tilt_bound_deg: float = C.field(90.0, C.positive_finite, doc="|phi| above this counts as a fall (diverged)")
-    chunk_seeds: int = C.field(64, C.positive, doc="seeds per compiled batch")
-
-    def loads(self) -> list[Load]:
-        # only the cases that run count: the noisy case at dt, the noiseless ones up to the small-step variant
-        n = steps_of(self.duration, self.dt)
-        nd = max(n, steps_of(self.duration_fine, self.dt_fine)) if "param" in self.cases else n
-        det = {"nominal", "param"} & set(self.cases)
-        return [Load("the Monte Carlo", ("seeds", "duration"), self.seeds if "noise" in self.cases else 0, n,
-                     saved=48 * n),
-                Load("the deterministic cases", ("det_seeds", "duration"), self.det_seeds if det else 0, nd,
-                     saved=48 * nd)]
-
-    def validate(self):
-        for i, c in enumerate(self.cases):
-            if c not in CASES:
-                raise C.ConfigError(f"cases[{i}]", f"must be one of {', '.join(map(repr, CASES))}")
-        if not self.cases:
-            raise C.ConfigError("cases", "must name at least one case")
-        K = np.asarray(self.dmso_K, dtype=float)
-        if K.shape not in ((4,), (4, 4)):
-            raise C.ConfigError("dmso_K", f"must be 4 diagonal entries or a 4x4 matrix, got shape {K.shape}")
-        for name, dur, dt in (("duration", self.duration, self.dt), ("duration_fine", self.duration_fine,
-                                                                     self.dt_fine)):
-            if dur < 2 * dt:
-                raise C.ConfigError(name, f"must cover at least two samples (dt = {dt})")
-        if self.tail_s > self.duration:
-            raise C.ConfigError("tail_s", f"must not exceed duration ({self.duration})")
-        for name in ("dt", "dt_fine"):
-            h = getattr(self, name)
-            if self.rk4_step > h * (1 + 1e-9):
-                raise C.ConfigError("rk4_step", f"must not exceed {name} ({h})")
 
 
 # ---- building the loops (jaxdip.scenarios.twip_dmso) ----------------------------------------------------
-
 
 class CaseSpec(NamedTuple):
     name: str
@@ -282,6 +177,145 @@ def run_case(cfg: TwipDmsoConfig, spec: CaseSpec, est: str, progress: bool = Fal
             Trace(tr["x"], tr["xhat"], tr["u"], tr["y"], tr["f"], tr["fhat"]))
 
 
+# ---- summaries --------------------------------------------------------------------------------------------
+
+
+def _per_state(values, ok, names=STATES):
+    out, ci = {}, {}
+    for j, n in enumerate(names):
+        out[n], ci[n] = stats.mean_ci(values[:, j], ok)
+    return out, ci
+
+
+def summarize(m: dict, div: np.ndarray, est: str, spec: CaseSpec) -> dict:
+    ok = ~div
+    r = {"diverged": int(div.sum()), "seeds": int(len(div))}
+    for key, name in (("rms", "rms_error"), ("rms_1s", "rms_error_first_1s"), ("rms_tail", "rms_error_tail")):
+        r[name], r[name + "_ci95"] = _per_state(m[key], ok)
+    r["peak_error_first_1s"], r["peak_error_first_1s_ci95"] = _per_state(m["peak_1s"], ok)
+    r["logmean_error_tail"], r["logmean_error_tail_ci95"] = _per_state(m["logmean_tail"], ok)
+    r["convergence_time_s"], r["convergence_time_s_ci95"] = _per_state(m["conv"], ok)
+    r["convergence_time_s_median"] = {n: float(np.median(m["conv"][ok, j])) if ok.any() else float("nan")
+                                      for j, n in enumerate(STATES)}
+    r["converged_fraction"] = {n: float(m["converged"][ok, j].mean()) if ok.any() else float("nan")
+                               for j, n in enumerate(STATES)}
+    r["seed0"] = {"rms_error": dict(zip(STATES, m["rms"][0].tolist())),
+                  "rms_error_first_1s": dict(zip(STATES, m["rms_1s"][0].tolist())),
+                  "convergence_time_s": dict(zip(STATES, m["conv"][0].tolist()))}
+    if est == "dmso":
+        r["uncertainty_rms_error"], r["uncertainty_rms_error_ci95"] = _per_state(m["unc_rms_err"], ok,
+                                                                                 UNCERTAIN_NAMES)
+        r["uncertainty_rms"], _ = _per_state(m["unc_rms"], ok, UNCERTAIN_NAMES)
+        rel = m["unc_rms_err"] / np.maximum(m["unc_rms"], 1e-300)
+        r["uncertainty_rel_error"], r["uncertainty_rel_error_ci95"] = _per_state(rel, ok, UNCERTAIN_NAMES)
+        rel = m["unc_rms_err_settled"] / np.maximum(m["unc_rms_settled"], 1e-300)
+        r["uncertainty_rel_error_settled"], r["uncertainty_rel_error_settled_ci95"] = _per_state(rel, ok,
+                                                                                                 UNCERTAIN_NAMES)
+        r["uncertainty_readings"] = uncertainty_readings(m, ok)
+        for p in ("10", "25"):
+            r[f"uncertainty_convergence_time_s_{p}pct"], r[f"uncertainty_convergence_time_s_{p}pct_ci95"] = (
+                _per_state(m[f"unc_conv_{p}"], ok, UNCERTAIN_NAMES))
+    return r
+
+
+def _safe_div(a, b):
+    return a / np.maximum(b, 1e-300)
+
+
+# How far fhat is from f: the scoring choices a reader of "errors up to 25%" (Fig. 8.4) or "two orders of
+# magnitude more accurate" (Fig. 8.11) may mean, per seed from ``seed_metrics``' u_* arrays.
+UNCERTAINTY_METRICS = {
+    "rel_rms": lambda m: _safe_div(m["u_rms_err"], m["u_rms"]),
+    "rel_rms_settled": lambda m: _safe_div(m["u_rms_err_settled"], m["u_rms_settled"]),
+    "peak_over_peak": lambda m: _safe_div(m["u_peak_err"], m["u_peak"]),
+    "peak_over_peak_settled": lambda m: _safe_div(m["u_peak_err_settled"], m["u_peak"]),
+    "rms_over_peak_settled": lambda m: _safe_div(m["u_rms_err_settled"], m["u_peak"]),
+    "mean_abs_rel_settled": lambda m: _safe_div(m["u_mae_settled"], m["u_ma_settled"]),
+    "median_pointwise_settled": lambda m: m["u_median_pointwise_settled"],
+    "rms_error": lambda m: m["u_rms_err"],
+    "rms_error_settled": lambda m: m["u_rms_err_settled"],
+    "peak_error_settled": lambda m: m["u_peak_err_settled"],
+}
+
+
+def uncertainty_readings(m: dict, ok: np.ndarray) -> dict:
+    """{f reading: {metric: {row: mean over seeds}, metric_ci95: ...}} (``S.F_READINGS``, ``UNCERTAINTY_METRICS``)."""
+    out = {}
+    for i, fr in enumerate(S.F_READINGS):
+        d = {}
+        for name, fn in UNCERTAINTY_METRICS.items():
+            d[name], d[name + "_ci95"] = _per_state(np.asarray(fn(m))[:, i], ok, UNCERTAIN_NAMES)
+        out[fr] = d
+    return out
+
+
+# ---- figures ----------------------------------------------------------------------------------------------
+
+
+def _time(T, dt):
+    return np.arange(T) * dt
+
+
+def fig_states(name, traces, dt):
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(4, 1, figsize=(7, 8), sharex=True)
+    for est, tr in traces.items():
+        t = _time(tr.x.shape[0], dt)
+        for j, ax in enumerate(axes):
+            ax.plot(t, tr.x[:, j], lw=1.2, label=f"true ({est} loop)")
+            ax.plot(t, tr.xhat[:, j], lw=0.9, ls="--", label=f"{est} estimate")
+    for j, ax in enumerate(axes):
+        ax.set_ylabel(f"{STATES[j]} ({UNITS[j]})")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7, ncol=2)
+    axes[-1].set_xlabel("time (s)")
+    axes[0].set_title(f"twip-dmso {name}: states and estimates (seed 0)")
+    fig.tight_layout()
+    return fig
+
+
+def fig_errors(name, traces, dt, t_max=1.0, log=False):
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(4, 1, figsize=(7, 8), sharex=True)
+    for est, tr in traces.items():
+        T = tr.x.shape[0] if log else min(tr.x.shape[0], int(round(t_max / dt)) + 1)
+        t = _time(T, dt)[1:]  # from sample 1: at sample 0 every estimator still holds the initial guess
+        e = tr.xhat[1:T] - tr.x[1:T]
+        for j, ax in enumerate(axes):
+            if log:
+                ax.semilogy(t, np.abs(e[:, j]) + 1e-16, lw=0.8, label=est)
+            else:
+                ax.plot(t, e[:, j], lw=1.0, label=est)
+    for j, ax in enumerate(axes):
+        ax.set_ylabel(f"{'|e|' if log else 'e'} {STATES[j]} ({UNITS[j]})")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    axes[-1].set_xlabel("time (s)")
+    what = "log |estimation error| over the run" if log else f"estimation error, first {t_max:g} s"
+    axes[0].set_title(f"twip-dmso {name}: {what} (seed 0)")
+    fig.tight_layout()
+    return fig
+
+
+def fig_uncertainty(name, tr: Trace, dt):
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    t = _time(tr.f.shape[0], dt)
+    for j, ax in enumerate(axes):
+        ax.plot(t, tr.f[:, j], lw=1.2, label="f (153): x_{k+1} - F x_k - G u_k")
+        ax.plot(t, tr.fhat[:, j], lw=0.9, ls="--", label="DMSO estimate W^T phi")
+        ax.set_ylabel(f"f, {UNCERTAIN_NAMES[j]} row ({UNITS[UNCERTAIN_ROWS[j]]})")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    axes[-1].set_xlabel("time (s)")
+    axes[0].set_title(f"twip-dmso {name}: uncertainty and its DMSO estimate (seed 0)")
+    fig.tight_layout()
+    return fig
+
+
 # ---- the experiment ---------------------------------------------------------------------------------------
 
 
@@ -321,7 +355,11 @@ def run(cfg: TwipDmsoConfig, ctx: RunContext | None = None, progress: bool = Tru
         if spec.name in ("nominal", "param", "noise"):
             figures[f"{tag}_log_errors"] = fig_errors(tag, shown, spec.dt, log=True)
         figures[f"{tag}_uncertainty"] = fig_uncertainty(tag, traces["dmso"], spec.dt)
+    fell = {f"{spec.name}/{est}": int(sim[(spec.name, est)][1].sum()) for spec in specs for est in spec.estimators
+            if sim[(spec.name, est)][1].any()}
     results["findings"] = findings(results)
+    if fell:  # seeds whose |phi| passed tilt_bound_deg (or whose state became non-finite), per case and estimator
+        results["failures"] = {"diverged": fell, "tilt_bound_deg": cfg.tilt_bound_deg}
     return Outcome(results=results, report=report(cfg, results), figures=figures)
 
 

@@ -1,7 +1,5 @@
-"""twip-dmso's side of the results: per-seed metrics summarised over seeds (``summarize``), the figures, the
-thesis's findings (§8.1) checked on the summaries, the scoring readings the fidelity page reads
-(``uncertainty_readings``, ``comparison_readings``, ``uncertainty_ratio_readings``), and the report. The runs
-themselves are ``jaxdip.experiments.twip_dmso``."""
+"""twip-dmso's report: the thesis's findings (§8.1) checked against the results, the readings of the KF and the
+uncertainty estimate compared, and the tables, from the results ``jaxdip.experiments.twip_dmso.run`` computes."""
 
 from __future__ import annotations
 
@@ -9,159 +7,19 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from jaxdip import stats
 from jaxdip.plants import twip
 from jaxdip.scenarios import twip_dmso as S
-
-if TYPE_CHECKING:  # types only; twip_dmso imports this module
-    from jaxdip.experiments.twip_dmso import CaseSpec, Trace, TwipDmsoConfig
 
 STATES = twip.STATE_NAMES  # ("x", "x_dot", "phi", "phi_dot")
 UNITS = ("m", "m/s", "rad", "rad/s")
 UNCERTAIN_NAMES = ("x_dot", "phi_dot")
 ESTIMATORS = S.ESTIMATORS
-UNCERTAIN_ROWS = S.UNCERTAIN_ROWS
+if TYPE_CHECKING:
+    from jaxdip.experiments.twip_dmso_config import TwipDmsoConfig
+
 # the thesis's numbers the report compares against (§8.1.3: time to converge within the measurement noise)
 THESIS_NOISE_TILT_RATE_CONVERGENCE = {"dmso": 0.15, "kf": 1.3}
 
-
-# ---- summaries --------------------------------------------------------------------------------------------
-
-
-def _per_state(values, ok, names=STATES):
-    out, ci = {}, {}
-    for j, n in enumerate(names):
-        out[n], ci[n] = stats.mean_ci(values[:, j], ok)
-    return out, ci
-
-
-def summarize(m: dict, div: np.ndarray, est: str, spec: CaseSpec) -> dict:
-    ok = ~div
-    r = {"diverged": int(div.sum()), "seeds": int(len(div))}
-    for key, name in (("rms", "rms_error"), ("rms_1s", "rms_error_first_1s"), ("rms_tail", "rms_error_tail")):
-        r[name], r[name + "_ci95"] = _per_state(m[key], ok)
-    r["peak_error_first_1s"], r["peak_error_first_1s_ci95"] = _per_state(m["peak_1s"], ok)
-    r["logmean_error_tail"], r["logmean_error_tail_ci95"] = _per_state(m["logmean_tail"], ok)
-    r["convergence_time_s"], r["convergence_time_s_ci95"] = _per_state(m["conv"], ok)
-    r["convergence_time_s_median"] = {n: float(np.median(m["conv"][ok, j])) if ok.any() else float("nan")
-                                      for j, n in enumerate(STATES)}
-    r["converged_fraction"] = {n: float(m["converged"][ok, j].mean()) if ok.any() else float("nan")
-                               for j, n in enumerate(STATES)}
-    r["seed0"] = {"rms_error": dict(zip(STATES, m["rms"][0].tolist())),
-                  "rms_error_first_1s": dict(zip(STATES, m["rms_1s"][0].tolist())),
-                  "convergence_time_s": dict(zip(STATES, m["conv"][0].tolist()))}
-    if est == "dmso":
-        r["uncertainty_rms_error"], r["uncertainty_rms_error_ci95"] = _per_state(m["unc_rms_err"], ok,
-                                                                                 UNCERTAIN_NAMES)
-        r["uncertainty_rms"], _ = _per_state(m["unc_rms"], ok, UNCERTAIN_NAMES)
-        rel = m["unc_rms_err"] / np.maximum(m["unc_rms"], 1e-300)
-        r["uncertainty_rel_error"], r["uncertainty_rel_error_ci95"] = _per_state(rel, ok, UNCERTAIN_NAMES)
-        rel = m["unc_rms_err_settled"] / np.maximum(m["unc_rms_settled"], 1e-300)
-        r["uncertainty_rel_error_settled"], r["uncertainty_rel_error_settled_ci95"] = _per_state(rel, ok,
-                                                                                                 UNCERTAIN_NAMES)
-        r["uncertainty_readings"] = uncertainty_readings(m, ok)
-        for p in ("10", "25"):
-            r[f"uncertainty_convergence_time_s_{p}pct"], r[f"uncertainty_convergence_time_s_{p}pct_ci95"] = (
-                _per_state(m[f"unc_conv_{p}"], ok, UNCERTAIN_NAMES))
-    return r
-
-
-def _safe_div(a, b):
-    return a / np.maximum(b, 1e-300)
-
-
-# How far fhat is from f: the scoring choices a reader of "errors up to 25%" (Fig. 8.4) or "two orders of
-# magnitude more accurate" (Fig. 8.11) may mean, per seed from ``seed_metrics``' u_* arrays.
-UNCERTAINTY_METRICS = {
-    "rel_rms": lambda m: _safe_div(m["u_rms_err"], m["u_rms"]),
-    "rel_rms_settled": lambda m: _safe_div(m["u_rms_err_settled"], m["u_rms_settled"]),
-    "peak_over_peak": lambda m: _safe_div(m["u_peak_err"], m["u_peak"]),
-    "peak_over_peak_settled": lambda m: _safe_div(m["u_peak_err_settled"], m["u_peak"]),
-    "rms_over_peak_settled": lambda m: _safe_div(m["u_rms_err_settled"], m["u_peak"]),
-    "mean_abs_rel_settled": lambda m: _safe_div(m["u_mae_settled"], m["u_ma_settled"]),
-    "median_pointwise_settled": lambda m: m["u_median_pointwise_settled"],
-    "rms_error": lambda m: m["u_rms_err"],
-    "rms_error_settled": lambda m: m["u_rms_err_settled"],
-    "peak_error_settled": lambda m: m["u_peak_err_settled"],
-}
-
-
-def uncertainty_readings(m: dict, ok: np.ndarray) -> dict:
-    """{f reading: {metric: {row: mean over seeds}, metric_ci95: ...}} (``S.F_READINGS``, ``UNCERTAINTY_METRICS``)."""
-    out = {}
-    for i, fr in enumerate(S.F_READINGS):
-        d = {}
-        for name, fn in UNCERTAINTY_METRICS.items():
-            d[name], d[name + "_ci95"] = _per_state(np.asarray(fn(m))[:, i], ok, UNCERTAIN_NAMES)
-        out[fr] = d
-    return out
-
-
-# ---- figures ----------------------------------------------------------------------------------------------
-
-
-def _time(T, dt):
-    return np.arange(T) * dt
-
-
-def fig_states(name, traces, dt):
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(4, 1, figsize=(7, 8), sharex=True)
-    for est, tr in traces.items():
-        t = _time(tr.x.shape[0], dt)
-        for j, ax in enumerate(axes):
-            ax.plot(t, tr.x[:, j], lw=1.2, label=f"true ({est} loop)")
-            ax.plot(t, tr.xhat[:, j], lw=0.9, ls="--", label=f"{est} estimate")
-    for j, ax in enumerate(axes):
-        ax.set_ylabel(f"{STATES[j]} ({UNITS[j]})")
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=7, ncol=2)
-    axes[-1].set_xlabel("time (s)")
-    axes[0].set_title(f"twip-dmso {name}: states and estimates (seed 0)")
-    fig.tight_layout()
-    return fig
-
-
-def fig_errors(name, traces, dt, t_max=1.0, log=False):
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(4, 1, figsize=(7, 8), sharex=True)
-    for est, tr in traces.items():
-        T = tr.x.shape[0] if log else min(tr.x.shape[0], int(round(t_max / dt)) + 1)
-        t = _time(T, dt)[1:]  # from sample 1: at sample 0 every estimator still holds the initial guess
-        e = tr.xhat[1:T] - tr.x[1:T]
-        for j, ax in enumerate(axes):
-            if log:
-                ax.semilogy(t, np.abs(e[:, j]) + 1e-16, lw=0.8, label=est)
-            else:
-                ax.plot(t, e[:, j], lw=1.0, label=est)
-    for j, ax in enumerate(axes):
-        ax.set_ylabel(f"{'|e|' if log else 'e'} {STATES[j]} ({UNITS[j]})")
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
-    axes[-1].set_xlabel("time (s)")
-    what = "log |estimation error| over the run" if log else f"estimation error, first {t_max:g} s"
-    axes[0].set_title(f"twip-dmso {name}: {what} (seed 0)")
-    fig.tight_layout()
-    return fig
-
-
-def fig_uncertainty(name, tr: Trace, dt):
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
-    t = _time(tr.f.shape[0], dt)
-    for j, ax in enumerate(axes):
-        ax.plot(t, tr.f[:, j], lw=1.2, label="f (153): x_{k+1} - F x_k - G u_k")
-        ax.plot(t, tr.fhat[:, j], lw=0.9, ls="--", label="DMSO estimate W^T phi")
-        ax.set_ylabel(f"f, {UNCERTAIN_NAMES[j]} row ({UNITS[UNCERTAIN_ROWS[j]]})")
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
-    axes[-1].set_xlabel("time (s)")
-    axes[0].set_title(f"twip-dmso {name}: uncertainty and its DMSO estimate (seed 0)")
-    fig.tight_layout()
-    return fig
 
 # ---- the thesis's findings, checked ---------------------------------------------------------------------
 
@@ -297,8 +155,12 @@ def report(cfg: TwipDmsoConfig, r: dict) -> str:
         "module docstring); `kf_posterior` uses one more measurement; `kf_printed` is (170) as printed.",
         "",
     ]
+    if "failures" in r:
+        lines += [f"Diverged seeds (|phi| over {r['failures']['tilt_bound_deg']:g} deg): "
+                  + ", ".join(f"{k} {v}" for k, v in r["failures"]["diverged"].items())
+                  + "; statistics are over the others, n/a where none is left.", ""]
     for case, res in r.items():
-        if case == "findings":
+        if case in ("findings", "failures"):
             continue
         lines += [f"## {case} ({res['section']})", "",
                   f"Truth {res['truth']}, sensors {res['sensors']}, dt = {res['dt']} s, Gamma = {res['gamma']}, "
