@@ -31,10 +31,10 @@ class Progress:
         width = 24
         bar = "#" * int(frac * width) + "-" * (width - int(frac * width))
         el = time.perf_counter() - self.t0
-        eta = el / frac - el if frac > 0 else float("nan")
+        eta = f"{el / frac - el:5.1f}s" if frac > 0 else "    ?"  # unknown until the first chunk is done
         tail = f" {self.postfix}" if self.postfix else ""
         end = "\n" if self.n >= self.total else ""
-        self.stream.write(f"\r{self.desc} [{bar}] {self.n}/{self.total} {el:5.1f}s eta {eta:5.1f}s{tail}{end}")
+        self.stream.write(f"\r{self.desc} [{bar}] {self.n}/{self.total} {el:5.1f}s eta {eta}{tail}{end}")
         self.stream.flush()
 
     def close(self):
