@@ -192,4 +192,5 @@ def threshold(model: Infection, cost, V: float, n: int = 4096, lo: float = -80.0
     x_hi = bisect_host(lambda x: at(x).g_hi, V, x - w, x + w, xtol)
     if not (x - w < x_lo <= x + 2 * xtol and x - 2 * xtol <= x_hi < x + w):
         raise RuntimeError(f"the bracket of r_bar is wider than {w} nat: use more panels (n = {n})")
-    return Threshold(x, x_lo, x_hi, at(x))
+    # bisect_host returns the lower end of its final bracket: r_bar(F_hi) lies within xtol above x_hi
+    return Threshold(x, x_lo, x_hi + xtol, at(x))
