@@ -66,8 +66,8 @@ class Reference:
                                               for a, b, _ in self.shells(t, lr))
 
         def h(t):
-            return sum(math.pi * (1.0 + (self.extra if j == 1 else 0.0)) * (b * b - a * a + self.inv * (b**4 - a**4) / 2)
-                       for a, b, j in self.shells(t, lr))
+            return sum(math.pi * (1.0 + (self.extra if j == 1 else 0.0))
+                       * (b * b - a * a + self.inv * (b**4 - a**4) / 2) for a, b, j in self.shells(t, lr))
 
         return g if which == "g" else h
 

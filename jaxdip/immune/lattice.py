@@ -50,7 +50,7 @@ def _log_cell_prob(model, t, xc, size):
 
 
 @effort.filter_jit
-def _cells_mass(model, cost, log_theta, offset, centres, s_end, size: float, n_s: int):
+def _cells_mass(model, cost, log_theta, offset, centres, s_end, size, n_s: int):
     f = _rule(model, cost, log_theta, size, offset)
     x, w = np.polynomial.legendre.leggauss(GL_POINTS)
     x, w = jnp.asarray(x), jnp.asarray(w)
@@ -104,9 +104,9 @@ def lattice_mass(model: Infection, cost, log_theta, size: float, *, offset: floa
     edge = np.max(np.abs(centres), axis=1) >= n_half * size - 1e-9
     s_end = float(model.s_of_t(t_end))
     args = (model, cost, jnp.asarray(log_theta, float), jnp.asarray(offset, float), jnp.asarray(centres),
-            jnp.asarray(s_end))
-    fine, ever, bad = _cells_mass(*args, float(size), int(n_s))
-    coarse, _, _ = _cells_mass(*args, float(size), int(n_s) // 2)
+            jnp.asarray(s_end), jnp.asarray(size, float))
+    fine, ever, bad = _cells_mass(*args, int(n_s))
+    coarse, _, _ = _cells_mass(*args, int(n_s) // 2)
     ever = np.asarray(ever)
     if ever[edge].any():
         raise RuntimeError(f"cells on the edge of the lattice box (reach {reach}) are protected: raise reach")
