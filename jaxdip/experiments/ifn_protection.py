@@ -32,7 +32,8 @@ from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.experiments import ifn_protection_figures as Fg
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.ifn_protection_problem import (f_curves, f_properties, flat_case, lattice_reference, num,
+from jaxdip.experiments.ifn_protection_problem import (f_curves, f_properties, flat_case, lattice_reference,
+                                                       level_set_extent, num,
                                                        theorem_check)
 from jaxdip.experiments.ifn_protection_report import report
 from jaxdip.immune import quadrature as Q
@@ -147,6 +148,7 @@ def run(cfg: IfnProtectionConfig, ctx: RunContext | None = None) -> Outcome:
     # ---- problem (P): thresholds, Theorem 4.4.1 against alternatives --------------------------------------
     checks = {name: theorem_check(model, cost, V, cfg, jax.random.fold_in(key, 100 + i))
               for i, (name, cost) in enumerate(costs.items())}
+    checks["uniform"]["results"]["max_radius"] = level_set_extent(model, checks["uniform"]["threshold"].log_r)[1]
     lap("theorem")
     flat = flat_case(model, V, cfg, checks["uniform"])
     lap("flat_case")

@@ -38,7 +38,7 @@ def fig_optimal_sets(model, checks, flat, costs):
     t_end = 1.08 * max(max(ends), *(float(b.t1) for _, _, b, _ in panels if b is not None))
     t = np.linspace(1e-4, t_end, 360)
     rho = np.linspace(0.0, 20.0, 240)
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.9), sharey=True)
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 5.0), sharey=True)
     for ax, (name, ls, ball, cost) in zip(axes, panels):
         ind = np.asarray(_raster(model, ls, jnp.asarray(t), jnp.asarray(rho))).astype(float)
         ax.contourf(t, rho, ind.T, levels=[0.5, 1.5], colors=["C0"], alpha=0.55)
@@ -61,7 +61,7 @@ def fig_optimal_sets(model, checks, flat, costs):
         ax.set_title(PANEL_TITLES.get(name, name))
         ax.set_xlabel(TIME_LABEL)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=6.5, loc="upper right")
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
     axes[0].set_ylabel(DIST_LABEL)
     fig.suptitle("Which cells to protect, and when: each policy prevents the same number of infections")
     fig.tight_layout()
@@ -133,7 +133,7 @@ def fig_costs(checks, flat_res):
     flat signal, to the least possible, V / r_bar; its threshold switch over-shoots the target)."""
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    fig, ax = plt.subplots(figsize=(7.5, 5.2))
     labels = list(checks) + ["flat"]
     for i, name in enumerate(checks):
         r = checks[name]["results"]
@@ -153,10 +153,10 @@ def fig_costs(checks, flat_res):
         ax.bar(j - 0.3 + 0.15 * k, m["h"] / base, 0.14, color=f"C{4 + k}", label=names.get(n, n))
     ax.set_xticks(range(len(labels)), [PANEL_TITLES.get(n, n).replace(" (", "\n(").replace(": ", ":\n")
                                        for n in labels], fontsize=8)
-    ax.set_ylabel("protection used (cell-hours),\nrelative to the optimal policy")
+    ax.set_ylabel("cost of the protection (cell-hours, each weighted\nby its cost h), relative to the optimal policy")
     ax.set_title("Protection needed to bring new infections to the target", fontsize=10)
     ax.axhline(1.0, color="k", lw=0.6)
-    ax.legend(fontsize=6.5, ncol=2, loc="lower left")
+    ax.legend(fontsize=7, ncol=2, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
     return fig

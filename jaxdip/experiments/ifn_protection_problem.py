@@ -62,6 +62,7 @@ def theorem_check(model, cost, V, cfg, key):
             "perturbation_g_max_abs_error": max([abs(num(m.g) - V) for m in pert_m], default=0.0),
             "ball_extra_cost": num(ball_m.h) / num(ls_m.h) - 1.0,
             "perturbation_min_extra_cost": min([num(m.h) / num(ls_m.h) - 1.0 for m in pert_m], default=float("nan")),
+            "protect_until_h": float(np.nanmax(np.asarray(ls.breakpoints(model)))),
             "level_set_cheapest": all(wins),
             "level_set_cheapest_count": f"{sum(wins)} of {len(wins)}",
         },
