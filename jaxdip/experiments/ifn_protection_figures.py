@@ -23,7 +23,7 @@ def _raster(model, control, t, rho):
 
 
 PANEL_TITLES = {"uniform": "same cost everywhere", "distance": "cost grows with distance",
-                "shell": "costly ring (6-10 cells away)", "flat": "flat signal: many optimal choices"}
+                "shell": "a costly ring around the infection", "flat": "flat signal: many optimal choices"}
 TIME_LABEL = "hours since the infected cell burst"
 DIST_LABEL = "distance from the infected cell (cell diameters)"
 
