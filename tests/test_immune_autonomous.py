@@ -88,7 +88,7 @@ def test_lattice_rule_monte_carlo_inside_its_quadrature_interval(cells):
     entered = int(out["entered"].sum())
     refs = []
     for j, a in enumerate(sizes):
-        g, err = lattice_mass(MODEL, Uniform(), theta_of_r(MODEL, LOG_R), a, reach=30.0, t_end=5.0, n_s=1024)
+        g, err = lattice_mass(MODEL, Uniform(), theta_of_r(MODEL, LOG_R), a, reach=22.0, t_end=3.0, n_s=512)
         assert err < 1e-6
         refs.append(g)
         m, ci = stats.mean_ci(out["I"][:, j].astype(float))
