@@ -100,6 +100,9 @@ def test_threshold_cost_and_boundaries_against_scipy(name):
     # r_bar within 1e-8 relative, inside the rigorous bracket
     assert math.exp(th.log_r) == pytest.approx(math.exp(lr_ref), rel=1e-8)
     assert th.log_r_lo <= lr_ref <= th.log_r_hi
+    # the bracket is a bound, not a fine-grid accident: it holds with 32 panels per segment too
+    coarse = Q.threshold(MODEL, cost, V, n=32)
+    assert coarse.log_r_lo <= lr_ref <= coarse.log_r_hi and coarse.log_r_hi - coarse.log_r_lo > 1e-3
     # the least cost int_{L_r_bar} h within 1e-8 relative
     h_ref = ref.mass(lr_ref, "h")
     assert float(th.at.h) == pytest.approx(h_ref, rel=1e-8)
