@@ -13,6 +13,7 @@ from jaxdip import stats
 from jaxdip.immune import quadrature as Q
 from jaxdip.immune.autonomous import CellAutonomous, log_cell_density, log_interval_prob, theta_of_r
 from jaxdip.immune.controls import LevelSet
+from jaxdip.immune.lattice import lattice_mass
 from jaxdip.immune.costs import Distance, Flat, Uniform
 from jaxdip.immune.model import Infection
 from jaxdip.immune.sampling import CellSampler, simulate_cells
@@ -73,3 +74,27 @@ def test_lattice_rule_approaches_the_level_set_and_stochastic_band_meets_V(cells
     m, ci = stats.mean_ci(I[:, 2])
     e = float(MODEL.R0) - V
     assert abs(m - e) < 1.5 * (ci[1] - ci[0]) / 2
+
+
+@pytest.mark.usefixtures("runs_long")
+@pytest.mark.parametrize("cells", [4096, pytest.param(32768, marks=pytest.mark.slow)])
+def test_lattice_rule_monte_carlo_inside_its_quadrature_interval(cells):
+    """The lattice rule's quadrature (unit cells and 4 x 4 squares) inside the Monte Carlo's 95% intervals: E[I]
+    over infected cells, and the fraction of entering virions that infect (binomial given the entries)."""
+    sizes = (1.0, 4.0)
+    ctrls = tuple(CellAutonomous(Uniform(), theta_of_r(MODEL, LOG_R), cell_size=a) for a in sizes)
+    out = simulate_cells(CellSampler(MODEL, ctrls), jax.random.PRNGKey(11), cells, chunk=4096)
+    R0 = float(MODEL.R0)
+    entered = int(out["entered"].sum())
+    refs = []
+    for j, a in enumerate(sizes):
+        g, err = lattice_mass(MODEL, Uniform(), theta_of_r(MODEL, LOG_R), a, reach=22.0, t_end=3.0, n_s=512)
+        assert err < 1e-6
+        refs.append(g)
+        m, ci = stats.mean_ci(out["I"][:, j].astype(float))
+        assert ci[0] <= R0 - g <= ci[1], (a, m, ci, R0 - g)
+        p, pci = stats.wilson(int(out["I"][:, j].sum()), entered)
+        assert pci[0] <= 1.0 - g / R0 <= pci[1], (a, p, pci, 1.0 - g / R0)
+    # coarser cells protect less of the g-mass than the continuum level set they approximate
+    F = float(Q.F(MODEL, Uniform(), jnp.asarray(LOG_R), 1024).g)
+    assert refs[1] < refs[0] < F

@@ -13,7 +13,6 @@ from jaxdip.immune import alternatives as Al
 from jaxdip.immune import quadrature as Q
 from jaxdip.immune.controls import BallWindow, LevelSet, OffsetBallWindow, Window
 from jaxdip.immune.costs import Distance, Flat, Shell, Uniform
-from jaxdip.immune.levelset import superlevel_intervals
 from jaxdip.immune.model import Infection
 from jaxdip.immune.sampling import CellSampler, simulate_cells
 
@@ -76,37 +75,6 @@ def test_distance_cost_level_set_against_scipy():
     assert float(ms.g_lo) <= g_ref <= float(ms.g_hi)
     assert float(ms.g) == pytest.approx(g_ref, abs=1e-5)
     assert float(ms.h) == pytest.approx(h_ref, rel=1e-5)
-
-
-def test_superlevel_intervals_against_a_dense_grid():
-    # three components, one of them ending at a jump (like the costly shell)
-    def f(u):
-        return jnp.where(u < 4.0, jnp.cos(3.0 * u) - 0.2, -1.0)
-
-    a, b, over = superlevel_intervals(f, max_intervals=4)
-    assert not bool(over)
-    u = np.linspace(0, 6.5, 2_000_001)
-    inside = np.asarray(f(jnp.asarray(u))) >= 0
-    total = np.sum(np.asarray(b - a))
-    assert total == pytest.approx(inside.mean() * 6.5, abs=1e-5)
-    # each boundary is a root of cos(3u) = 0.2 or the jump at 4
-    roots = np.concatenate([np.asarray(a)[np.asarray(b) > np.asarray(a)], np.asarray(b)[np.asarray(b) > np.asarray(a)]])
-    for r in roots:
-        assert r == 0.0 or abs(math.cos(3 * r) - 0.2) < 1e-12 or abs(r - 4.0) < 1e-12
-    # more components than slots is reported
-    assert bool(superlevel_intervals(f, max_intervals=1)[2])
-
-
-def test_boundary_tangent_is_the_implicit_one():
-    def bound(s):
-        a, b, _ = superlevel_intervals(lambda u: 2.0 - s * u**2, max_intervals=2)
-        return b[0]
-
-    s = 0.3
-    got = float(jax.grad(bound)(s))
-    assert got == pytest.approx(-0.5 * math.sqrt(2.0) * s**-1.5, rel=1e-9)  # b = sqrt(2 / s)
-    jump = lambda s: superlevel_intervals(lambda u: jnp.where(u < 2.0, s, -1.0), max_intervals=2)[1][0]  # noqa: E731
-    assert float(jax.grad(jump)(1.0)) == 0.0
 
 
 def test_threshold_brackets_the_reference():

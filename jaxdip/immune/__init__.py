@@ -4,9 +4,9 @@
 - ``sampling``: exact sampling of infected cells and virions, run over many cells by ``jd.monte_carlo``;
 - ``costs``: costs h of problem (P) (uniform, growing with distance, a costly shell, a flat-ratio construction);
 - ``controls``: protection sets A (none, balls over windows, off-centre balls, indicators, level sets of g/h);
-- ``levelset`` / ``quadrature``: shells of level sets, int_A g and int_A h with error brackets, F(r), r_bar;
+- ``levelset`` / ``quadrature``: exact shells of level sets, int_A g and int_A h with error brackets, F(r), r_bar;
 - ``alternatives``: competitors tuned to the same target (best ball over a window, perturbed level sets);
-- ``autonomous``: §4.5's cell-autonomous threshold rule and stochastic response;
+- ``autonomous``: §4.5's cell-autonomous threshold rule and stochastic response; ``lattice``: its quadrature;
 - ``branching``: several generations, extinction by Monte Carlo;
 - ``tuning``: E[I] differentiable in the threshold, tuned with optax.
 """

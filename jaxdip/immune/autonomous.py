@@ -18,7 +18,6 @@ pattern per infection), which meets the target in expectation at the optimal cos
 
 from __future__ import annotations
 
-import math
 
 import equinox as eqx
 import jax
@@ -41,7 +40,7 @@ def log_cell_density(model: Infection, t, center, size: float):
     """log of the expected free-virion density averaged over the cube of side ``size`` at ``center``."""
     sigma = jnp.sqrt(2.0 * model.diffusion * t)
     lp = jnp.sum(log_interval_prob((center - size / 2) / sigma, (center + size / 2) / sigma))
-    return jnp.log(model.mean_burst) - model.k * t + lp - model.dim * math.log(size)
+    return jnp.log(model.mean_burst) - model.k * t + lp - model.dim * jnp.log(size)
 
 
 class CellAutonomous(eqx.Module):

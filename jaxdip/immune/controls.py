@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.immune.costs import RadialCost
-from jaxdip.immune.levelset import superlevel_intervals
+from jaxdip.immune.levelset import U_MAX, grid_intervals, piecewise_monotone_intervals
 from jaxdip.immune.model import as_float, Infection, ball_volume, lower_gamma_series, mass_fraction
 
 NO_BREAKS = jnp.zeros((0,))
@@ -101,7 +101,12 @@ class LevelSet(Radial):
     """The level set {g/h >= r} of (4.6) for a cost h, optionally tilted by a field xi(s, w) (a perturbation) and
     optionally (``stochastic``) with a random response on the tie band |log(g/h) - log r| <= tie_tol: protected
     with probability tie_prob there, independently per virion (a continuum of independently responding points;
-    see ``jaxdip.immune.autonomous`` for cells). That is the non-unique case of Theorem 4.4.1."""
+    see ``jaxdip.immune.autonomous`` for cells). That is the non-unique case of Theorem 4.4.1.
+
+    Untilted, its shells are exact (``levelset.piecewise_monotone_intervals``: one shell per piece between the
+    cost's jumps, no component missed) and its ``breakpoints`` are the times where the set changes shape, so
+    the quadrature's segments end on every kink of its integrands. Tilted sets (competitors only) use the grid
+    (``n_grid``, ``max_intervals``) and have no breakpoints."""
 
     cost: eqx.Module
     log_r: jax.Array = eqx.field(converter=as_float)
@@ -127,13 +132,23 @@ class LevelSet(Radial):
         return (f > self.tie_tol) | ((f >= -self.tie_tol) & (u < self.tie_prob))
 
     def _intervals(self, model, t, offset):
-        def f(u):
-            rho = model.rho_of_u(t, u)
-            return self._f(model, t, rho, mass_fraction(u, model.dim)) - offset
+        if self.tilt is None:
+            jumps = jnp.clip(model.u_of_rho(t, self.cost.jump_radii()), 0.0, U_MAX)
+            edges = jnp.concatenate([jnp.zeros(1), jnp.sort(jumps), jnp.full(1, U_MAX)])
 
-        a, b, over = superlevel_intervals(f, n_grid=self.n_grid, max_intervals=self.max_intervals)
-        # more shells than slots: NaN, so that every integral over this set says so instead of being wrong
-        a, b = jnp.where(over, jnp.nan, a), jnp.where(over, jnp.nan, b)
+            def f(u, piece):
+                rho = model.rho_of_u(t, u)
+                return self.cost.log_ratio_on(t, rho, model.log_g(t, rho), piece) - self.log_r - offset
+
+            a, b = piecewise_monotone_intervals(f, edges)
+        else:
+            def f(u):
+                rho = model.rho_of_u(t, u)
+                return self._f(model, t, rho, mass_fraction(u, model.dim)) - offset
+
+            a, b, over = grid_intervals(f, n_grid=self.n_grid, max_intervals=self.max_intervals)
+            # more shells than slots: NaN, so that every integral over this set says so instead of being wrong
+            a, b = jnp.where(over, jnp.nan, a), jnp.where(over, jnp.nan, b)
         return model.rho_of_u(t, a), model.rho_of_u(t, b)
 
     def shells(self, model, t):
@@ -146,6 +161,16 @@ class LevelSet(Radial):
         q = jnp.asarray(self.tie_prob, float)
         wt = jnp.concatenate([jnp.full_like(a1, 1.0 - q), jnp.full_like(a2, q)])
         return jnp.concatenate([a1, a2]), jnp.concatenate([b1, b2]), wt
+
+    def breakpoints(self, model):
+        """Times where the set changes shape (a boundary meets a jump of the cost, or the set vanishes): the
+        kinks of m(s) and of the cost integrand, which the quadrature puts on segment ends (NaN: none)."""
+        if self.tilt is not None:
+            return NO_BREAKS
+        offsets = jnp.stack([self.tie_tol, -self.tie_tol]) if self.stochastic else jnp.zeros(1)
+        rho, level = jax.vmap(lambda o: self.cost.event_levels(jax.lax.stop_gradient(self.log_r) + o))(offsets)
+        t_left, t_right = model.times_where_log_g(rho, level)
+        return jnp.concatenate([t_left.ravel(), t_right.ravel()])
 
 
 class OffsetBallWindow(eqx.Module):

@@ -3,6 +3,12 @@
 A cost gives ``log_ratio(t, rho, log_g)``, the log of g/h that the level sets L_r of (4.6) threshold, and
 ``shell_mass(model, t, a, b)``, the integral of h over the shell a <= |x| < b at time t (closed form), which the
 quadrature needs for the objective of (P). ``log_g`` is passed in because one cost here depends on g itself.
+
+For the exact level-set boundaries (``levelset.piecewise_monotone_intervals``) a cost also names the radii
+where h jumps (``jump_radii``, a fixed number per class) and gives its log ratio on each piece between them
+(``log_ratio_on(t, rho, log_g, piece)``), nonincreasing in |x| on every piece. For the quadrature's segments it
+gives ``event_levels(log_r)``: pairs (rho, L) such that the level set's shape changes (a boundary reaches a jump
+or the set vanishes) exactly where log g(t, rho) = L, an equation in t that ``model.times_where_log_g`` solves.
 """
 
 from __future__ import annotations
@@ -38,6 +44,22 @@ class RadialCost(eqx.Module):
 
     def log_ratio(self, t, rho, log_g):
         return log_g - self.log_h(t, rho, log_g)
+
+    def jump_radii(self):
+        return jnp.stack([self.inner, self.outer])
+
+    def log_ratio_on(self, t, rho, log_g, piece):
+        """log(g/h) on piece 0 (|x| < inner), 1 (the shell) or 2 (|x| >= outer): log g - log(1 + |x|^2/l^2)
+        - log(1 + extra) [piece 1], nonincreasing in |x| on each piece."""
+        return log_g - jnp.log1p(rho**2 * self.inv_scale2) - jnp.where(piece == 1, jnp.log1p(self.extra), 0.0)
+
+    def event_levels(self, log_r):
+        """(rho, L): the set vanishes where log g(t, 0) = log r; a boundary reaches the shell's edge rho_e from
+        either side where log g(t, rho_e) = log r + log h on that side."""
+        e = jnp.log1p(self.extra)
+        rho = jnp.stack([jnp.zeros(()), self.inner, self.inner, self.outer, self.outer])
+        base = log_r + jnp.log1p(rho**2 * self.inv_scale2)
+        return rho, base + jnp.stack([0.0, 0.0, e, e, 0.0])
 
     def _poly(self, model, a, b):
         d = model.dim
@@ -86,6 +108,17 @@ class Flat(eqx.Module):
 
     def log_ratio(self, t, rho, log_g):
         return jnp.minimum(log_g, self.log_r)
+
+    def jump_radii(self):
+        return jnp.zeros((0,))
+
+    def log_ratio_on(self, t, rho, log_g, piece):
+        return jnp.minimum(log_g, self.log_r)
+
+    def event_levels(self, log_r):
+        """The set {min(g, r_f) >= r} vanishes where g(t, 0) = r (r <= r_f); h has a kink where the flat set
+        itself vanishes, g(t, 0) = r_f."""
+        return jnp.zeros(2), jnp.stack([jnp.minimum(log_r, self.log_r), self.log_r])
 
     def flat_radius(self, model, t):
         """Radius inside which g >= r_flat at time t (0 where nowhere)."""

@@ -93,6 +93,40 @@ class Infection(eqx.Module):
         This is what a cell can sense (§4.5): thresholds on it are thresholds on g, scaled by gamma."""
         return self.log_g(t, rho) - jnp.log(self.gamma)
 
+    def times_where_log_g(self, rho, level, iters: int = 120):
+        """Both times t > 0 with log g(t, rho) = level (NaN where there is none), for arrays rho >= 0, level.
+
+        d/dt log g(t, rho) = -k - d / (2 t) + rho^2 / (4 D t^2) has one positive zero
+        t* = (sqrt(d^2 D^2 + 4 D k rho^2) - d D) / (4 D k), so log g rises on (0, t*] and falls after (t* = 0 for
+        rho = 0): at most one root on each side, each bracketed (log g -> -inf as t -> 0 for rho > 0, +inf for
+        rho = 0, and -inf as t -> inf) and found by bisection in log t."""
+        D, k, d = self.diffusion, self.k, self.dim
+        rho, level = jnp.broadcast_arrays(jnp.asarray(rho, jnp.float64), jnp.asarray(level, jnp.float64))
+        t_star = (jnp.sqrt((d * D) ** 2 + 4.0 * D * k * rho**2) - d * D) / (4.0 * D * k)
+        lt_star = jnp.log(jnp.maximum(t_star, 1e-300))
+        lt_min, lt_max = math.log(1e-300), math.log(1e6)
+
+        def phi(lt):
+            return self.log_g(jnp.exp(lt), rho) - level
+
+        def solve(lo, hi, rising):
+            def body(_, c):
+                lo, hi = c
+                mid = 0.5 * (lo + hi)
+                up = (phi(mid) < 0) == rising  # the root lies above mid
+                return jnp.where(up, mid, lo), jnp.where(up, hi, mid)
+
+            lo, hi = jax.lax.fori_loop(0, iters, body, (lo, hi))
+            return 0.5 * (lo + hi)
+
+        peak = phi(lt_star)
+        has = (peak >= 0) | (rho == 0)
+        left = solve(jnp.full_like(rho, lt_min), lt_star, True)
+        right = solve(jnp.where(rho == 0, lt_min, lt_star), jnp.full_like(rho, lt_max), False)
+        t_left = jnp.where(has & (rho > 0), jnp.exp(left), jnp.nan)
+        t_right = jnp.where(has, jnp.exp(right), jnp.nan)
+        return t_left, t_right
+
     # ---- the (s, u, w) coordinates ------------------------------------------------------------------------
 
     def t_of_s(self, s):

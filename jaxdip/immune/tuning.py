@@ -1,7 +1,7 @@
 """E[I] as a differentiable function of the protection threshold, and its tuning with optax.
 
 Two differentiable routes to E[I](r) = R0 - F(r) for the level set L_r of a cost:
-- quadrature: F(r) by the trapezoid rule in s; the shells' boundaries carry implicit tangents
+- quadrature: F(r) by Simpson's rule in s; the shells' boundaries carry implicit tangents
   (``levelset``), so ``jax.grad`` gives dF/dr exactly for the discretised F;
 - Monte Carlo, Rao–Blackwellised: given that a virion enters a cell at time T ~ Exp(gamma + delta) (the
   process (A4)–(A5) conditioned on entering first), its probability of infecting is 1 - m(T; r), m the heat
