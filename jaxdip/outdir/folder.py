@@ -103,7 +103,7 @@ def _classify_open(fd: int, path: str, owner: str, key: str, force: bool, label:
     except NotOurs as e:
         raise OutputError(key, f"{label} is not a jaxdip result folder ({e}, {len(entries)} entries); "
                                "choose a new or empty folder") from None
-    foreign, changed, files = [], [], {}
+    foreign, changed, odd, files = [], [], [], {}
     for name in entries:
         if name == MARKER:
             continue
@@ -113,7 +113,8 @@ def _classify_open(fd: int, path: str, owner: str, key: str, force: bool, label:
         try:
             digest = file_digest(name, fd)
         except NotOurs:
-            digest = None  # a folder, link or special file by a name jaxdip used: the user's now
+            odd.append(name)  # a folder, link or special file by a name jaxdip used: the user's now
+            continue
         if digest != listed[name]:
             changed.append(name)
         else:
@@ -121,6 +122,9 @@ def _classify_open(fd: int, path: str, owner: str, key: str, force: bool, label:
     if foreign:
         raise OutputError(key, f"{label} holds files jaxdip did not write ({_names(foreign)}); "
                                "move them or choose another folder")
+    if odd:
+        raise OutputError(key, f"{label} holds links, folders or special files where jaxdip wrote files "
+                               f"({_names(odd)}); move them or choose another folder")
     if changed:
         raise OutputError(key, f"{label} holds files changed since jaxdip wrote them ({_names(changed)}); "
                                "move them or choose another folder")
