@@ -51,7 +51,7 @@ class Verdict:
     path: str
     kind: str
     ident: tuple[int, int] | None = None  # (st_dev, st_ino) of the existing folder
-    mode: int | None = None  # its permission bits, kept by the folder that replaces it
+    mode: int | None = field(default=None, compare=False)  # its permission bits, given to the folder replacing it
     owner: str | None = None
     files: dict[str, str] = field(default_factory=dict)  # name -> sha256 of jaxdip's files present
     marker: str | None = None  # sha256 of the marker itself: any rewrite of it counts as a change

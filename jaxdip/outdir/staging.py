@@ -142,7 +142,11 @@ class Staging:
         except OSError:
             raise OutputError(self.key, f"{why}; nothing was replaced, and this run's output is lost") from None
         self.kept = kept
-        raise OutputError(self.key, f"{why}; nothing was replaced, this run's output is in {shown(kept)}")
+        try:
+            near = min(kept, os.path.relpath(kept), key=len)
+        except (OSError, ValueError):
+            near = kept
+        raise OutputError(self.key, f"{why}; nothing was replaced, this run's output is in {shown(near, 160)}")
 
     def discard(self) -> None:
         """Remove the staging folder (and ancestors made for it if nothing landed). Safe to call twice."""
