@@ -101,8 +101,9 @@ def _classify_open(fd: int, path: str, owner: str, key: str, force: bool, label:
         found, listed = read_marker(fd)
         marker = file_digest(MARKER, fd)
     except NotOurs as e:
-        raise OutputError(key, f"{label} is not a jaxdip result folder ({e}, {len(entries)} entries); "
-                               "choose a new or empty folder") from None
+        n = len(entries)
+        raise OutputError(key, f"{label} exists and is not a jaxdip result folder ({e}; {n} entr"
+                               f"{'y' if n == 1 else 'ies'}); choose a new or empty folder") from None
     foreign, changed, odd, files = [], [], [], {}
     for name in entries:
         if name == MARKER:
