@@ -180,3 +180,25 @@ def test_cli_run_into_the_working_folder_twice(tmp_path, monkeypatch, capsys):
     assert cli.main(argv) == 0
     assert sorted(whole(tmp_path)) == sorted(files)
     assert json.loads((tmp_path / "metrics.json").read_text())["results"] == first
+
+
+def test_marker_round_trip_and_one_byte_off(tmp_path):
+    from jaxdip.outdir.marker import NotOurs, marker_text, parse_marker
+
+    files = {"metrics.json": sha("a"), "fig3_3-controllers.png": sha("b")}
+    text = marker_text("dip-lqr", files)
+    assert parse_marker(text.encode()) == ("dip-lqr", files)
+    assert json.loads(text) == {"tool": "jaxdip", "format": 2, "owner": "dip-lqr", "files": files}
+    for bad in (text.replace('"format": 2', '"format": 2.0'), text.replace("dip-lqr", "dip lqr"), text + "x"):
+        with pytest.raises(NotOurs):
+            parse_marker(bad.encode())
+    with pytest.raises(ValueError):
+        marker_text("dip-lqr", {"../x": sha("a")})  # jaxdip never records a name it would refuse to read
+
+
+def test_a_hard_link_the_user_made_to_an_output_keeps_its_content(tmp_path):
+    dest = tmp_path / "run"
+    write_run(dest, "dip-lqr", {"metrics.json": "old"})
+    os.link(dest / "metrics.json", tmp_path / "kept_by_me.json")  # a regular file of ours by name and content
+    write_run(dest, "dip-lqr", {"metrics.json": "new"})
+    assert whole(dest) == {"metrics.json": "new"} and (tmp_path / "kept_by_me.json").read_text() == "old"

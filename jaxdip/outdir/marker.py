@@ -19,7 +19,7 @@ import stat
 MARKER = ".jaxdip.json"
 FORMAT = 2  # format 1 listed names without content hashes: such a folder cannot be verified, so it is refused
 MAX_BYTES = 64 * 1024
-MAX_FILES = 512
+MAX_FILES = 256  # with names of up to 128 characters the marker stays under MAX_BYTES
 MAX_FILE_BYTES = 1 << 30  # a file larger than this is not one jaxdip wrote (and hashing it would take long)
 
 # file names jaxdip gives its outputs: plain, visible, portable (no separators, no "..", no control characters)
@@ -86,7 +86,8 @@ def marker_text(owner: str, files: dict[str, str]) -> str:
         raise ValueError(f"output names jaxdip cannot record: {bad[:3]}")
     text = json.dumps({"tool": "jaxdip", "format": FORMAT, "owner": owner, "files": dict(sorted(files.items()))},
                       indent=1)
-    assert len(text.encode()) <= MAX_BYTES
+    if len(text.encode()) > MAX_BYTES:
+        raise ValueError("too many outputs to record in a marker")
     return text
 
 
