@@ -121,6 +121,7 @@ def test_staging_of_a_killed_run_is_removed_and_a_live_ones_is_kept(tmp_path):
     lookalike = tmp_path / ".run.jaxdip-nopid"  # no owner lock file: not provably a run's, left alone
     lookalike.mkdir()
     (lookalike / "metrics.json").write_text("x")
+    (tmp_path / ".run.jaxdip-empty").mkdir()  # killed between making it and locking it: empty, so removed
     other, other_dir = _locked_staging_in_another_process(tmp_path, "other")  # another destination's
     other.kill()
     other.wait()
@@ -128,6 +129,7 @@ def test_staging_of_a_killed_run_is_removed_and_a_live_ones_is_kept(tmp_path):
         write_run(tmp_path / "run", "dip-lqr", {"metrics.json": "{}"})
         assert not os.path.exists(dead_dir)
         assert os.path.isdir(live_dir) and lookalike.exists() and os.path.isdir(other_dir)
+        assert not (tmp_path / ".run.jaxdip-empty").exists()
     finally:
         live.stdin.close()
         live.wait()
@@ -157,6 +159,33 @@ def test_a_half_done_in_place_commit_is_rolled_back_by_the_next_check(tmp_path, 
     os.close(st._lock_fd)  # the process "dies": its owner lock goes
     check_destination(str(dest), "dip-lqr")
     assert whole(dest) == {"metrics.json": "old", "report.md": "old"} and _listing(tmp_path) == ["run"]
+
+
+def test_a_half_done_commit_whose_destination_then_vanished_is_left_alone(tmp_path, monkeypatch):
+    import shutil
+
+    dest = tmp_path / "run"
+    write_run(dest, "dip-lqr", {"metrics.json": "old"})
+    monkeypatch.setattr(swap, "exchange", lambda a, b: False)
+    st = prepare(str(dest), "dip-lqr")
+    (open(os.path.join(st.tmp, "metrics.json"), "w")).write("new")
+    real, calls = swap.rename_noreplace, []
+
+    def dies_on_the_second_move(src, dst):
+        calls.append(dst)
+        if len(calls) == 2:
+            raise SystemExit
+        real(src, dst)
+
+    monkeypatch.setattr(swap, "rename_noreplace", dies_on_the_second_move)
+    monkeypatch.setattr(swap, "roll_back", lambda *a: None)
+    with pytest.raises(SystemExit):
+        st.commit()  # "dies" with the old marker moved out, nothing else
+    monkeypatch.undo()
+    os.close(st._lock_fd)
+    shutil.rmtree(dest)  # the user removed the folder meanwhile
+    check_destination(str(dest), "dip-lqr")  # recovery has nowhere to put the old files back: no traceback
+    assert os.path.isfile(os.path.join(st.container, "old", MARKER))  # the old marker stays for a person
 
 
 def test_single_files_replace_only_their_own_kind(tmp_path):

@@ -124,8 +124,8 @@ def _classify_open(fd: int, path: str, owner: str, key: str, force: bool, label:
         raise OutputError(key, f"{label} holds files jaxdip did not write ({_names(foreign)}); "
                                "move them or choose another folder")
     if odd:
-        raise OutputError(key, f"{label} holds links, folders or special files where jaxdip wrote files "
-                               f"({_names(odd)}); move them or choose another folder")
+        raise OutputError(key, f"{label} holds entries jaxdip cannot have written (a link, folder, special or "
+                               f"oversized file: {_names(odd)}); move them or choose another folder")
     if changed:
         raise OutputError(key, f"{label} holds files changed since jaxdip wrote them ({_names(changed)}); "
                                "move them or choose another folder")

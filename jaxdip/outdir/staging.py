@@ -186,12 +186,14 @@ def prepare(path: str, owner: str, *, key: str = "--out", force: bool = False) -
     container, fd = None, None
     try:
         os.makedirs(parent, exist_ok=True)
-        container = tempfile.mkdtemp(prefix=swap.container_prefix(dest), dir=parent)
-        fd = os.open(os.path.join(container, swap.PIDFILE), os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o600)
-        fcntl.flock(fd, fcntl.LOCK_EX)
+        with swap.locked(parent):  # made and locked at once, as far as another run's clean-up can tell
+            container = tempfile.mkdtemp(prefix=swap.container_prefix(dest), dir=parent)
+            fd = os.open(os.path.join(container, swap.PIDFILE), os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC,
+                         0o600)
+            fcntl.flock(fd, fcntl.LOCK_EX)
         os.write(fd, f"{os.getpid()}\n".encode())
         os.mkdir(os.path.join(container, swap.NEW))
-    except OSError as e:
+    except (OSError, TimeoutError) as e:
         if fd is not None:
             os.close(fd)
         if container is not None:
@@ -201,5 +203,6 @@ def prepare(path: str, owner: str, *, key: str = "--out", force: bool = False) -
                 os.rmdir(d)
             except OSError:
                 break
-        raise OutputError(key, f"cannot write in {shown(parent)}: {_reason(e)}") from None
+        why = _reason(e) if isinstance(e, OSError) and not isinstance(e, TimeoutError) else str(e)
+        raise OutputError(key, f"cannot write in {shown(parent)}: {why}") from None
     return Staging(dest, owner, verdict, container, key, force, path, made, _lock_fd=fd)

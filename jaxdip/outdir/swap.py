@@ -151,7 +151,8 @@ def swap_in_place(container: str, dest: str, old: dict[str, str], new: dict[str,
     except BaseException:
         roll_back(container, dest, old, new)
         raise
-    os.unlink(os.path.join(container, JOURNAL))  # the commit point: every new file is in
+    # committed: every new file is in. The journal stays until the old files are removed (by content), so a
+    # kill before that leaves the next run a record of which files it may delete
 
 
 def roll_back(container: str, dest: str, old: dict[str, str], new: dict[str, str]) -> None:
@@ -180,9 +181,15 @@ def recover(parent: str, dest: str) -> None:
             st = os.lstat(c)
         except OSError:
             continue
-        if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.geteuid() or not owner_dead(c):
+        if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.geteuid():
             continue
-        _recover_one(c, dest)
+        try:
+            if not owner_dead(c):
+                os.rmdir(c)  # only if empty: a run killed between creating it and taking its lock
+                continue
+            _recover_one(c, dest)
+        except OSError:
+            continue  # cannot finish it (the destination moved, a permission): left for a person to look at
 
 
 def _recover_one(c: str, dest: str) -> None:
@@ -198,13 +205,8 @@ def _recover_one(c: str, dest: str) -> None:
         return  # not readable: leave it for a person to look at
     if j.get("dest") != dest:
         return
-    if j.get("mode") == "in-place":
-        if any(os.path.lexists(os.path.join(c, NEW, n)) for n in new):
-            roll_back(c, dest, old, new)
-        try:
-            os.unlink(journal)
-        except OSError:
-            return
+    if j.get("mode") == "in-place" and any(os.path.lexists(os.path.join(c, NEW, n)) for n in new):
+        roll_back(c, dest, old, new)  # killed before every new file was in: undo (else it had committed)
     remove_container(c, old, new)
 
 
@@ -215,7 +217,7 @@ def remove_container(c: str, old: dict[str, str], new: dict[str, str]) -> bool:
         d = os.path.join(c, sub)
         if os.path.lexists(d) and not _remove_verified_any(d, old, new):
             return False
-    for leftover in (JOURNAL, JOURNAL + ".part", PIDFILE):
+    for leftover in (JOURNAL, JOURNAL + ".part", PIDFILE):  # the journal last but one: it names what to delete
         try:
             os.unlink(os.path.join(c, leftover))
         except OSError:
