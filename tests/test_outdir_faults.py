@@ -73,6 +73,7 @@ def refused(world, capsys, argv_or_fn, *, code=2, kept=False, starts="error: --o
     lines = err.strip().splitlines()
     assert got == code, err
     assert len(lines) == 1 and lines[0].startswith(starts), err
+    assert len(lines[0]) <= 300 and lines[0].isprintable(), lines[0]
     after = snapshot(world)
     kept_dirs = sorted({p.split(os.sep)[0] for p in after if ".kept-" in p.split(os.sep)[0]})
     assert len(kept_dirs) == int(kept), (kept_dirs, err)

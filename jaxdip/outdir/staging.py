@@ -95,7 +95,7 @@ class Staging:
                 try:
                     now = classify(self.dest, self.owner, key=self.key, force=self.force, label=self.label)
                 except OutputError as e:
-                    self._keep(f"{e.why.split(';')[0]}")
+                    self._keep(shown(e.why.split(";")[0], 140))
                 if now != self.verdict:
                     self._keep(f"{label} changed while this run was writing (another run or the user wrote there)")
                 self._put(now, new)
@@ -146,7 +146,8 @@ class Staging:
             near = min(kept, os.path.relpath(kept), key=len)
         except (OSError, ValueError):
             near = kept
-        raise OutputError(self.key, f"{why}; nothing was replaced, this run's output is in {shown(near, 160)}")
+        near = near if len(near) <= 120 else os.path.basename(kept) + " beside it"
+        raise OutputError(self.key, f"{why}; this run's output is in {shown(near, 140)}, nothing was replaced")
 
     def discard(self) -> None:
         """Remove the staging folder (and ancestors made for it if nothing landed). Safe to call twice."""
