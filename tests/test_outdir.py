@@ -231,3 +231,62 @@ def test_a_hard_link_the_user_made_to_an_output_keeps_its_content(tmp_path):
     os.link(dest / "metrics.json", tmp_path / "kept_by_me.json")  # a regular file of ours by name and content
     write_run(dest, "dip-lqr", {"metrics.json": "new"})
     assert whole(dest) == {"metrics.json": "new"} and (tmp_path / "kept_by_me.json").read_text() == "old"
+
+
+OLD_RUN = {"metrics.json": "old", "report.md": "old", "a.png": "old"}
+NEW_RUN = {"metrics.json": "new", "report.md": "new", "b.png": "new"}
+
+
+def _dies(monkeypatch, target, when):
+    """Make ``swap.<target>`` end the "process" (SystemExit, no roll back) ``when`` = (call number, before or
+    after the real call)."""
+    real, calls = getattr(swap, target), []
+    n, phase = when
+
+    def f(*a):
+        calls.append(a)
+        if len(calls) == n and phase == "before":
+            raise SystemExit
+        out = real(*a)
+        if len(calls) == n and phase == "after":
+            raise SystemExit
+        return out
+
+    monkeypatch.setattr(swap, target, f)
+    monkeypatch.setattr(swap, "roll_back", lambda *a: None)
+
+
+@pytest.mark.parametrize("when", [(n, p) for n in range(1, 9) for p in ("before", "after")])
+def test_in_place_commit_killed_at_every_move_is_whole_after_recovery(tmp_path, monkeypatch, when):
+    dest = tmp_path / "run"
+    write_run(dest, "dip-lqr", OLD_RUN)
+    monkeypatch.setattr(swap, "exchange", lambda a, b: False)
+    st = prepare(str(dest), "dip-lqr")
+    for name, text in NEW_RUN.items():
+        (open(os.path.join(st.tmp, name), "w")).write(text)
+    _dies(monkeypatch, "rename_noreplace", when)  # 4 moves out (marker first), 4 in (marker last)
+    with pytest.raises(SystemExit):
+        st.commit()
+    monkeypatch.undo()
+    os.close(st._lock_fd)
+    check_destination(str(dest), "dip-lqr")
+    assert whole(dest) == (NEW_RUN if when == (8, "after") else OLD_RUN)  # new only once its marker is in
+    assert _listing(tmp_path) == ["run"]
+
+
+@pytest.mark.parametrize("phase", ["before", "after"])
+def test_exchange_commit_killed_around_the_exchange_is_always_whole(tmp_path, monkeypatch, phase):
+    dest = tmp_path / "run"
+    write_run(dest, "dip-lqr", OLD_RUN)
+    st = prepare(str(dest), "dip-lqr")
+    for name, text in NEW_RUN.items():
+        (open(os.path.join(st.tmp, name), "w")).write(text)
+    _dies(monkeypatch, "exchange", (1, phase))
+    with pytest.raises(SystemExit):
+        st.commit()
+    monkeypatch.undo()
+    expected = OLD_RUN if phase == "before" else NEW_RUN
+    assert whole(dest) == expected  # whole without any recovery
+    os.close(st._lock_fd)
+    check_destination(str(dest), "dip-lqr")  # the next run removes the staging folder (and the replaced run)
+    assert whole(dest) == expected and _listing(tmp_path) == ["run"]
