@@ -392,3 +392,40 @@ def test_light_import_does_not_import_jax():
                         "light_import; light_import(); print('jax' in sys.modules)"], cwd=ROOT, capture_output=True,
                        text=True)
     assert r.stdout.strip() == "False", r.stderr
+
+
+def _planted_staging(world, journal=None, link=False):
+    """A folder shaped like a dead run's staging folder, as an archive or a prankster could leave it."""
+    c = world / ".dest.jaxdip-planted"
+    (c / "new").mkdir(parents=True)
+    (c / "old").mkdir()
+    (c / "victim").mkdir()  # where a traversing name would land the victim's file
+    (c / "owner.pid").write_text("1\n")  # nobody holds its lock: "dead"
+    (c / "new" / "metrics.json").write_text("x")
+    if link:
+        os.symlink(world / "victim", c / "new" / "figs")
+    if journal is not None:
+        (c / "journal.json").write_text(json.dumps(journal))
+    return c
+
+
+@pytest.mark.parametrize("kind", ["journal_traversal", "journal_absolute", "journal_other_dest", "link_inside"])
+def test_a_planted_staging_folder_is_left_alone(world, fake, capsys, kind):
+    old_run(world, fake, capsys)
+    digest = hashlib.sha256(b"my thesis\n").hexdigest()
+    journal = {"journal_traversal": {"mode": "in-place", "dest": str(world / "dest"),
+                                     "old": {}, "new": {"metrics.json": digest, "../victim/thesis.tex": digest}},
+               "journal_absolute": {"mode": "exchange", "dest": str(world / "dest"), "old": {},
+                                    "new": {str(world / "victim" / "thesis.tex"): digest}},
+               "journal_other_dest": {"mode": "in-place", "dest": str(world / "victim"),
+                                      "old": {"thesis.tex": digest}, "new": {}},
+               "link_inside": None}[kind]
+    c = _planted_staging(world, journal, link=kind == "link_inside")
+    before = snapshot(world)
+    assert run() == 0  # the run itself goes ahead
+    capsys.readouterr()
+    after = snapshot(world)
+    for p, v in before.items():
+        if p.startswith(("victim", c.name)):
+            assert after.get(p) == v, p  # the victim and the planted folder exactly as they were
+    assert whole(world / "dest") is not None

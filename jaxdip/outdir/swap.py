@@ -24,7 +24,7 @@ import stat
 import time
 from contextlib import contextmanager
 
-from jaxdip.outdir.marker import MARKER, NotOurs, file_digest
+from jaxdip.outdir.marker import MARKER, NotOurs, file_digest, valid_name
 
 PIDFILE = "owner.pid"
 JOURNAL = "journal.json"
@@ -192,20 +192,47 @@ def recover(parent: str, dest: str) -> None:
             continue  # cannot finish it (the destination moved, a permission): left for a person to look at
 
 
+def _only_output(c: str) -> bool:
+    """A staging folder as ``prepare`` leaves it: the owner file and ``new/`` holding plain files only."""
+    names = set(os.listdir(c))
+    if not names <= {PIDFILE, NEW, JOURNAL + ".part"}:
+        return False
+    if NEW not in names:
+        return True
+    d = os.path.join(c, NEW)
+    return stat.S_ISDIR(os.lstat(d).st_mode) and all(
+        stat.S_ISREG(os.lstat(os.path.join(d, n)).st_mode) for n in os.listdir(d))
+
+
+def _journal(path: str) -> dict | None:
+    """The journal exactly as jaxdip writes it, else None: its names are plain output names (or the marker),
+    since recovery moves files by them."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            j = json.load(fh)
+    except (OSError, ValueError, RecursionError):
+        return None
+    if not isinstance(j, dict) or j.get("mode") not in ("exchange", "in-place") or not isinstance(j.get("dest"), str):
+        return None
+    for side in ("old", "new"):
+        m = j.get(side)
+        if not isinstance(m, dict) or not all(
+                (n == MARKER or valid_name(n)) and isinstance(d, str) and len(d) == 64 for n, d in m.items()):
+            return None
+    return j
+
+
 def _recover_one(c: str, dest: str) -> None:
     journal = os.path.join(c, JOURNAL)
     if not os.path.lexists(journal):
-        shutil.rmtree(c, ignore_errors=True)  # killed before its commit began: only its own output is inside
+        if _only_output(c):
+            shutil.rmtree(c, ignore_errors=True)  # killed before its commit began: only its own output is inside
         return
-    try:
-        with open(journal, encoding="utf-8") as fh:
-            j = json.load(fh)
-        old, new = dict(j["old"]), dict(j["new"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return  # not readable: leave it for a person to look at
-    if j.get("dest") != dest:
-        return
-    if j.get("mode") == "in-place" and any(os.path.lexists(os.path.join(c, NEW, n)) for n in new):
+    j = _journal(journal)
+    if j is None or j["dest"] != dest:
+        return  # not what jaxdip writes: leave it for a person to look at
+    old, new = j["old"], j["new"]
+    if j["mode"] == "in-place" and any(os.path.lexists(os.path.join(c, NEW, n)) for n in new):
         roll_back(c, dest, old, new)  # killed before every new file was in: undo (else it had committed)
     remove_container(c, old, new)
 
