@@ -35,7 +35,7 @@ import numpy as np
 
 import jaxdip as jd
 from jaxdip.scenarios.dip_lqr import dip_lqr
-from jaxdip.outdir import check_file, write_file_atomic
+from jaxdip.outdir import OutputError, check_file, shown, write_file_atomic
 from jaxdip.outdir.files import read_own
 from jaxdip.plants.dip import DIPParams
 
@@ -155,6 +155,8 @@ def check_outputs(out: str) -> None:
     """Raise ``OutputError`` unless both files bench would write (``out`` and its figure) are new or bench's
     own, in an existing writable folder: checked before the bench runs. The figure is bench's only if the JSON
     beside it is, and records the figure's SHA-256."""
+    if os.path.splitext(out)[1].lower() == ".png":
+        raise OutputError("--out", f"{shown(out)} would be both the JSON and the figure; give a .json name")
     check_file(out, is_bench_file, parent_must_exist=True)
     recorded = None
     data = read_own(out)

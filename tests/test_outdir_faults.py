@@ -341,6 +341,10 @@ def test_bench_missing_parent_before_the_bench(world, capsys, no_bench):
     assert "does not exist" in refused(world, capsys, ["bench", "--quick", "--out", "nowhere/b.json"])
 
 
+def test_bench_out_named_like_its_figure(world, capsys, no_bench):
+    assert ".json" in refused(world, capsys, ["bench", "--quick", "--out", "b.PNG"])
+
+
 def test_bench_may_replace_its_own_files(world):
     from jaxdip.bench import check_outputs
 
