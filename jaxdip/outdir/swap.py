@@ -24,6 +24,7 @@ import stat
 import time
 from contextlib import contextmanager
 
+from jaxdip.outdir.folder import shown
 from jaxdip.outdir.marker import MARKER, NotOurs, file_digest, valid_name
 
 PIDFILE = "owner.pid"
@@ -92,7 +93,7 @@ def locked(folder: str, timeout: float = 30.0):
                 break
             except BlockingIOError:
                 if time.monotonic() > t_end:
-                    raise TimeoutError(f"another jaxdip run keeps {folder} locked") from None
+                    raise TimeoutError(f"another jaxdip run keeps {shown(folder)} locked") from None
                 time.sleep(0.02)
             except OSError:
                 break  # no flock here
