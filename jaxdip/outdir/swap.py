@@ -142,8 +142,8 @@ def digest_in(folder: str, name: str) -> str | None:
 def swap_in_place(container: str, dest: str, old: dict[str, str], new: dict[str, str]) -> None:
     """Replace the files ``old`` of ``dest`` by the files ``new`` of ``container/new``, the folder itself staying.
     The marker is in both maps: out first, in last. Rolls back on any failure and re-raises."""
-    os.makedirs(os.path.join(container, OLD), exist_ok=True)
     write_json(os.path.join(container, JOURNAL), {"mode": "in-place", "dest": dest, "old": old, "new": new})
+    os.makedirs(os.path.join(container, OLD), exist_ok=True)
     try:
         for name in [MARKER] * (MARKER in old) + sorted(n for n in old if n != MARKER):
             rename_noreplace(os.path.join(dest, name), os.path.join(container, OLD, name))
@@ -196,7 +196,7 @@ def recover(parent: str, dest: str) -> None:
 def _only_output(c: str) -> bool:
     """A staging folder as ``prepare`` leaves it: the owner file and ``new/`` holding plain files only."""
     names = set(os.listdir(c))
-    if not names <= {PIDFILE, NEW, JOURNAL + ".part"}:
+    if not names <= {PIDFILE, NEW, OLD, JOURNAL + ".part"} or OLD in names and os.listdir(os.path.join(c, OLD)):
         return False
     if NEW not in names:
         return True
