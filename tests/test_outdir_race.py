@@ -75,13 +75,16 @@ def _kill_loop(tmp_path, reps, in_place):
 
     dest = tmp_path / "out"
     write_run(dest, "dip-lqr", {n: f"t0:{n}\n" for n in FILES})
-    # one commit untouched, to scale the kill instants to how long a commit takes here
-    go = tmp_path / "go0"
-    p = _start(dest, "dip-lqr", "t1", go, *["--in-place"] * in_place)
-    assert p.stdout.readline().strip() == "ready"
-    go.touch()
-    out, err = p.communicate(timeout=60)
-    commit_s = float(out.split()[-1])
+    # three commits untouched, to scale the kill instants to how long a commit takes here (the median)
+    took = []
+    for k in range(3):
+        go = tmp_path / f"warm{k}"
+        p = _start(dest, "dip-lqr", "t1", go, *["--in-place"] * in_place)
+        assert p.stdout.readline().strip() == "ready"
+        go.touch()
+        out, err = p.communicate(timeout=60)
+        took.append(float(out.split()[-1]))
+    commit_s = sorted(took)[1]
     current, seen = "t1", {"old": 0, "new": 0}
     rng = random.Random(0)
     for rep in range(2, reps + 2):
