@@ -377,6 +377,10 @@ def _reproduce(args, jobs: int, pool) -> int:
         f"Total wall time {wall:.1f} s.\n\n| experiment | what | seeds | wall (s) |\n|---|---|---|---|\n"
         + "\n".join(rows) + "\n\n" + "\n\n---\n\n".join(sections)
     )
+    try:  # again: the user had the whole reproduction to put a REPORT.md of their own there
+        outdir.check_file(report_path, lambda data: data.startswith(b"# jaxdip reproduction"))
+    except OutputError as e:
+        return _error(f"{e.key}: {e.why} (the experiments' folders are written)")
     outdir.write_file_atomic(report_path, text)
     print(f"reproduce: wrote {report_path} ({wall:.1f} s)")
     return 0

@@ -44,33 +44,41 @@ def fake(monkeypatch, world):
     """``fake.during`` (if set) runs inside the stub experiment, between the start checks and the commit; what
     it changes is the user's (or another run's) doing, so the folder is snapshot again after it."""
     real_get = experiments.get
-    state = type("Fake", (), {"during": None, "calls": 0, "seen": None})()
+    state = type("Fake", (), {"during": None, "calls": 0, "seen": None, "world": world})()
+    monkeypatch.setattr(experiments, "get", lambda exp_id: dataclasses.replace(real_get(exp_id), run=fake_run(state)))
+    return state
+
+
+def fake_run(state):
+    """The stub experiment's run function."""
+    world = state.world
 
     def run(cfg, ctx):
         state.calls += 1
         if state.during is not None:
             state.during()
-            state.seen = {p: v for p, v in snapshot(world).items() if ".jaxdip-" not in p.split(os.sep)[0]}
+            state.seen = {p: v for p, v in snapshot(world).items()
+                          if not any(".jaxdip-" in part for part in p.split(os.sep))}  # the run's staging
         fig = Figure(figsize=(1, 1))
         fig.add_subplot().plot([0, state.calls])
         return Outcome(results={"calls": state.calls}, report="stub report", figures={"fig": fig})
 
-    monkeypatch.setattr(experiments, "get", lambda exp_id: dataclasses.replace(real_get(exp_id), run=run))
-    return state
+    return run
 
 
 def run(*extra, out="dest", exp="dip-lqr"):
     return cli.main(["run", exp, "--quick", "--out", out, *extra])
 
 
-def refused(world, capsys, argv_or_fn, *, code=2, kept=False, starts="error: --out: ", fake=None):
-    """Run it, check exit code, one line, and that nothing changed but the kept folder; returns the line."""
+def refused(world, capsys, argv_or_fn, *, code=2, kept=False, starts="error: --out: ", fake=None, extra=()):
+    """Run it, check exit code, one line, and that nothing changed but the kept folder (and the run's own
+    outputs under ``extra``); returns the line."""
     before = snapshot(world)
     got = argv_or_fn() if callable(argv_or_fn) else cli.main(argv_or_fn)
     if fake is not None and fake.seen is not None:
         before = fake.seen
     err = capsys.readouterr().err
-    lines = err.strip().splitlines()
+    lines = [ln for ln in err.strip().splitlines() if not ln.startswith("== ")]  # reproduce's progress lines
     assert got == code, err
     assert len(lines) == 1 and lines[0].startswith(starts), err
     assert len(lines[0]) <= 300 and lines[0].isprintable(), lines[0]
@@ -80,6 +88,7 @@ def refused(world, capsys, argv_or_fn, *, code=2, kept=False, starts="error: --o
     if kept:
         assert kept_dirs[0] in lines[0] and whole(world / kept_dirs[0]) is not None
         after = {p: v for p, v in after.items() if not p.startswith(kept_dirs[0])}
+    after = {p: v for p, v in after.items() if not p.startswith(tuple(extra))}
     assert after == before
     assert not [n for n in os.listdir(world) if ".jaxdip-" in n]  # no staging folder left
     return lines[0]
@@ -433,3 +442,14 @@ def test_a_planted_staging_folder_is_left_alone(world, fake, capsys, kind):
         if p.startswith(("victim", c.name)):
             assert after.get(p) == v, p  # the victim and the planted folder exactly as they were
     assert whole(world / "dest") is not None
+
+
+def test_reproduce_keeps_a_report_the_user_wrote_during_it(world, fake, capsys, monkeypatch):
+    real = experiments.registry()["dip-lqr"]
+    monkeypatch.setattr(experiments, "registry", lambda: {"dip-lqr": dataclasses.replace(real, run=fake_run(fake))})
+    os.mkdir(world / "repro")
+    fake.during = lambda: (world / "repro" / "REPORT.md").write_text("my own report\n")
+    line = refused(world, capsys, ["reproduce", "--quick", "--jobs", "1", "--only", "dip-lqr", "--out", "repro"],
+                   fake=fake, extra=("repro/dip-lqr",))
+    assert "REPORT.md" in line and (world / "repro" / "REPORT.md").read_text() == "my own report\n"
+    assert whole(world / "repro" / "dip-lqr") is not None
