@@ -104,6 +104,12 @@ def _hardlink_to_victim(w):
     (w / "dest" / "extra.txt").write_text("unlisted\n")  # and an unlisted file, so the run must refuse
 
 
+def _non_utf8_name(w):
+    (w / "dest" / MARKER).write_bytes(_valid())
+    with open(os.path.join(os.fsencode(w / "dest"), b"caf\xe9\x1b.txt"), "w") as fh:  # not UTF-8, with ESC
+        fh.write("mine\n")
+
+
 CASES = {
     # names that would be paths
     "traversal": _files({"../victim/thesis.tex": sha(SECRET)}),
@@ -168,6 +174,7 @@ CASES = {
     "control_characters_in_a_name": _control_characters,
     "destination_is_a_symlink": _dest_is_symlink,
     "hardlink_to_victim_plus_unlisted": _hardlink_to_victim,
+    "non_utf8_file_name_beside_a_valid_marker": _non_utf8_name,
 }
 
 
