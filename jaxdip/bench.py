@@ -19,6 +19,8 @@ period on that sequence. Ratios are periods per second against ode45's defaults 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import io
 import json
 import math
 import os
@@ -33,7 +35,8 @@ import numpy as np
 
 import jaxdip as jd
 from jaxdip.scenarios.dip_lqr import dip_lqr
-from jaxdip.outdir import write_file_atomic
+from jaxdip.outdir import OutputError, check_file, shown, write_file_atomic
+from jaxdip.outdir.files import read_own
 from jaxdip.plants.dip import DIPParams
 
 
@@ -134,13 +137,36 @@ def matmul_peak(n=1024):
     return 3 * 2 * n**3 / (time.perf_counter() - t)
 
 
-def is_bench_file(text: str) -> bool:
-    """Whether ``text`` is a bench.json that jaxdip wrote (so ``--out`` may replace it)."""
+def is_bench_file(data: bytes | str) -> bool:
+    """Whether ``data`` is a bench JSON that jaxdip wrote (so ``--out`` may replace it)."""
     try:
-        d = json.loads(text)
-    except ValueError:
+        d = json.loads(data)
+    except (ValueError, RecursionError):
         return False
-    return isinstance(d, dict) and (d.get("tool") == "jaxdip bench" or {"machine", "periods_per_s"} <= set(d))
+    return isinstance(d, dict) and d.get("tool") == "jaxdip bench"
+
+
+def figure_path(out: str) -> str:
+    """The figure ``bench --out out`` writes beside its JSON."""
+    return os.path.splitext(out)[0] + ".png"
+
+
+def check_outputs(out: str) -> None:
+    """Raise ``OutputError`` unless both files bench would write (``out`` and its figure) are new or bench's
+    own, in an existing writable folder: checked before the bench runs. The figure is bench's only if the JSON
+    beside it is, and records the figure's SHA-256."""
+    if os.path.splitext(out)[1].lower() == ".png":
+        raise OutputError("--out", f"{shown(out)} would be both the JSON and the figure; give a .json name")
+    check_file(out, is_bench_file, parent_must_exist=True)
+    recorded = None
+    data = read_own(out)
+    if data is not None and is_bench_file(data):
+        recorded = (json.loads(data).get("figure") or {}).get("sha256")
+
+    def png_is_ours(png: bytes) -> bool:
+        return recorded is not None and hashlib.sha256(png).hexdigest() == recorded
+
+    check_file(figure_path(out), png_is_ours, parent_must_exist=True)
 
 
 def _contenders(quick: bool, substeps: int, dt: float) -> dict[str, tuple[Callable[[], object], int]]:
@@ -232,9 +258,12 @@ def run_bench(quick: bool = False, out: str = "bench.json", substeps: Optional[i
         "matmul_peak_flops_per_s": matmul_peak(512 if quick else 1024),
         "quick": quick,
     }
+    check_outputs(out)  # again: the user had the whole bench to put a file of their own there
+    fig_path = figure_path(out)
+    png = _figure(result)
+    result["figure"] = {"file": os.path.basename(fig_path), "sha256": hashlib.sha256(png).hexdigest()}
+    write_file_atomic(fig_path, png)
     write_file_atomic(out, json.dumps(result, indent=2))
-    fig_path = os.path.splitext(out)[0] + ".png"
-    _figure(result, fig_path)
     w = max(len(k) for k in rate)
     for k, v in rate.items():
         print(f"{k:<{w}}  {v:12.4g} periods/s  {result['ratio_vs_ode45'][k]:9.1f}x ode45  "
@@ -249,7 +278,7 @@ def run_bench(quick: bool = False, out: str = "bench.json", substeps: Optional[i
 DEFAULT_SUBSTEPS = 1
 
 
-def _figure(result: dict, path: str) -> None:
+def _figure(result: dict) -> bytes:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -266,5 +295,7 @@ def _figure(result: dict, path: str) -> None:
     ax.set_title(f"dip-lqr loop, {result['machine']['cpu_count']} CPU cores, "
                  f"RK4 x{result['loop']['jaxdip_rk4_substeps']} per period in jaxdip")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
+    return buf.getvalue()

@@ -327,7 +327,7 @@ def _reproduce(args, jobs: int, pool) -> int:
                 raise OutputError("--out", f"{args.out} exists and is a file, not a folder")
             for exp_id, _ in reg:
                 outdir.check_destination(os.path.join(args.out, exp_id), exp_id, force=args.force)
-            outdir.check_file(report_path, lambda text: text.startswith("# jaxdip reproduction"))
+            outdir.check_file(report_path, lambda data: data.startswith(b"# jaxdip reproduction"))
     except ConfigError as e:
         return _error(f"{e.key}: {e.why}")
     except OutputError as e:
@@ -383,23 +383,39 @@ def _reproduce(args, jobs: int, pool) -> int:
         f"Total wall time {wall:.1f} s.\n\n| experiment | what | seeds | wall (s) |\n|---|---|---|---|\n"
         + "\n".join(rows) + "\n\n" + "\n\n---\n\n".join(sections)
     )
+    try:  # again: the user had the whole reproduction to put a REPORT.md of their own there
+        outdir.check_file(report_path, lambda data: data.startswith(b"# jaxdip reproduction"))
+    except OutputError as e:
+        return _error(f"{e.key}: {e.why} (the experiments' folders are written)")
     outdir.write_file_atomic(report_path, text)
     print(f"reproduce: wrote {report_path} ({wall:.1f} s)")
     return 0
 
 
 def _reproduce_parallel(args, reg, jobs: int, pool: "_Workers | None" = None) -> int:
+    """``_reproduce_parallel_in`` with its logs in a temporary folder, removed on every way out unless the error
+    line names a log in it."""
+    import shutil
+    import tempfile
+
+    logs, named = tempfile.mkdtemp(prefix="jaxdip-reproduce-"), []
+    try:
+        return _reproduce_parallel_in(args, reg, jobs, pool, logs, named)
+    finally:
+        if not named:
+            shutil.rmtree(logs, ignore_errors=True)
+
+
+def _reproduce_parallel_in(args, reg, jobs: int, pool: "_Workers | None", logs: str, named: list) -> int:
     """Run the experiments in ``jobs`` worker processes (``jaxdip.reproduce_worker``), longest first, each worker
     taking the next experiment when it finishes one: a worker starts JAX once and keeps its compiled programs in
     memory for the experiments after the first. Each experiment's output goes to a log, shown only when it
     fails. 0 or the exit code."""
     import queue
-    import tempfile
 
     order = sorted(reg, key=lambda r: -_QUICK_COST.get(r[0], 10.0)) if args.quick else list(reg)
     pending = [exp_id for exp_id, _ in order]
     failed: list = []
-    logs = tempfile.mkdtemp(prefix="jaxdip-reproduce-")
     n, done = len(order), 0
     pool = pool or _Workers(jobs)
     answers, workers = pool.answers, pool.workers[:n]
@@ -463,6 +479,7 @@ def _reproduce_parallel(args, reg, jobs: int, pool: "_Workers | None" = None) ->
     pool.close()
     if failed:
         exp_id, code, line = failed[0]
+        named.append(_log(exp_id))
         line = line[len("error: "):] if line.startswith("error: ") else line
         print(f"error: {exp_id}: {line} (log: {_log(exp_id)})", file=sys.stderr)
         return 130 if code == 130 else (code if code == 2 else 1)
@@ -520,15 +537,17 @@ _QUICK_COST = {"ifn-protection": 37, "eki-dip": 25, "tune": 18, "rwp-bias": 18, 
 
 def cmd_bench(args, argv=None) -> int:
     from jaxdip import outdir
-    from jaxdip.bench import is_bench_file, run_bench
+    from jaxdip.bench import check_outputs, run_bench
 
     try:
-        outdir.check_file(args.out, is_bench_file)
+        check_outputs(args.out)
     except outdir.OutputError as e:
         return _error(f"{e.key}: {e.why}")
     with _Signals():
         try:
             run_bench(quick=args.quick, out=args.out)
+        except outdir.OutputError as e:
+            return _error(f"{e.key}: {e.why}")
         except KeyboardInterrupt:
             return _interrupted(None, argv)
     return 0

@@ -7,6 +7,7 @@ table takes seconds); ``test_console_script_one_line`` checks the same contract 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import subprocess
@@ -23,12 +24,15 @@ BIG = "1" + "0" * 22  # beyond int64
 
 
 def _marker(folder, owner, files):
+    """A folder as jaxdip writes it: the files and a marker with each one's hash (so a refusal is for the reason
+    the case names, not for a malformed marker)."""
     os.makedirs(folder, exist_ok=True)
     for f in files:
         with open(os.path.join(folder, f), "w") as fh:
             fh.write("old result\n")
+    digest = hashlib.sha256(b"old result\n").hexdigest()
     with open(os.path.join(folder, MARKER), "w") as fh:
-        json.dump({"tool": "jaxdip", "owner": owner, "files": files}, fh)
+        json.dump({"tool": "jaxdip", "format": 2, "owner": owner, "files": {f: digest for f in files}}, fh)
 
 
 # ---- the world each case starts from (all inside a fresh temporary working folder) --------------------------

@@ -257,6 +257,8 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
         if stop_requested is not None and stop_requested():
             raise KeyboardInterrupt
         staging.commit()
+    except OSError as e:  # a full disk, a vanished staging folder: nothing was replaced
+        raise outdir.OutputError("--out", f"cannot write {outdir.shown(out_dir)}: {e.strerror or e}") from None
     finally:
         if staging is not None:
             staging.discard()  # a no-op once committed

@@ -1,0 +1,455 @@
+"""Faults around a run's commit and bench's files: each case gives its exit code and exactly one line on stderr,
+and leaves the output folder and a victim folder beside it as they were, except for the run's own outputs (a
+refused run's output goes to the ``dest.kept-*`` folder its error line names, itself one whole run).
+
+The experiment is dip-lqr with its computation replaced by a stub (``fake``): configuration, checks, writing
+and commit are the real ones, and nothing compiles. A stub can act in the middle of the run, as a user or a
+second run would.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import errno
+import hashlib
+import json
+import os
+import signal
+import stat
+import subprocess
+import sys
+
+import pytest
+from matplotlib.figure import Figure
+
+import jaxdip.experiments as experiments
+from jaxdip import cli
+from jaxdip.experiments.base import Outcome
+from jaxdip.outdir import MARKER, swap
+from outdir_world import ROOT, whole, write_run
+from snapshots import snapshot
+
+
+@pytest.fixture
+def world(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("JAXDIP_NO_PROGRESS", "1")
+    (tmp_path / "victim").mkdir()
+    (tmp_path / "victim" / "thesis.tex").write_text("my thesis\n")
+    return tmp_path
+
+
+@pytest.fixture
+def fake(monkeypatch, world):
+    """``fake.during`` (if set) runs inside the stub experiment, between the start checks and the commit; what
+    it changes is the user's (or another run's) doing, so the folder is snapshot again after it."""
+    real_get = experiments.get
+    state = type("Fake", (), {"during": None, "calls": 0, "seen": None, "world": world})()
+    monkeypatch.setattr(experiments, "get", lambda exp_id: dataclasses.replace(real_get(exp_id), run=fake_run(state)))
+    return state
+
+
+def fake_run(state):
+    """The stub experiment's run function."""
+    world = state.world
+
+    def run(cfg, ctx):
+        state.calls += 1
+        if state.during is not None:
+            state.during()
+            state.seen = {p: v for p, v in snapshot(world).items()
+                          if not any(".jaxdip-" in part for part in p.split(os.sep))}  # the run's staging
+        fig = Figure(figsize=(1, 1))
+        fig.add_subplot().plot([0, state.calls])
+        return Outcome(results={"calls": state.calls}, report="stub report", figures={"fig": fig})
+
+    return run
+
+
+def run(*extra, out="dest", exp="dip-lqr"):
+    return cli.main(["run", exp, "--quick", "--out", out, *extra])
+
+
+def refused(world, capsys, argv_or_fn, *, code=2, kept=False, starts="error: --out: ", fake=None, extra=()):
+    """Run it, check exit code, one line, and that nothing changed but the kept folder (and the run's own
+    outputs under ``extra``); returns the line."""
+    before = snapshot(world)
+    got = argv_or_fn() if callable(argv_or_fn) else cli.main(argv_or_fn)
+    if fake is not None and fake.seen is not None:
+        before = fake.seen
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.strip().splitlines() if not ln.startswith("== ")]  # reproduce's progress lines
+    assert got == code, err
+    assert len(lines) == 1 and lines[0].startswith(starts), err
+    assert len(lines[0]) <= 300 and lines[0].isprintable(), lines[0]
+    after = snapshot(world)
+    kept_dirs = sorted({p.split(os.sep)[0] for p in after if ".kept-" in p.split(os.sep)[0]})
+    assert len(kept_dirs) == int(kept), (kept_dirs, err)
+    if kept:
+        assert kept_dirs[0] in lines[0] and whole(world / kept_dirs[0]) is not None
+        after = {p: v for p, v in after.items() if not p.startswith(kept_dirs[0])}
+    after = {p: v for p, v in after.items() if not p.startswith(tuple(extra))}
+    assert after == before
+    assert not [n for n in os.listdir(world) if ".jaxdip-" in n]  # no staging folder left
+    return lines[0]
+
+
+def old_run(world, fake, capsys, out="dest", exp="dip-lqr"):
+    assert run(out=out, exp=exp) == 0
+    capsys.readouterr()
+    assert whole(world / out) is not None
+
+
+# ---- a file of the user's in the way, found before the run -------------------------------------------------
+
+
+def test_report_edited_after_the_run(world, fake, capsys):
+    old_run(world, fake, capsys)
+    with open(world / "dest" / "report.md", "a") as fh:
+        fh.write("my own note\n")
+    assert "report.md" in refused(world, capsys, run)
+    assert fake.calls == 1  # refused before the stub ran again
+
+
+def test_figure_edited_after_the_run(world, fake, capsys):
+    old_run(world, fake, capsys)
+    (world / "dest" / "fig.png").write_bytes(b"\x89PNG cropped by the user")
+    assert "fig.png" in refused(world, capsys, run)
+
+
+def test_file_removed_and_replaced_by_a_folder_before_the_run(world, fake, capsys):
+    old_run(world, fake, capsys)
+    os.remove(world / "dest" / "metrics.json")
+    os.mkdir(world / "dest" / "metrics.json")
+    assert "metrics.json" in refused(world, capsys, run)
+
+
+def test_destination_is_an_ancestor_of_the_working_folder(world, fake, capsys, monkeypatch):
+    old_run(world, fake, capsys)
+    os.mkdir(world / "dest" / "analysis")
+    monkeypatch.chdir(world / "dest" / "analysis")
+    refused(world, capsys, lambda: run(out=str(world / "dest")))
+    assert os.getcwd() == str(world / "dest" / "analysis")
+
+
+# ---- the destination changes while the run computes --------------------------------------------------------
+
+
+def test_user_adds_a_file_during_the_run(world, fake, capsys):
+    old_run(world, fake, capsys)
+    fake.during = lambda: (world / "dest" / "notes.txt").write_text("mine\n")
+    refused(world, capsys, run, kept=True, fake=fake)
+    assert (world / "dest" / "notes.txt").read_text() == "mine\n"
+
+
+def test_user_edits_a_file_during_the_run(world, fake, capsys):
+    old_run(world, fake, capsys)
+    fake.during = lambda: (world / "dest" / "report.md").write_text("rewritten\n")
+    refused(world, capsys, run, kept=True, fake=fake)
+
+
+def test_a_name_turns_into_a_folder_during_the_run(world, fake, capsys):
+    old_run(world, fake, capsys)
+
+    def during():
+        os.remove(world / "dest" / "report.md")
+        os.mkdir(world / "dest" / "report.md")
+        (world / "dest" / "report.md" / "draft.md").write_text("mine\n")
+
+    fake.during = during
+    refused(world, capsys, run, kept=True, fake=fake)
+
+
+def test_destination_becomes_a_link_to_the_victim_during_the_run(world, fake, capsys):
+    fake.during = lambda: os.symlink(world / "victim", world / "dest")
+    refused(world, capsys, run, kept=True, fake=fake)
+    assert sorted(os.listdir(world / "victim")) == ["thesis.tex"]
+
+
+def test_destination_deleted_during_the_run(world, fake, capsys):
+    import shutil
+
+    old_run(world, fake, capsys)
+    fake.during = lambda: shutil.rmtree(world / "dest")
+    refused(world, capsys, run, kept=True, fake=fake)
+
+
+def test_another_experiment_commits_first(world, fake, capsys):
+    fake.during = lambda: write_run(world / "dest", "eki-linear", {"metrics.json": "eki"})
+    line = refused(world, capsys, run, kept=True, fake=fake)
+    assert "eki-linear" in line and whole(world / "dest") == {"metrics.json": "eki"}
+
+
+def test_another_experiment_commits_first_even_with_force(world, fake, capsys):
+    # --force given at the start covers what was there at the start (nothing), not a folder that appeared
+    fake.during = lambda: write_run(world / "dest", "eki-linear", {"metrics.json": "eki"})
+    refused(world, capsys, lambda: run("--force"), kept=True, fake=fake)
+    assert whole(world / "dest") == {"metrics.json": "eki"}
+
+
+def test_the_same_experiment_commits_first(world, fake, capsys):
+    old_run(world, fake, capsys)
+    fake.during = lambda: write_run(world / "dest", "dip-lqr", {"metrics.json": "other run"})
+    refused(world, capsys, run, kept=True, fake=fake)
+    assert whole(world / "dest") == {"metrics.json": "other run"}
+
+
+# ---- the commit itself fails ---------------------------------------------------------------------------------
+
+
+def _raise(code):
+    def f(*a):
+        raise OSError(code, os.strerror(code))
+    return f
+
+
+@pytest.mark.parametrize("code", [errno.EACCES, errno.EROFS, errno.EBUSY, errno.ENOSPC])
+def test_exchange_fails(world, fake, capsys, monkeypatch, code):
+    old_run(world, fake, capsys)
+    monkeypatch.setattr(swap, "exchange", _raise(code))
+    assert os.strerror(code) in refused(world, capsys, run, kept=True, fake=fake) or code == errno.ENOSPC
+
+
+def test_rename_into_a_new_destination_denied(world, fake, capsys, monkeypatch):
+    real = swap.rename_noreplace
+
+    def deny_dest(src, dst):
+        if dst == str(world / "dest"):
+            raise PermissionError(errno.EACCES, "Permission denied")
+        real(src, dst)
+
+    monkeypatch.setattr(swap, "rename_noreplace", deny_dest)
+    assert "Permission denied" in refused(world, capsys, run, kept=True, fake=fake)
+
+
+def test_disk_full_writing_the_marker(world, fake, capsys, monkeypatch):
+    import builtins
+
+    import jaxdip.outdir.staging as staging
+
+    def full(path, *a, **k):
+        if str(path).endswith(MARKER):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return builtins.open(path, *a, **k)
+
+    monkeypatch.setattr(staging, "open", full, raising=False)
+    assert "disk is full" in refused(world, capsys, run)
+
+
+def test_disk_full_writing_the_results(world, fake, capsys, monkeypatch):
+    import builtins
+
+    import jaxdip.experiments.base as base
+
+    old_run(world, fake, capsys)
+
+    def full(path, *a, **k):
+        if str(path).endswith("metrics.json"):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return builtins.open(path, *a, **k)
+
+    monkeypatch.setattr(base, "open", full, raising=False)
+    assert "No space left" in refused(world, capsys, run)
+
+
+def test_disk_full_half_way_through_an_in_place_commit(world, fake, capsys, monkeypatch):
+    monkeypatch.chdir(world / "victim")  # --out . : the working folder, committed file by file
+    os.remove("thesis.tex")
+    assert run(out=".") == 0 and whole(world / "victim") is not None
+    capsys.readouterr()
+    real, calls = swap.rename_noreplace, []
+
+    def fills_up(src, dst):
+        calls.append(dst)
+        if len(calls) == 6:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real(src, dst)
+
+    monkeypatch.setattr(swap, "rename_noreplace", fills_up)
+    before = whole(world / "victim")
+    refused(world, capsys, lambda: run(out="."), kept=True)
+    assert whole(world / "victim") == before and len(calls) >= 6
+
+
+def test_the_old_folder_changes_between_the_check_and_the_exchange(world, fake, capsys, monkeypatch):
+    old_run(world, fake, capsys)
+    real = swap.exchange
+
+    def user_first(a, b):
+        (world / "dest" / "late.txt").write_text("mine\n")
+        return real(a, b)
+
+    monkeypatch.setattr(swap, "exchange", user_first)
+    before = snapshot(world)
+    assert run() == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "kept" in err[0]
+    assert (world / "dest" / "late.txt").read_text() == "mine\n"
+    kept = [n for n in os.listdir(world) if ".kept-" in n]
+    after = {p: v for p, v in snapshot(world).items() if not p.startswith(kept[0]) and p != "dest/late.txt"}
+    assert after == before  # swapped back: the old run and the late file are where they were
+
+
+def test_sigterm_during_the_run(world, fake, capsys):
+    old_run(world, fake, capsys)
+    fake.during = lambda: os.kill(os.getpid(), signal.SIGTERM)
+    refused(world, capsys, run, code=130, starts="interrupted: ")
+
+
+# ---- bench's two files ---------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def no_bench(monkeypatch):
+    import jaxdip.bench
+
+    def never(**k):
+        raise AssertionError("the bench ran")
+
+    monkeypatch.setattr(jaxdip.bench, "run_bench", never)
+
+
+def _bench_files(world, png=b"\x89PNG ours"):
+    (world / "b.png").write_bytes(png)
+    (world / "b.json").write_text(json.dumps({"tool": "jaxdip bench",
+                                              "figure": {"file": "b.png", "sha256": hashlib.sha256(png).hexdigest()}}))
+
+
+def test_bench_keeps_the_users_png(world, capsys, no_bench):
+    (world / "b.png").write_bytes(b"\x89PNG my figure")
+    assert "b.png" in refused(world, capsys, ["bench", "--quick", "--out", "b.json"])
+
+
+def test_bench_keeps_its_png_once_edited(world, capsys, no_bench):
+    _bench_files(world)
+    (world / "b.png").write_bytes(b"\x89PNG annotated")
+    refused(world, capsys, ["bench", "--quick", "--out", "b.json"])
+
+
+def test_bench_png_without_its_json(world, capsys, no_bench):
+    _bench_files(world)
+    os.remove(world / "b.json")
+    refused(world, capsys, ["bench", "--quick", "--out", "b.json"])
+
+
+@pytest.mark.parametrize("kind", ["symlink", "fifo", "folder"])
+def test_bench_png_not_a_file(world, capsys, no_bench, kind):
+    _bench_files(world)
+    os.remove(world / "b.png")
+    {"symlink": lambda: os.symlink(world / "victim" / "thesis.tex", world / "b.png"),
+     "fifo": lambda: os.mkfifo(world / "b.png"), "folder": lambda: os.mkdir(world / "b.png")}[kind]()
+    refused(world, capsys, ["bench", "--quick", "--out", "b.json"])
+
+
+def test_bench_json_is_a_fifo(world, capsys, no_bench):
+    os.mkfifo(world / "b.json")
+    refused(world, capsys, ["bench", "--quick", "--out", "b.json"])
+
+
+def test_bench_missing_parent_before_the_bench(world, capsys, no_bench):
+    assert "does not exist" in refused(world, capsys, ["bench", "--quick", "--out", "nowhere/b.json"])
+
+
+def test_bench_out_named_like_its_figure(world, capsys, no_bench):
+    assert ".json" in refused(world, capsys, ["bench", "--quick", "--out", "b.PNG"])
+
+
+def test_bench_may_replace_its_own_files(world):
+    from jaxdip.bench import check_outputs
+
+    _bench_files(world)
+    check_outputs(str(world / "b.json"))
+
+
+# ---- what a run leaves: modes, staging of killed runs, reproduce's logs --------------------------------------
+
+
+@pytest.mark.parametrize("mask", [0o002, 0o027])
+def test_cli_run_gets_the_umask(world, fake, capsys, mask):
+    old = os.umask(mask)
+    try:
+        assert run(out="a/dest") == 0
+    finally:
+        os.umask(old)
+    for p in ("a", "a/dest"):
+        assert stat.S_IMODE(os.stat(world / p).st_mode) == 0o777 & ~mask
+    for name in os.listdir(world / "a" / "dest"):
+        assert stat.S_IMODE(os.stat(world / "a" / "dest" / name).st_mode) == 0o666 & ~mask, name
+
+
+def test_staging_of_a_killed_cli_run_is_cleaned_by_the_next(world, fake, capsys):
+    code = ("import sys, os; sys.path.insert(0, 'tests'); from outdir_world import light_import; od = light_import()\n"
+            f"st = od.prepare({str(world / 'dest')!r}, 'dip-lqr')\n"
+            "open(os.path.join(st.tmp, 'metrics.json'), 'w').write('half'); os.kill(os.getpid(), 9)\n")
+    subprocess.run([sys.executable, "-c", code], cwd=ROOT)
+    assert [n for n in os.listdir(world) if ".jaxdip-" in n]
+    assert run() == 0
+    assert sorted(os.listdir(world)) == ["dest", "victim"] and whole(world / "dest") is not None
+
+
+def test_reproduce_leaves_no_temporary_folder(world, monkeypatch):
+    from test_cli_reliability import _parallel_with_fake_workers
+
+    tmp = world / "tmpdir"
+    tmp.mkdir()
+    monkeypatch.setenv("TMPDIR", str(tmp))
+    r = _parallel_with_fake_workers(world, ("dip-lqr", "twip-dmso"), 2)
+    assert r.returncode == 0 and os.listdir(tmp) == [], r.stderr
+    r = _parallel_with_fake_workers(world, ("eki-linear", "dip-lqr"), 1)  # a failure: its log is named, and kept
+    logs = os.listdir(tmp)
+    assert r.returncode == 1 and len(logs) == 1 and os.path.join(str(tmp), logs[0]) in r.stderr, r.stderr
+
+
+def test_light_import_does_not_import_jax():
+    r = subprocess.run([sys.executable, "-c", "import sys; sys.path.insert(0, 'tests'); from outdir_world import "
+                        "light_import; light_import(); print('jax' in sys.modules)"], cwd=ROOT, capture_output=True,
+                       text=True)
+    assert r.stdout.strip() == "False", r.stderr
+
+
+def _planted_staging(world, journal=None, link=False):
+    """A folder shaped like a dead run's staging folder, as an archive or a prankster could leave it."""
+    c = world / ".dest.jaxdip-planted"
+    (c / "new").mkdir(parents=True)
+    (c / "old").mkdir()
+    (c / "victim").mkdir()  # where a traversing name would land the victim's file
+    (c / "owner.pid").write_text("1\n")  # nobody holds its lock: "dead"
+    (c / "new" / "metrics.json").write_text("x")
+    if link:
+        os.symlink(world / "victim", c / "new" / "figs")
+    if journal is not None:
+        (c / "journal.json").write_text(json.dumps(journal))
+    return c
+
+
+@pytest.mark.parametrize("kind", ["journal_traversal", "journal_absolute", "journal_other_dest", "link_inside"])
+def test_a_planted_staging_folder_is_left_alone(world, fake, capsys, kind):
+    old_run(world, fake, capsys)
+    digest = hashlib.sha256(b"my thesis\n").hexdigest()
+    journal = {"journal_traversal": {"mode": "in-place", "dest": str(world / "dest"),
+                                     "old": {}, "new": {"metrics.json": digest, "../victim/thesis.tex": digest}},
+               "journal_absolute": {"mode": "exchange", "dest": str(world / "dest"), "old": {},
+                                    "new": {str(world / "victim" / "thesis.tex"): digest}},
+               "journal_other_dest": {"mode": "in-place", "dest": str(world / "victim"),
+                                      "old": {"thesis.tex": digest}, "new": {}},
+               "link_inside": None}[kind]
+    c = _planted_staging(world, journal, link=kind == "link_inside")
+    before = snapshot(world)
+    assert run() == 0  # the run itself goes ahead
+    capsys.readouterr()
+    after = snapshot(world)
+    for p, v in before.items():
+        if p.startswith(("victim", c.name)):
+            assert after.get(p) == v, p  # the victim and the planted folder exactly as they were
+    assert whole(world / "dest") is not None
+
+
+def test_reproduce_keeps_a_report_the_user_wrote_during_it(world, fake, capsys, monkeypatch):
+    real = experiments.registry()["dip-lqr"]
+    monkeypatch.setattr(experiments, "registry", lambda: {"dip-lqr": dataclasses.replace(real, run=fake_run(fake))})
+    os.mkdir(world / "repro")
+    fake.during = lambda: (world / "repro" / "REPORT.md").write_text("my own report\n")
+    line = refused(world, capsys, ["reproduce", "--quick", "--jobs", "1", "--only", "dip-lqr", "--out", "repro"],
+                   fake=fake, extra=("repro/dip-lqr",))
+    assert "REPORT.md" in line and (world / "repro" / "REPORT.md").read_text() == "my own report\n"
+    assert whole(world / "repro" / "dip-lqr") is not None
