@@ -195,13 +195,15 @@ def world(tmp_path, monkeypatch):
     return tmp_path
 
 
-@pytest.mark.parametrize("force", [False, True], ids=["plain", "force"])
-@pytest.mark.parametrize("name", list(CASES))
+# with --force another experiment's valid folder is replaced (tests/test_outdir.py): not a hostile case
+_RUNS = [(name, force) for name in CASES for force in (False, True)
+         if not (name == "owner_other_experiment" and force)]
+
+
+@pytest.mark.parametrize("name, force", _RUNS, ids=[f"{n}-{'force' if f else 'plain'}" for n, f in _RUNS])
 def test_hostile_marker(world, capsys, name, force):
     if name == "marker_other_user" and os.geteuid() != 0:
         pytest.skip("making a file of another user needs root")
-    if name == "owner_other_experiment" and force:
-        pytest.skip("with --force another experiment's valid folder is replaced: test_outdir.py")
     case = CASES[name]
     if case == "ABS":
         case = _files({str(world / "victim" / "thesis.tex"): sha(SECRET)})
