@@ -18,6 +18,9 @@ from jaxdip.messages import shown
 from jaxdip.reproduce_pool import MAX_JOBS
 
 
+PATH_MAX, NAME_MAX = 4096, 255  # Linux's limits, the strictest of the common systems
+
+
 class Parser(argparse.ArgumentParser):
     """argparse with the project's one-line errors: ``error: <flag>: <why>`` and exit 2, no usage block."""
 
@@ -114,8 +117,16 @@ def check_paths(args) -> int:
     folder that no longer exists (``os.getcwd`` fails once it has been deleted)."""
     paths = {flag: getattr(args, flag, None) for flag in ("out", "config")}
     for flag, v in paths.items():
-        if v is not None and not v.strip():
+        if v is None:
+            continue
+        if not v.strip():
             return error(f"--{flag}", "empty path")
+        # the system refuses these anyway, some of its calls only after deep recursion (os.makedirs)
+        raw = os.fsencode(v)
+        if len(raw) >= PATH_MAX:
+            return error(f"--{flag}", f"{shown(v)} is {len(raw)} bytes long; paths stop at {PATH_MAX - 1}")
+        if any(len(part) > NAME_MAX for part in raw.split(b"/")):
+            return error(f"--{flag}", f"{shown(v)} has a name longer than {NAME_MAX} bytes")
     try:
         os.getcwd()
     except OSError as e:

@@ -206,9 +206,8 @@ def _numeric_fields(cfg, prefix: str = ""):
 
 
 def _extremity(x) -> float:
-    """How far a number is from everyday magnitudes, in decades (inf for an infinity)."""
-    x = abs(float(x)) if not isinstance(x, int) or abs(x) < 1 << 1000 else math.inf
-    return math.inf if math.isinf(x) else (abs(math.log10(x)) if x else 0.0)
+    """How far a finite number is from everyday magnitudes, in decades."""
+    return abs(math.log10(abs(x))) if x else 0.0
 
 
 def _computable(cfg) -> None:
@@ -221,7 +220,9 @@ def _computable(cfg) -> None:
         if hasattr(cfg, "loads"):
             cfg.loads()
     except _ARITHMETIC as e:
-        ranked = sorted(_numeric_fields(cfg), key=lambda kv: _extremity(kv[1]), reverse=True)
+        # infinities are allowed where a field says so (no bound): the culprit is the largest finite extreme
+        finite = [(k, x) for k, x in _numeric_fields(cfg) if not math.isinf(x)]
+        ranked = sorted(finite, key=lambda kv: _extremity(kv[1]), reverse=True)
         key, value = ranked[0] if ranked else ("config", "")
         raise ConfigError(key, f"{shown(value, 24)} is out of range: a number computed from it does not fit "
                                f"({type(e).__name__})") from None
@@ -293,6 +294,8 @@ def read_toml(path: str) -> dict:
             if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
                 raise ConfigError("--config", f"{shown_path} is not a regular file, not a TOML file")
             raw = fh.read(MAX_CONFIG_BYTES + 1)
+    except ConfigError:
+        raise
     except FileNotFoundError:
         raise ConfigError("--config", f"no such file: {shown_path}") from None
     except OSError as e:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import stat
 
 
 def snapshot(root) -> dict:
@@ -17,6 +18,8 @@ def snapshot(root) -> dict:
                 out[rel] = ("link", os.readlink(p))
             elif os.path.isdir(p):
                 out[rel] = ("dir", oct(os.stat(p).st_mode))
+            elif not stat.S_ISREG(os.lstat(p).st_mode):
+                out[rel] = ("special", oct(os.lstat(p).st_mode))  # a FIFO or socket: reading it would block
             else:
                 with open(p, "rb") as fh:
                     out[rel] = ("file", hashlib.sha256(fh.read()).hexdigest(), oct(os.stat(p).st_mode))
