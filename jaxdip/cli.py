@@ -144,6 +144,12 @@ def _resolve(exp_id, args):
     return exp, cfg
 
 
+def _unknown(exp_id: str, e: KeyError) -> int:
+    """``experiments.get``'s refusal, ``<id>: unknown experiment (...)``, with the id as the line's key."""
+    message = str(e.args[0])
+    return error(exp_id, message[len(exp_id) + 2:] if message.startswith(f"{exp_id}: ") else message)
+
+
 def _interrupted(checkpoint: str | None, argv: list[str] | None) -> int:
     if checkpoint and os.path.exists(checkpoint):
         again = list(argv or sys.argv[1:])
@@ -196,7 +202,7 @@ def cmd_run(args, argv=None) -> int:
     except ConfigError as e:
         return error(e.key, e.why)
     except KeyError as e:
-        return error(e.args[0])
+        return _unknown(args.id, e)
     out = args.out or os.path.join("results", exp.id)
     ckpt = RunContext(out).checkpoint_path
     if args.resume and not os.path.exists(ckpt):
@@ -359,7 +365,7 @@ def _command(args, argv) -> int:
         try:
             exp = get(args.id)
         except KeyError as e:
-            return error(e.args[0])
+            return _unknown(args.id, e)
         print(C.documented_toml(exp.config_cls(), f"{exp.id}: {exp.title}", exp.source), end="")
         return 0
     return {"run": cmd_run, "reproduce": cmd_reproduce, "bench": cmd_bench}[args.cmd](args, argv)

@@ -153,7 +153,9 @@ OUT_OF_MEMORY = "the run ran out of memory; lower --seeds, shorten the run or sa
 
 def out_of_memory(e: BaseException) -> bool:
     text = str(e)
-    return isinstance(e, MemoryError) or "RESOURCE_EXHAUSTED" in text or "Out of memory" in text
+    # XLA's allocation failures, and a shared library that could not be mapped under a memory limit
+    return isinstance(e, MemoryError) or any(s in text for s in ("RESOURCE_EXHAUSTED", "Out of memory",
+                                                                 "Cannot allocate memory"))
 
 
 def guarded(command: Callable[[], int], key: str = "--out") -> int:
@@ -162,7 +164,8 @@ def guarded(command: Callable[[], int], key: str = "--out") -> int:
     try:
         with Held():
             code = command()
-            sys.stdout.flush()
+            if sys.stdout is not None:  # None when the command was started with standard output closed
+                sys.stdout.flush()
         return code
     except BrokenPipeError:
         Held.drop_all()
