@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import re
@@ -11,8 +10,10 @@ import signal
 import sys
 import time
 
+import numpy as np
+
 from jaxdip.cli_args import check_paths, parser
-from jaxdip.cli_errors import error, guarded, note, out_of_memory, release_held, warn
+from jaxdip.cli_errors import emit, error, guarded, note, numerical, out_of_memory, riccati_keys, warn
 from jaxdip.reproduce_pool import run_parallel
 
 
@@ -161,26 +162,6 @@ def _interrupted(checkpoint: str | None, argv: list[str] | None) -> int:
     return 130
 
 
-def _released(exp):
-    """``exp`` whose run first shows the warnings held while the command checked its input: from there on the
-    work has started, and an error is no longer a refusal."""
-    run = exp.run
-
-    def started(cfg, ctx):
-        release_held()
-        return run(cfg, ctx)
-
-    return dataclasses.replace(exp, run=started)
-
-
-def _riccati_keys(cfg) -> str:
-    """The config keys that shape a Riccati design, to point the user at what to change."""
-    names = [f.name for f in dataclasses.fields(cfg)] if dataclasses.is_dataclass(cfg) else []
-    keys = [n for n in names if n in ("Q", "R", "Q_lqr", "R_lqr", "Qk", "Rk", "W", "V")
-            or n.startswith(("Q_", "R_", "lqr_"))]
-    return ", ".join(keys) if keys else "the weights"
-
-
 def _effort(args, exp) -> str:
     """The compile effort of a run: the flag's, else the experiment's quick-run level with --quick, else full."""
     if args.compile_effort:
@@ -209,7 +190,7 @@ def cmd_run(args, argv=None) -> int:
         return error("--resume", f"no checkpoint of an interrupted run at {ckpt}")
     with _Signals() as sig:
         try:
-            metrics = run_experiment(_released(exp), cfg, out, resume=args.resume, force=args.force,
+            metrics = run_experiment(exp, cfg, out, resume=args.resume, force=args.force,
                                      flag_keys=flags, stop_requested=sig.requested,
                                      compile_effort=_effort(args, exp))
         except (ConfigError, OutputError) as e:
@@ -217,7 +198,9 @@ def cmd_run(args, argv=None) -> int:
         except CheckpointMismatch as e:
             return error("--resume", str(e))
         except RiccatiError as e:
-            return error(_riccati_keys(cfg), str(e))
+            return error(riccati_keys(cfg), str(e))
+        except (np.linalg.LinAlgError, ArithmeticError, ValueError) as e:
+            return numerical(cfg, e)
         except KeyboardInterrupt:
             return _interrupted(ckpt, argv)
         except Exception as e:
@@ -227,7 +210,7 @@ def cmd_run(args, argv=None) -> int:
     from jaxdip.distributed import is_main
 
     if is_main():
-        print(f"{exp.id}: wrote {out} ({metrics['wall_s']:.1f} s)")
+        emit(f"{exp.id}: wrote {out} ({metrics['wall_s']:.1f} s)")
     return 0
 
 
@@ -288,7 +271,6 @@ def cmd_reproduce(args, argv=None) -> int:
             body = fh.read()
         sections.append(re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", rf"![\1]({exp_id}/\2)", body))
 
-    release_held()  # every check has passed: the work starts
     if jobs > 1 and len(reg) > 1:
         with _Signals():
             code = run_parallel(args, reg, jobs)
@@ -309,7 +291,9 @@ def cmd_reproduce(args, argv=None) -> int:
             except (ConfigError, OutputError) as e:
                 return error(e.key, e.why)
             except RiccatiError as e:
-                return error(exp_id, f"{_riccati_keys(cfgs[exp_id])}: {e}")
+                return error(exp_id, f"{riccati_keys(cfgs[exp_id])}: {e}")
+            except (np.linalg.LinAlgError, ArithmeticError, ValueError) as e:
+                return numerical(cfgs[exp_id], e, f"{exp_id}: ")
             except KeyboardInterrupt:
                 note(f"interrupted: the experiments finished before it are in {args.out}")
                 return 130
@@ -322,7 +306,7 @@ def cmd_reproduce(args, argv=None) -> int:
         + "\n".join(rows) + "\n\n" + "\n\n---\n\n".join(sections)
     )
     outdir.write_file_atomic(report_path, text)
-    print(f"reproduce: wrote {report_path} ({wall:.1f} s)")
+    emit(f"reproduce: wrote {report_path} ({wall:.1f} s)")
     return 0
 
 
@@ -334,7 +318,6 @@ def cmd_bench(args, argv=None) -> int:
         outdir.check_file(args.out, is_bench_file)
     except outdir.OutputError as e:
         return error(e.key, e.why)
-    release_held()
     with _Signals():
         try:
             run_bench(quick=args.quick, out=args.out)
@@ -356,7 +339,7 @@ def _command(args, argv) -> int:
 
         for exp_id, exp in sorted(registry().items()):
             # the readings' supporting runs are marked: a plain `reproduce` leaves them out
-            print(exp_id if exp.reproduce else f"{exp_id}  (fidelity readings; reproduce --only {exp_id})")
+            emit(exp_id if exp.reproduce else f"{exp_id}  (fidelity readings; reproduce --only {exp_id})")
         return 0
     if args.cmd == "config":
         from jaxdip import config as C
@@ -366,7 +349,7 @@ def _command(args, argv) -> int:
             exp = get(args.id)
         except KeyError as e:
             return _unknown(args.id, e)
-        print(C.documented_toml(exp.config_cls(), f"{exp.id}: {exp.title}", exp.source), end="")
+        emit(C.documented_toml(exp.config_cls(), f"{exp.id}: {exp.title}", exp.source), end="")
         return 0
     return {"run": cmd_run, "reproduce": cmd_reproduce, "bench": cmd_bench}[args.cmd](args, argv)
 

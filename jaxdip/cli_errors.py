@@ -2,8 +2,9 @@
 
 - A refusal is exactly one line on standard error, ``error: <key or flag>: <why>``, at most
   ``messages.MAX_LINE`` characters, user text shortened and control characters escaped; exit status 2.
-- Warnings (Python's and log records, JAX's included) raised while a command checks its input are held back:
-  dropped when the command refuses, shown once the work starts (``Held``).
+- Warnings (Python's and log records, JAX's included) are held back for the whole command: dropped when it
+  ends in an error line, shown when it ends otherwise (``Held``). A refusal can come late (a Riccati design
+  that fails on an extreme weight, after NumPy warned of an overflow) and must still be one line.
 - A closed pipe on standard output (``jaxdip list | head -1``) ends the command quietly (status 141, as a
   process killed by SIGPIPE); a terminal that cannot encode a character gets it escaped; a full disk or any
   other failed write, and running out of memory, end in one line (``guarded``).
@@ -11,6 +12,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import logging
 import os
@@ -41,7 +43,7 @@ def note(text: str) -> None:
 def warn(text: str) -> None:
     """A warning of jaxdip's own: held with the others while the command checks its input."""
     if Held.current is not None:
-        Held.current.lines.append(clean(f"warning: {text}", MAX_LINE))
+        _keep(Held.current.lines, clean(f"warning: {text}", MAX_LINE))
     else:
         _say(clean(f"warning: {text}", MAX_LINE))
 
@@ -53,6 +55,16 @@ def _say(line: str) -> None:
         pass
 
 
+MAX_HELD = 50  # a library that warns on every step should not fill the memory of a long run
+
+
+def _keep(lines: list[str], line: str) -> None:
+    if len(lines) < MAX_HELD:
+        lines.append(line)
+    elif len(lines) == MAX_HELD:
+        lines.append("warning: (more warnings left out)")
+
+
 class _Holder(logging.Handler):
     def __init__(self, lines: list[str]):
         super().__init__(logging.WARNING)
@@ -60,14 +72,14 @@ class _Holder(logging.Handler):
 
     def emit(self, record):
         try:
-            self.lines.append(clean(f"warning: {record.getMessage()}", MAX_LINE))
+            _keep(self.lines, clean(f"warning: {record.getMessage()}", MAX_LINE))
         except Exception:  # noqa: BLE001  (a record that cannot be formatted is not worth a crash)
             pass
 
 
 class Held:
-    """Holds warnings back from the start of a command until ``release`` (the work starts: they are shown) or
-    an error line (they are dropped, so a refusal stays one line)."""
+    """Holds warnings back from the start of a command until ``release`` (the command ended without an error:
+    they are shown) or an error line (they are dropped, so a refusal stays one line)."""
 
     current: "Held | None" = None
 
@@ -88,7 +100,7 @@ class Held:
         return False
 
     def _hold_warning(self, message, category, filename, lineno, file=None, line=None):
-        self.lines.append(clean(f"warning: {category.__name__}: {message}", MAX_LINE))
+        _keep(self.lines, clean(f"warning: {category.__name__}: {message}", MAX_LINE))
 
     def _restore(self) -> None:
         if Held.current is self:
@@ -97,7 +109,7 @@ class Held:
             logging.getLogger().removeHandler(self._handler)
 
     def release(self) -> None:
-        """The work starts: show what was held, and let later warnings through as usual."""
+        """Show what was held, and let later warnings through as usual."""
         if Held.current is not self:
             return
         self._restore()
@@ -111,11 +123,6 @@ class Held:
             cur = cls.current
             cur._restore()
             cur.lines.clear()
-
-
-def release_held() -> None:
-    if Held.current is not None:
-        Held.current.release()
 
 
 def _reconfigure_streams() -> None:
@@ -140,12 +147,12 @@ def _stdout_gone() -> None:
 WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG, errno.EIO, errno.EACCES, errno.EPERM}
 
 
-def _oserror_line(e: OSError, key: str) -> int:
-    where = e.filename if e.filename is not None else "standard output"
-    why = e.strerror or str(e)
+def _oserror_line(e: OSError, key: str, where: str | None = None) -> int:
+    where = where or (str(e.filename) if e.filename is not None else None)
+    why = e.strerror or str(e) or type(e).__name__
     if e.errno in WRITE_ERRNOS:
-        return error(key, f"cannot write {where}: {why}")
-    return error(key, f"{where}: {why}")
+        return error(key, f"cannot write {where}: {why}" if where else f"a write failed: {why}")
+    return error(key, f"{where}: {why}" if where else why)
 
 
 OUT_OF_MEMORY = "the run ran out of memory; lower --seeds, shorten the run or save less"
@@ -158,15 +165,37 @@ def out_of_memory(e: BaseException) -> bool:
                                                                  "Cannot allocate memory"))
 
 
+class _StdoutFailed(Exception):
+    def __init__(self, error: OSError):
+        super().__init__(str(error))
+        self.error = error
+
+
+def emit(text: str, end: str = "\n") -> None:
+    """Print to standard output and flush, so that a failed write (a redirection to a full disk) is known to be
+    standard output's, not an output file's."""
+    if sys.stdout is None:  # started with standard output closed
+        return
+    try:
+        print(text, end=end)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        raise
+    except OSError as e:
+        raise _StdoutFailed(e) from None
+
+
 def guarded(command: Callable[[], int], key: str = "--out") -> int:
     """Run a command under the contract: its status, or the status of the one line that replaced a crash."""
     _reconfigure_streams()
     try:
         with Held():
             code = command()
-            if sys.stdout is not None:  # None when the command was started with standard output closed
-                sys.stdout.flush()
+            emit("", end="")
         return code
+    except _StdoutFailed as e:
+        _stdout_gone()
+        return _oserror_line(e.error, "stdout", "standard output")
     except BrokenPipeError:
         Held.drop_all()
         _stdout_gone()
@@ -178,10 +207,37 @@ def guarded(command: Callable[[], int], key: str = "--out") -> int:
     except MemoryError:
         return error("--seeds", OUT_OF_MEMORY)
     except OSError as e:
-        if e.filename is None:  # standard output itself (a full disk behind a redirection)
-            _stdout_gone()
-        return _oserror_line(e, key if e.filename is not None else "stdout")
+        return _oserror_line(e, key)
     except Exception as e:
         if out_of_memory(e):
             return error("--seeds", OUT_OF_MEMORY)
         raise
+
+
+def riccati_keys(cfg) -> str:
+    """The config keys that shape a Riccati design, to point the user at what to change."""
+    names = [f.name for f in dataclasses.fields(cfg)] if dataclasses.is_dataclass(cfg) else []
+    keys = [n for n in names if n in ("Q", "R", "Q_lqr", "R_lqr", "Qk", "Rk", "W", "V")
+            or n.startswith(("Q_", "R_", "lqr_"))]
+    return ", ".join(keys) if keys else "the weights"
+
+
+EXTREME_DECADES = 12  # a value this many decades from 1 is named as the likely cause of a numerical failure
+
+
+def numerical(cfg, e: Exception, where: str = "") -> int:
+    """A design or simulation whose linear algebra or arithmetic failed on the config's values: one line naming
+    the most extreme value when there is one (weights of 1e308); a failed factorisation with ordinary values
+    names the design's weights. Anything else is a bug, and keeps its traceback."""
+    import numpy as np
+
+    from jaxdip.config import most_extreme
+    from jaxdip.messages import shown
+
+    key, value, decades = most_extreme(cfg)
+    first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+    if decades >= EXTREME_DECADES:
+        return error(f"{where}{key}", f"{shown(value, 24)} is out of range: the computation failed ({first})")
+    if isinstance(e, np.linalg.LinAlgError):
+        return error(f"{where}{riccati_keys(cfg)}", f"the computation failed on these values ({first})")
+    raise e

@@ -220,12 +220,18 @@ def _computable(cfg) -> None:
         if hasattr(cfg, "loads"):
             cfg.loads()
     except _ARITHMETIC as e:
-        # infinities are allowed where a field says so (no bound): the culprit is the largest finite extreme
-        finite = [(k, x) for k, x in _numeric_fields(cfg) if not math.isinf(x)]
-        ranked = sorted(finite, key=lambda kv: _extremity(kv[1]), reverse=True)
-        key, value = ranked[0] if ranked else ("config", "")
+        key, value, _ = most_extreme(cfg)
         raise ConfigError(key, f"{shown(value, 24)} is out of range: a number computed from it does not fit "
                                f"({type(e).__name__})") from None
+
+
+def most_extreme(cfg) -> tuple[str, float, float]:
+    """(key, value, decades from 1) of the config's number furthest from everyday magnitudes: the likeliest
+    cause when arithmetic on the values fails. Infinities are left out (a field that allows one means "no
+    bound"). ``("config", 0.0, 0.0)`` for a config without numbers."""
+    finite = [(k, x) for k, x in _numeric_fields(cfg) if not math.isinf(x)]
+    ranked = sorted(((k, x, _extremity(x)) for k, x in finite), key=lambda kxe: kxe[2], reverse=True)
+    return ranked[0] if ranked else ("config", 0.0, 0.0)
 
 
 def to_dict(cfg) -> dict:

@@ -76,6 +76,7 @@ CASES = [
     ("period_count_overflows", [*RUN, "--set", "dt=1e-300", "--set", "duration=1e10"], "dt"),
     ("duration_1e308", [*RUN, "--set", "duration=1e308"], "duration"),
     ("nan_weight", [*RUN, "--set", "R=nan"], "R"),
+    ("weight_1e308_breaks_the_design", [*RUN, "--set", "Q=[1e308,1,1,0,0,0]"], "Q"),
     ("float_beyond_float", [*RUN, "--set", f"init_radius={10**400}"], "init_radius"),
     # -- special files as --config are refused without being read (a FIFO would block forever)
     ("config_fifo", [*RUN, "--config", "fifo.toml"], "--config"),
@@ -213,6 +214,16 @@ def _child(args, cwd, timeout=60, **popen):
     popen.setdefault("stdout", subprocess.PIPE)
     return subprocess.run([sys.executable, "-m", "jaxdip.cli", *args], cwd=cwd, env=popen.pop("env", _env()),
                           stderr=subprocess.PIPE, text=True, timeout=timeout, **popen)
+
+
+def test_numpy_warning_before_a_late_refusal(world):
+    """R = 1e308: NumPy warns of an overflow in the Riccati design, which then fails: one line, not the warning's
+    two and the error's one."""
+    work, victim = world
+    before = snapshot(work), snapshot(victim)
+    r = _child([*RUN, "--set", "R=1e308"], work)
+    assert r.returncode == 2 and one_line(r.stderr).startswith("error: Q, R: cannot solve the CARE"), r.stderr
+    assert (snapshot(work), snapshot(victim)) == before
 
 
 def test_fifo_config_does_not_hang(world):
