@@ -29,6 +29,9 @@ ENV = {"coordinator": "JAXDIP_COORDINATOR", "num_processes": "JAXDIP_NUM_PROCESS
 FLAG = {"coordinator": "--coordinator", "num_processes": "--num-processes", "process_id": "--process-id"}
 
 
+MAX_PROCESSES = 1 << 20  # JAX counts processes in 32 bits; a million is beyond any cluster this would meet
+
+
 class DistributedError(ValueError):
     """A value for ``--distributed`` that is missing or invalid, or a coordinator that cannot be reached.
     ``stuck``: a call into JAX's runtime is still waiting and cannot be cancelled; end the process."""
@@ -66,8 +69,8 @@ def resolve(coordinator: Optional[str] = None, num_processes: Optional[int | str
         if got[name] is not None:
             got[name] = _int(got[name], where[name])
     n, i = got["num_processes"], got["process_id"]
-    if n is not None and n < 1:
-        raise DistributedError(f"{where['num_processes']}: must be >= 1, got {n}")
+    if n is not None and not 1 <= n <= MAX_PROCESSES:
+        raise DistributedError(f"{where['num_processes']}: must be between 1 and {MAX_PROCESSES}, got {shown(n, 24)}")
     if i is not None and i < 0:
         raise DistributedError(f"{where['process_id']}: must be >= 0, got {i}")
     if n is not None and i is not None and i >= n:
