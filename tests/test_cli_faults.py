@@ -236,28 +236,36 @@ def test_fifo_config_does_not_hang(world):
 
 def test_closed_pipe_exits_quietly(world):
     """``jaxdip config dip-lqr | head -0``: the reader is gone before the first write."""
+    before = snapshot(world[0]), snapshot(world[1])
     p = subprocess.Popen([sys.executable, "-m", "jaxdip.cli", "config", "dip-lqr"], cwd=world[0], env=_env(),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     p.stdout.close()
     err = p.communicate(timeout=60)[1]
     assert err == b"" and p.returncode == 141
+    assert (snapshot(world[0]), snapshot(world[1])) == before
 
 
-def test_full_disk_behind_stdout(world):
+@pytest.mark.parametrize("argv", [["config", "dip-lqr"], ["list"]])
+def test_full_disk_behind_stdout(world, argv):
+    before = snapshot(world[0]), snapshot(world[1])
     with open("/dev/full", "w") as full:
-        r = _child(["config", "dip-lqr"], world[0], stdout=full)
-    assert r.returncode == 2 and one_line(r.stderr).startswith("error: stdout: cannot write"), r.stderr
+        r = _child(argv, world[0], stdout=full)
+    assert r.returncode == 2 and one_line(r.stderr).startswith("error: stdout: cannot write standard output: "
+                                                               "No space left"), r.stderr
+    assert (snapshot(world[0]), snapshot(world[1])) == before
 
 
 def test_ascii_terminal(world):
     """LANG=C and an ASCII-only encoding: the config's non-ASCII text and an error echoing a non-ASCII value
     come out escaped, never as UnicodeEncodeError."""
     env = _env(LANG="C", LC_ALL="C", PYTHONIOENCODING="ascii")
+    before = snapshot(world[0]), snapshot(world[1])
     r = _child(["config", "dip-lqr"], world[0], env=env)
     assert r.returncode == 0 and r.stderr == "" and "\\xa7" in r.stdout
     r = _child([*RUN, "--set", "seeds=\u00e9t\u00e9"], world[0], env=env)
     assert r.returncode == 2 and one_line(r.stderr).startswith("error: seeds: expected an integer, got '\\xe9t"), \
         r.stderr
+    assert (snapshot(world[0]), snapshot(world[1])) == before
 
 
 def test_deleted_working_folder(tmp_path):
