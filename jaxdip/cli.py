@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from jaxdip.cli_args import check_paths, parser
+from jaxdip.cli_args import check_paths, parser, special_kind
 from jaxdip.cli_errors import emit, error, guarded, note, numerical, out_of_memory, riccati_keys, warn
 from jaxdip.reproduce_pool import run_parallel
 
@@ -247,6 +247,8 @@ def cmd_reproduce(args, argv=None) -> int:
                 raise OutputError("--out", f"{args.out} exists and is a file, not a folder")
             for exp_id, _ in reg:
                 outdir.check_destination(os.path.join(args.out, exp_id), exp_id, force=args.force)
+            if kind := special_kind(report_path):  # never opened: reading a FIFO would block
+                raise OutputError("--out", f"{report_path} is {kind}, not a report jaxdip wrote")
             outdir.check_file(report_path, lambda text: text.startswith("# jaxdip reproduction"))
     except ConfigError as e:
         return error(e.key, e.why)

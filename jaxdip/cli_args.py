@@ -112,6 +112,21 @@ def parser(description: str = "") -> Parser:
     return p
 
 
+def special_kind(path: str) -> str | None:
+    """"a FIFO", "a socket" or "a device" when ``path`` (followed through links) is one, else None."""
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return None
+    for test, name in ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a device"),
+                       (stat.S_ISBLK, "a device")):
+        if test(mode):
+            return name
+    return None
+
+
 def check_paths(args) -> int:
     """0, or the error status for a path argument that cannot name anything: empty, or relative to a working
     folder that no longer exists (``os.getcwd`` fails once it has been deleted)."""
@@ -127,6 +142,9 @@ def check_paths(args) -> int:
             return error(f"--{flag}", f"{shown(v)} is {len(raw)} bytes long; paths stop at {PATH_MAX - 1}")
         if any(len(part) > NAME_MAX for part in raw.split(b"/")):
             return error(f"--{flag}", f"{shown(v)} has a name longer than {NAME_MAX} bytes")
+        if flag == "out" and (kind := special_kind(v)):
+            # a FIFO would block the first read of it (the check that a file there is jaxdip's own)
+            return error("--out", f"{shown(v)} is {kind}; give a folder or a file name")
     try:
         os.getcwd()
     except OSError as e:

@@ -275,14 +275,6 @@ def _merge(base: dict, over: dict):
 MAX_CONFIG_BYTES = 1 << 20  # a config is a page of numbers; anything larger is the wrong file
 
 
-def _kind(mode: int) -> str:
-    for test, name in ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a device"),
-                       (stat.S_ISBLK, "a device")):
-        if test(mode):
-            return name
-    return "not a regular file"
-
-
 def read_toml(path: str) -> dict:
     """A TOML file as a dict, every failure (missing, a folder, a FIFO or device, unreadable, binary, not TOML) a
     ConfigError. Only a regular file is opened: reading a FIFO would wait for a writer forever, a device
@@ -293,7 +285,9 @@ def read_toml(path: str) -> dict:
         if stat.S_ISDIR(st.st_mode):
             raise ConfigError("--config", f"{shown_path} is a folder, not a TOML file")
         if not stat.S_ISREG(st.st_mode):
-            raise ConfigError("--config", f"{shown_path} is {_kind(st.st_mode)}, not a TOML file")
+            kind = next((name for test, name in ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"))
+                         if test(st.st_mode)), "a device")
+            raise ConfigError("--config", f"{shown_path} is {kind}, not a TOML file")
         # O_NONBLOCK: should the name have become a FIFO since the stat, opening it still does not wait
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0))
         with os.fdopen(fd, "rb") as fh:

@@ -82,6 +82,8 @@ CASES = [
     ("config_fifo", [*RUN, "--config", "fifo.toml"], "--config"),
     ("config_device", [*RUN, "--config", "/dev/zero"], "--config"),
     ("config_socket", [*RUN, "--config", "sock"], "--config"),
+    ("bench_out_device", ["bench", "--quick", "--out", "/dev/null"], "--out"),
+    ("run_out_socket", ["run", "dip-lqr", "--quick", "--out", "sock"], "--out"),
     # -- user text shortened, control characters escaped
     ("long_set_value", [*RUN, "--set", f"seeds={LONG}"], "seeds"),
     ("long_set_key", [*RUN, "--set", f"{LONG}=1"], "x"),
@@ -231,6 +233,20 @@ def test_fifo_config_does_not_hang(world):
     before = snapshot(work), snapshot(victim)
     r = _child([*RUN, "--config", "fifo.toml"], work, timeout=30)
     assert r.returncode == 2 and one_line(r.stderr).startswith("error: --config: fifo.toml is a FIFO"), r.stderr
+    assert (snapshot(work), snapshot(victim)) == before
+
+
+@pytest.mark.parametrize("argv", [
+    ["bench", "--quick", "--out", "fifo.toml"],
+    ["reproduce", "--quick", "--only", "dip-lqr,eki-linear", "--out", "repro"],  # its REPORT.md is a FIFO
+])
+def test_fifo_as_output_does_not_hang(world, argv):
+    work, victim = world
+    (work / "repro").mkdir()
+    os.mkfifo(work / "repro" / "REPORT.md")
+    before = snapshot(work), snapshot(victim)
+    r = _child(argv, work, timeout=30)
+    assert r.returncode == 2 and "is a FIFO" in one_line(r.stderr), r.stderr
     assert (snapshot(work), snapshot(victim)) == before
 
 
