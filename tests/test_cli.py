@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from jaxdip import cli
+from jaxdip import cli, cli_args
 from jaxdip import config as C
 from jaxdip.experiments import dip_lqr, registry
 
@@ -180,7 +180,7 @@ def test_reproduce_workers_share_the_cores(monkeypatch, argv, cores, devices):
     monkeypatch.delenv("XLA_FLAGS", raising=False)
     monkeypatch.setenv("JAX_PLATFORMS", "cpu")
     monkeypatch.setattr(os, "cpu_count", lambda: cores)
-    args = cli._parser().parse_args(argv)
+    args = cli_args.parser().parse_args(argv)
     cli._use_all_cores(cli._reproduce_jobs(args) if args.cmd == "reproduce" else 1)
     flags = os.environ.get("XLA_FLAGS", "")
     assert flags == (f"--xla_force_host_platform_device_count={devices}" if devices else "")

@@ -70,7 +70,8 @@ def test_flags_win_over_environment_and_fill_in_separately():
     (dict(coordinator="node7:70000"), {}, "--coordinator: expected HOST:PORT"),
     ({}, {"JAXDIP_COORDINATOR": "a b:12"}, "JAXDIP_COORDINATOR: expected HOST:PORT"),
     (dict(num_processes="two"), {}, "--num-processes: expected an integer"),
-    (dict(num_processes=0), {}, "--num-processes: must be >= 1"),
+    (dict(num_processes=0), {}, "--num-processes: must be between 1 and"),
+    (dict(num_processes=10**30), {}, "--num-processes: must be between 1 and"),
     ({}, {"JAXDIP_PROCESS_ID": "-1"}, "JAXDIP_PROCESS_ID: must be >= 0"),
     (dict(num_processes=2, process_id=2), {}, r"--process-id: must be below the number of processes \(2\)"),
     (dict(process_id=5), {"JAXDIP_NUM_PROCESSES": "4"}, "--process-id: must be below"),
@@ -100,7 +101,7 @@ def cli_in_process(argv, monkeypatch, capsys, **env):
 
 
 @pytest.mark.parametrize("args, env, start", [
-    (["--distributed", "--num-processes", "0"], {}, "error: --distributed: --num-processes: must be >= 1"),
+    (["--distributed", "--num-processes", "0"], {}, "error: --distributed: --num-processes: must be between 1 and"),
     (["--distributed", "--coordinator", "localhost"], {}, "error: --distributed: --coordinator: expected HOST:PORT"),
     (["--distributed"], {"JAXDIP_PROCESS_ID": "x"}, "error: --distributed: JAXDIP_PROCESS_ID: expected an integer"),
     (["--process-id", "1"], {}, "error: --process-id: only with --distributed"),

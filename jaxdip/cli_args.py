@@ -1,0 +1,157 @@
+"""The command line's arguments: the parser, and the checks on them that need no experiment loaded.
+
+argparse's usage block is replaced by the one-line error format (``Parser.error``), and every flag with a
+range (``--jobs``, ``--connect-timeout``) is checked by its type, so a bad value stops the command before it
+starts anything.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import re
+
+from jaxdip.cli_errors import error
+from jaxdip.distributed import DEFAULT_TIMEOUT_S, MAX_TIMEOUT_S
+from jaxdip.messages import shown
+from jaxdip.reproduce_pool import MAX_JOBS
+
+
+PATH_MAX, NAME_MAX = 4096, 255  # Linux's limits, the strictest of the common systems
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with the project's one-line errors: ``error: <flag>: <why>`` and exit 2, no usage block."""
+
+    def error(self, message: str):
+        message = " ".join(message.split())
+        key, why = "jaxdip", message
+        if m := re.match(r"argument ([^:]+): (.*)", message):
+            key, why = m.group(1).split("/")[0], m.group(2)
+        elif m := re.match(r"the following arguments are required: (.*)", message):
+            key, why = m.group(1), "required"
+        elif m := re.match(r"unrecognized arguments: (.*)", message):
+            key, why = m.group(1), f"unrecognized argument (see jaxdip {self.prog.split()[-1]} --help)"
+        raise SystemExit(error(key, why))
+
+
+def _jobs(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {shown(text)}") from None
+    if not 1 <= n <= MAX_JOBS:
+        raise argparse.ArgumentTypeError(f"must be between 1 and {MAX_JOBS}, got {shown(text, 24)}")
+    return n
+
+
+def _seconds(text: str) -> float:
+    try:
+        s = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {shown(text)}") from None
+    if not (math.isfinite(s) and 0 < s <= MAX_TIMEOUT_S):
+        raise argparse.ArgumentTypeError(f"must be above 0 and at most {MAX_TIMEOUT_S:g} s, got {shown(text, 24)}")
+    return s
+
+
+def parser(description: str = "") -> Parser:
+    p = Parser(prog="jaxdip", description=description)
+    sub = p.add_subparsers(dest="cmd", metavar="command", required=True, parser_class=Parser)
+    sub.add_parser("list", help="print the experiment ids, one a line")
+
+    r = sub.add_parser("run", help="run one experiment")
+    r.add_argument("id")
+    r.add_argument("--config", help="TOML file overriding the defaults")
+    r.add_argument("--seeds", type=int, help="number of Monte Carlo seeds")
+    r.add_argument("--out", help="output folder (default results/<id>)")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override one config key")
+    r.add_argument("--quick", action="store_true", help="reduced run: few seeds, short horizon")
+    r.add_argument("--resume", action="store_true", help="continue an interrupted search from its checkpoint")
+    r.add_argument("--force", action="store_true",
+                   help="replace a jaxdip result folder of another experiment (a user's files are never replaced)")
+
+    c = sub.add_parser("config", help="print an experiment's default config as TOML")
+    c.add_argument("id")
+
+    b = sub.add_parser("bench", help="closed-loop throughput against a plain NumPy loop")
+    b.add_argument("--quick", action="store_true")
+    b.add_argument("--out", default="bench.json")
+
+    rp = sub.add_parser("reproduce", help="run every registered experiment and write one combined report")
+    rp.add_argument("--quick", action="store_true")
+    rp.add_argument("--out", default="results")
+    rp.add_argument("--force", action="store_true", help="replace jaxdip result folders of other experiments")
+    rp.add_argument("--jobs", type=_jobs, default=None,
+                    help="experiments run side by side in worker processes (default: one per CPU core, "
+                         f"at most 2; at most {MAX_JOBS}; compilation is single-threaded, so a second job uses the "
+                         "idle core)")
+    rp.add_argument("--only", default=None, metavar="ID,ID", help="run these experiments only (default: every "
+                    "experiment but the fidelity readings' supporting runs, which `jaxdip list` marks)")
+    for q in (r, rp):
+        q.add_argument("--compile-effort", choices=("fast", "balanced", "full"), default=None,
+                       help="how hard XLA optimises the compiled programs: fast compiles in about half the time "
+                            "and runs slower, full is XLA's default (default: full; with --quick, the level "
+                            "measured best for each experiment's quick run); results agree to the last bits")
+    for q in (r, b, rp):
+        q.add_argument("--no-compile-cache", action="store_true",
+                       help="do not read or write the on-disk cache of compiled code (see JAXDIP_CACHE_DIR)")
+    for q in (r, rp):
+        d = q.add_argument_group("several processes (jax.distributed)")
+        d.add_argument("--distributed", action="store_true",
+                       help="run as one of several processes: Monte Carlo seeds are split over the devices of all "
+                            "of them and only process 0 writes; the values below, else JAXDIP_COORDINATOR, "
+                            "JAXDIP_NUM_PROCESSES, JAXDIP_PROCESS_ID, else the cluster's (SLURM, Open MPI)")
+        d.add_argument("--coordinator", metavar="HOST:PORT", help="address of process 0's coordinator service")
+        d.add_argument("--num-processes", metavar="N", help="number of processes")
+        d.add_argument("--process-id", metavar="I", help="this process's index, 0 .. N-1")
+        d.add_argument("--connect-timeout", metavar="SECONDS", type=_seconds, default=None,
+                       help=f"how long to wait for the coordinator and the other processes (default "
+                            f"{DEFAULT_TIMEOUT_S:g}); Ctrl-C stops the wait")
+    return p
+
+
+def special_kind(path: str) -> str | None:
+    """"a FIFO", "a socket" or "a device" when ``path`` (followed through links) is one, else None."""
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return None
+    for test, name in ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a device"),
+                       (stat.S_ISBLK, "a device")):
+        if test(mode):
+            return name
+    return None
+
+
+def check_paths(args) -> int:
+    """0, or the error status for a path argument that cannot name anything: empty, or relative to a working
+    folder that no longer exists (``os.getcwd`` fails once it has been deleted)."""
+    paths = {flag: getattr(args, flag, None) for flag in ("out", "config")}
+    for flag, v in paths.items():
+        if v is None:
+            continue
+        if not v.strip():
+            return error(f"--{flag}", "empty path")
+        # the system refuses these anyway, some of its calls only after deep recursion (os.makedirs)
+        raw = os.fsencode(v)
+        if len(raw) >= PATH_MAX:
+            return error(f"--{flag}", f"{shown(v)} is {len(raw)} bytes long; paths stop at {PATH_MAX - 1}")
+        if any(len(part) > NAME_MAX for part in raw.split(b"/")):
+            return error(f"--{flag}", f"{shown(v)} has a name longer than {NAME_MAX} bytes")
+        if flag == "out" and (kind := special_kind(v)):
+            # a FIFO would block the first read of it (the check that a file there is jaxdip's own)
+            return error("--out", f"{shown(v)} is {kind}; give a folder or a file name")
+    try:
+        os.getcwd()
+    except OSError as e:
+        relative = [f for f, v in paths.items() if v is not None and not os.path.isabs(v)]
+        if args.cmd == "run" and paths["out"] is None:
+            relative.append("out")  # the default, results/<id>
+        if relative:
+            return error(f"--{relative[0]}", f"a relative path, and the working folder is gone ({e.strerror}); "
+                                             "give an absolute path or change to an existing folder")
+    return 0

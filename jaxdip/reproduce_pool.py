@@ -1,0 +1,149 @@
+"""The worker processes of a parallel ``jaxdip reproduce``.
+
+Each worker (``jaxdip.reproduce_worker``) starts JAX once and runs the ``jaxdip run`` commands it is given one
+after another, keeping its compiled programs in memory. ``run_parallel`` hands the experiments out, longest
+first, each worker taking the next when it finishes one; each experiment's output goes to a log, shown only when
+it fails.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+from jaxdip.cli_errors import error, note
+
+MAX_JOBS = 64  # far beyond the experiments there are; a larger --jobs is a typo, not a plan
+
+# cold --quick wall times (s) of each experiment in the parallel reproduce on a 2-core CPU, at the quick compile
+# efforts (rwp-bias estimated at balanced from its run alone): the parallel reproduce starts the long ones first
+QUICK_COST = {"ifn-protection": 37, "eki-dip": 25, "tune": 18, "rwp-bias": 18, "dip-cpx-ldf": 15,
+              "lorenz-mhe": 14, "dip-controllers": 13, "twip-dmso": 10, "eki-linear": 9, "eki-nonlinear": 7,
+              "twip-extra-control": 6, "dip-lqr": 2}
+
+
+class Workers:
+    """``n`` started ``jaxdip.reproduce_worker`` processes and one queue of their answers, ``(worker, answer or
+    None when the worker has ended)``. Only ever made after every argument has been checked."""
+
+    def __init__(self, n: int):
+        if not 1 <= n <= MAX_JOBS:
+            raise ValueError(f"{n} workers")
+        self.answers: queue.Queue = queue.Queue()
+        self.workers = []
+        env = dict(os.environ, JAXDIP_NO_PROGRESS="1")
+        for _ in range(n):
+            proc = subprocess.Popen([sys.executable, "-m", "jaxdip.reproduce_worker"], stdin=subprocess.PIPE,
+                                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env, text=True,
+                                    bufsize=1, start_new_session=True)
+            w = {"proc": proc, "task": None, "t": 0.0, "given": False}
+            threading.Thread(target=self._read, args=(w,), daemon=True).start()
+            self.workers.append(w)
+
+    def _read(self, w):
+        for line in w["proc"].stdout:
+            self.answers.put((w, json.loads(line)))
+        self.answers.put((w, None))
+
+    def close(self):
+        for w in self.workers:
+            close(w)
+            if not w["given"] and w["proc"].poll() is None:
+                w["proc"].kill()  # never given an experiment: do not wait for its start-up
+            w["proc"].wait()
+
+
+def close(w):
+    """End of input: the worker exits once its current experiment is done."""
+    if w["proc"].stdin and not w["proc"].stdin.closed:
+        try:
+            w["proc"].stdin.close()
+        except OSError:
+            pass
+
+
+def run_parallel(args, reg, jobs: int) -> int:
+    """Run the experiments ``reg`` (``[(id, Experiment)]``) in ``jobs`` workers; 0 or the exit code."""
+    order = sorted(reg, key=lambda r: -QUICK_COST.get(r[0], 10.0)) if args.quick else list(reg)
+    pending = [exp_id for exp_id, _ in order]
+    failed: list = []
+    logs = tempfile.mkdtemp(prefix="jaxdip-reproduce-")
+    n, done = len(order), 0
+    pool = Workers(min(jobs, n))
+    answers, workers = pool.answers, pool.workers
+
+    def log(exp_id):
+        return os.path.join(logs, f"{exp_id}.log")
+
+    def give(w):
+        exp_id = pending.pop(0)
+        argv = ["run", exp_id, "--out", os.path.join(args.out, exp_id)]
+        argv += ["--quick"] * bool(args.quick) + ["--force"] * bool(args.force)
+        argv += ["--no-compile-cache"] * bool(args.no_compile_cache)
+        argv += ["--compile-effort", args.compile_effort] if args.compile_effort else []
+        w["task"], w["t"] = exp_id, time.perf_counter()
+        w["given"] = True
+        try:
+            w["proc"].stdin.write(json.dumps({"id": exp_id, "argv": argv, "log": log(exp_id)}) + "\n")
+            w["proc"].stdin.flush()
+        except OSError:
+            pass  # the worker has died: its reader reports the end, and the experiment counts as failed
+
+    def tail(exp_id):
+        try:
+            with open(log(exp_id), errors="replace") as fh:
+                lines = [ln for ln in fh.read().splitlines() if ln.strip()]
+        except OSError:
+            lines = []
+        return (lines[-1:] or ["(no output)"])[0]
+
+    try:
+        for w in workers:
+            give(w)
+        # after a failure nothing new starts, and the loop ends once the running ones have finished
+        while any(w["task"] is not None for w in workers):
+            try:
+                w, ans = answers.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            exp_id, w["task"] = w["task"], None
+            if exp_id is None:
+                continue
+            done += 1
+            rc = ans["rc"] if ans is not None else (w["proc"].wait() or 1)
+            if rc == 0:
+                print(f"== {exp_id} done ({time.perf_counter() - w['t']:.1f} s) [{done}/{n}]", file=sys.stderr)
+            else:
+                failed.append((exp_id, rc, tail(exp_id)))
+            if pending and not failed and ans is not None:
+                give(w)
+            else:
+                close(w)
+    except KeyboardInterrupt:
+        for w in workers:
+            if w["task"] is not None and w["proc"].poll() is None:
+                w["proc"].send_signal(signal.SIGINT)  # once: the workers are in their own sessions
+        pool.close()
+        shutil.rmtree(logs, ignore_errors=True)
+        note(f"interrupted: the experiments finished before it are in {args.out}")
+        return 130
+    pool.close()
+    if not failed:
+        shutil.rmtree(logs, ignore_errors=True)
+        return 0
+    # the failing experiment's log is kept (the line names it); the others' are not worth a folder each
+    for name in os.listdir(logs):
+        if name != f"{failed[0][0]}.log":
+            os.remove(os.path.join(logs, name))
+    exp_id, code, line = failed[0]
+    line = line[len("error: "):] if line.startswith("error: ") else line
+    error(exp_id, f"{line} (log: {log(exp_id)})")
+    return 130 if code == 130 else (code if code == 2 else 1)
