@@ -20,84 +20,15 @@ import subprocess
 import sys
 
 import pytest
-from matplotlib.figure import Figure
 
 import jaxdip.experiments as experiments
-from jaxdip import cli
-from jaxdip.experiments.base import Outcome
 from jaxdip.outdir import MARKER, swap
-from outdir_world import ROOT, whole, write_run
+import outdir_world as W
+from outdir_world import ROOT, fake_run, old_run, refused, run, whole, write_run
 from snapshots import snapshot
 
+world, fake = W.world, W.fake  # the shared fixtures
 
-@pytest.fixture
-def world(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.setenv("JAXDIP_NO_PROGRESS", "1")
-    (tmp_path / "victim").mkdir()
-    (tmp_path / "victim" / "thesis.tex").write_text("my thesis\n")
-    return tmp_path
-
-
-@pytest.fixture
-def fake(monkeypatch, world):
-    """``fake.during`` (if set) runs inside the stub experiment, between the start checks and the commit; what
-    it changes is the user's (or another run's) doing, so the folder is snapshot again after it."""
-    real_get = experiments.get
-    state = type("Fake", (), {"during": None, "calls": 0, "seen": None, "world": world})()
-    monkeypatch.setattr(experiments, "get", lambda exp_id: dataclasses.replace(real_get(exp_id), run=fake_run(state)))
-    return state
-
-
-def fake_run(state):
-    """The stub experiment's run function."""
-    world = state.world
-
-    def run(cfg, ctx):
-        state.calls += 1
-        if state.during is not None:
-            state.during()
-            state.seen = {p: v for p, v in snapshot(world).items()
-                          if not any(".jaxdip-" in part for part in p.split(os.sep))}  # the run's staging
-        fig = Figure(figsize=(1, 1))
-        fig.add_subplot().plot([0, state.calls])
-        return Outcome(results={"calls": state.calls}, report="stub report", figures={"fig": fig})
-
-    return run
-
-
-def run(*extra, out="dest", exp="dip-lqr"):
-    return cli.main(["run", exp, "--quick", "--out", out, *extra])
-
-
-def refused(world, capsys, argv_or_fn, *, code=2, kept=False, starts="error: --out: ", fake=None, extra=()):
-    """Run it, check exit code, one line, and that nothing changed but the kept folder (and the run's own
-    outputs under ``extra``); returns the line."""
-    before = snapshot(world)
-    got = argv_or_fn() if callable(argv_or_fn) else cli.main(argv_or_fn)
-    if fake is not None and fake.seen is not None:
-        before = fake.seen
-    err = capsys.readouterr().err
-    lines = [ln for ln in err.strip().splitlines() if not ln.startswith("== ")]  # reproduce's progress lines
-    assert got == code, err
-    assert len(lines) == 1 and lines[0].startswith(starts), err
-    assert len(lines[0]) <= 300 and lines[0].isprintable(), lines[0]
-    after = snapshot(world)
-    kept_dirs = sorted({p.split(os.sep)[0] for p in after if ".kept-" in p.split(os.sep)[0]})
-    assert len(kept_dirs) == int(kept), (kept_dirs, err)
-    if kept:
-        assert kept_dirs[0] in lines[0] and whole(world / kept_dirs[0]) is not None
-        after = {p: v for p, v in after.items() if not p.startswith(kept_dirs[0])}
-    after = {p: v for p, v in after.items() if not p.startswith(tuple(extra))}
-    assert after == before
-    assert not [n for n in os.listdir(world) if ".jaxdip-" in n]  # no staging folder left
-    return lines[0]
-
-
-def old_run(world, fake, capsys, out="dest", exp="dip-lqr"):
-    assert run(out=out, exp=exp) == 0
-    capsys.readouterr()
-    assert whole(world / out) is not None
 
 
 # ---- a file of the user's in the way, found before the run -------------------------------------------------
@@ -294,71 +225,6 @@ def test_sigterm_during_the_run(world, fake, capsys):
     old_run(world, fake, capsys)
     fake.during = lambda: os.kill(os.getpid(), signal.SIGTERM)
     refused(world, capsys, run, code=130, starts="interrupted: ")
-
-
-# ---- bench's two files ---------------------------------------------------------------------------------------
-
-
-@pytest.fixture
-def no_bench(monkeypatch):
-    import jaxdip.bench
-
-    def never(**k):
-        raise AssertionError("the bench ran")
-
-    monkeypatch.setattr(jaxdip.bench, "run_bench", never)
-
-
-def _bench_files(world, png=b"\x89PNG ours"):
-    (world / "b.png").write_bytes(png)
-    (world / "b.json").write_text(json.dumps({"tool": "jaxdip bench",
-                                              "figure": {"file": "b.png", "sha256": hashlib.sha256(png).hexdigest()}}))
-
-
-def test_bench_keeps_the_users_png(world, capsys, no_bench):
-    (world / "b.png").write_bytes(b"\x89PNG my figure")
-    assert "b.png" in refused(world, capsys, ["bench", "--quick", "--out", "b.json"])
-
-
-def test_bench_keeps_its_png_once_edited(world, capsys, no_bench):
-    _bench_files(world)
-    (world / "b.png").write_bytes(b"\x89PNG annotated")
-    refused(world, capsys, ["bench", "--quick", "--out", "b.json"])
-
-
-def test_bench_png_without_its_json(world, capsys, no_bench):
-    _bench_files(world)
-    os.remove(world / "b.json")
-    refused(world, capsys, ["bench", "--quick", "--out", "b.json"])
-
-
-@pytest.mark.parametrize("kind", ["symlink", "fifo", "folder"])
-def test_bench_png_not_a_file(world, capsys, no_bench, kind):
-    _bench_files(world)
-    os.remove(world / "b.png")
-    {"symlink": lambda: os.symlink(world / "victim" / "thesis.tex", world / "b.png"),
-     "fifo": lambda: os.mkfifo(world / "b.png"), "folder": lambda: os.mkdir(world / "b.png")}[kind]()
-    refused(world, capsys, ["bench", "--quick", "--out", "b.json"])
-
-
-def test_bench_json_is_a_fifo(world, capsys, no_bench):
-    os.mkfifo(world / "b.json")
-    refused(world, capsys, ["bench", "--quick", "--out", "b.json"])
-
-
-def test_bench_missing_parent_before_the_bench(world, capsys, no_bench):
-    assert "does not exist" in refused(world, capsys, ["bench", "--quick", "--out", "nowhere/b.json"])
-
-
-def test_bench_out_named_like_its_figure(world, capsys, no_bench):
-    assert ".json" in refused(world, capsys, ["bench", "--quick", "--out", "b.PNG"])
-
-
-def test_bench_may_replace_its_own_files(world):
-    from jaxdip.bench import check_outputs
-
-    _bench_files(world)
-    check_outputs(str(world / "b.json"))
 
 
 # ---- what a run leaves: modes, staging of killed runs, reproduce's logs --------------------------------------
