@@ -33,9 +33,6 @@ import equinox as eqx
 import jax
 
 from jaxdip import xla_flags
-from jaxdip.engine import carry_batching
-
-carry_batching.install()
 
 LEVELS: dict[str, dict[str, Any]] = {
     "full": {},
@@ -126,16 +123,15 @@ class _PerLevel:
 
     def __call__(self, *args, **kwargs):
         opts = None if traced(args, kwargs) else _options()
-        with carry_batching.active():  # the library's own programs batch their loops' carry in one round
-            if opts is None:
-                return self._variant(None)(*args, **kwargs)
-            try:
-                return self._variant(opts)(*args, **kwargs)
-            except ValueError as e:
-                # inside an enclosing jit with no traced argument: JAX takes options from top-level programs only
-                if "compiler_options" not in str(e):
-                    raise
-                return self._variant(None)(*args, **kwargs)
+        if opts is None:
+            return self._variant(None)(*args, **kwargs)
+        try:
+            return self._variant(opts)(*args, **kwargs)
+        except ValueError as e:
+            # inside an enclosing jit with no traced argument: JAX takes options from top-level programs only
+            if "compiler_options" not in str(e):
+                raise
+            return self._variant(None)(*args, **kwargs)
 
 
 def jit(fun: Callable | None = None, **jit_kwargs) -> Callable:
