@@ -93,7 +93,7 @@ def evaluate(check: FC.Check, results: dict, seeds: int | None = None) -> tuple[
     try:
         v = get(results, check.key)
     except KeyError:
-        return "undecided", f"{check.label}: key {check.key} absent"
+        return "undecided", f"{check.label}: no value ({check.key} is absent: a statistic over no seed, e.g. none settled within the run)"
     ci = _interval(results, check.key, check.ci)
     ours = _with_ci(v, ci)
     w = wci = None
@@ -101,7 +101,7 @@ def evaluate(check: FC.Check, results: dict, seeds: int | None = None) -> tuple[
         try:
             w = get(results, check.other)
         except KeyError:
-            return "undecided", f"{check.label}: key {check.other} absent"
+            return "undecided", f"{check.label}: no value ({check.other} is absent: a statistic over no seed)"
         wci = _interval(results, check.other, check.other_ci)
         ours += " vs " + _with_ci(w, wci)
     text = f"{check.label}: {ours}"
