@@ -32,15 +32,21 @@ class Parser(argparse.ArgumentParser):
         elif m := re.match(r"the following arguments are required: (.*)", message):
             key, why = m.group(1), "required"
         elif m := re.match(r"unrecognized arguments: (.*)", message):
-            key, why = m.group(1), f"unrecognized argument (see jaxdip {self.prog.split()[-1]} --help)"
+            # the top-level parser reports these too, and its prog is already "jaxdip"
+            command = " ".join(self.prog.split()[1:])
+            key, why = m.group(1), f"unrecognized argument (see jaxdip {command + ' ' if command else ''}--help)"
         raise SystemExit(error(key, why))
 
 
+def _whole(text: str) -> int:
+    """An integer in ASCII digits only: ``int`` also takes "1_000" and other scripts' digits ("٢", "２")."""
+    if not re.fullmatch(r"[+-]?[0-9]+", text.strip()):
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {shown(text)}")
+    return int(text)
+
+
 def _jobs(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {shown(text)}") from None
+    n = _whole(text)
     if not 1 <= n <= MAX_JOBS:
         raise argparse.ArgumentTypeError(f"must be between 1 and {MAX_JOBS}, got {shown(text, 24)}")
     return n
@@ -64,7 +70,7 @@ def parser(description: str = "") -> Parser:
     r = sub.add_parser("run", help="run one experiment")
     r.add_argument("id")
     r.add_argument("--config", help="TOML file overriding the defaults")
-    r.add_argument("--seeds", type=int, help="number of Monte Carlo seeds")
+    r.add_argument("--seeds", type=_whole, help="number of Monte Carlo seeds")
     r.add_argument("--out", help="output folder (default results/<id>)")
     r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override one config key")
     r.add_argument("--quick", action="store_true", help="reduced run: few seeds, short horizon")
