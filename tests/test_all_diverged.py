@@ -109,3 +109,33 @@ def test_every_experiment_is_classified():
     classified = set(ALL_DIVERGE) | set(NO_SURVIVOR_STATISTICS) | set(NO_SEEDS)
     assert classified == set(registry()), "classify every experiment under the all-diverged rule"
     assert not set(ALL_DIVERGE) & set(NO_SURVIVOR_STATISTICS) and not set(NO_SEEDS) & set(ALL_DIVERGE)
+
+
+def test_unwritable_results_are_kept_not_lost(tmp_path, monkeypatch, capsys):
+    """An experiment that leaves a NaN where the final check finds it (a defect, found only after the whole run)
+    is refused in one line, replaces nothing, and its results and report are kept in the one file the line
+    names, so a long run's computation is not lost."""
+    import dataclasses
+    import os
+
+    import jaxdip.experiments as experiments
+    from jaxdip import cli
+    from jaxdip.experiments.base import Outcome
+    from snapshots import snapshot
+
+    real = experiments.get("dip-lqr")
+    nan_run = lambda cfg, ctx: Outcome(results={"fine": 1.0, "ci": [float("nan"), 2.0]}, report="a report")
+    monkeypatch.setattr(experiments, "get", lambda exp_id: dataclasses.replace(real, run=nan_run))
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "victim").mkdir()
+    (tmp_path / "victim" / "notes.txt").write_text("mine\n")
+    before = snapshot(tmp_path)
+    assert cli.main(["run", "dip-lqr", "--quick", "--out", "dest"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: results.ci[0]: "), lines
+    kept = [n for n in os.listdir(tmp_path) if n.startswith("dest.unwritable-")]
+    assert len(kept) == 1 and kept[0] in lines[0]
+    saved = json.loads((tmp_path / kept[0]).read_text())
+    assert saved["results"] == {"fine": 1.0, "ci": [None, 2.0]} and saved["report"] == "a report"
+    after = snapshot(tmp_path)
+    assert {p: v for p, v in after.items() if p != kept[0]} == before  # no dest, no staging, the victim as it was

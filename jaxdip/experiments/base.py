@@ -26,7 +26,7 @@ from jaxdip import checkpoint
 from jaxdip import config as cfgmod
 from jaxdip import distributed, outdir, resources
 from jaxdip.engine import effort
-from jaxdip.experiments.common import check_writable, drop_missing
+from jaxdip.experiments.common import ResultError, check_writable, drop_missing
 
 
 @dataclass
@@ -99,6 +99,21 @@ def _jsonable(o):
 
 def dump_json(obj) -> str:
     return json.dumps(_jsonable(obj), indent=2, sort_keys=False, allow_nan=False)
+
+
+def _keep_unwritable(out_dir: str, exp_id: str, outcome: Outcome) -> str | None:
+    """A run whose results the final check refuses (NaN, inf or None left in them) is not a result folder, but
+    it may have computed for hours: its results and report go to one JSON file beside the destination (NaN as
+    null, infinities as strings), named in the error line. None when even that cannot be written."""
+    dest = os.path.abspath(out_dir)
+    path = f"{dest}.unwritable-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.json"
+    text = json.dumps({"experiment": exp_id, "results": _jsonable(outcome.results), "report": outcome.report},
+                      indent=1, allow_nan=True)
+    try:
+        outdir.write_file_atomic(path, text + "\n")
+    except OSError:
+        return None
+    return path
 
 
 def provenance(exp_id: str, seeds: int, wall_s: float, compile_effort: str = "full") -> dict:
@@ -228,7 +243,11 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
         wall = time.perf_counter() - t0
         # a statistic over no seed is left out, never written as NaN or null; anything else non-finite is refused
         outcome.results = drop_missing(outcome.results)
-        check_writable(outcome.results, outcome.report)
+        try:
+            check_writable(outcome.results, outcome.report)
+        except ResultError as e:  # a defect of the experiment, found after the whole run: keep what it computed
+            kept = _keep_unwritable(out_dir, exp.id, outcome) if main else None
+            raise ResultError(e.key, f"{e.why}; nothing replaced" + (f"; results kept in {kept}" if kept else "")) from None
         seeds = getattr(cfg, "seeds", 1)
         metrics = {**provenance(exp.id, seeds, wall, compile_effort), "results": outcome.results, "timing": outcome.timing}
         if not main:
