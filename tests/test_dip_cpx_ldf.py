@@ -108,33 +108,32 @@ def test_input_disturbance_offset_and_white_part():
     assert abs(np.mean(outs) - (1.0 + float(st[0]))) < 0.1 and abs(np.std(outs) - 2.0) < 0.1
 
 
-def test_gamma_criterion_matches_theory_and_thesis():
-    got = S.DipCpxLdf().gamma_criterion()
+def _reference_criterion(**changes) -> float:
+    """Prop. 1.4.3's criterion at 1 ms from the plain-function printed model (``changes`` to its parameters),
+    the ZOH matrices by SciPy's expm, the outputs xc, alpha, theta."""
     plant = dip.make("printed")
-    A, _ = linearize(plant.f, plant.default_params(), jnp.zeros(6), 0.0)
+    A, _ = linearize(plant.f, plant.default_params()._replace(**changes), jnp.zeros(6), 0.0)
     A = np.asarray(A)
     Cm = np.zeros((3, 6))
     for i, n in enumerate(("xc", "alpha", "theta")):
         Cm[i, plant.index(n)] = 1.0
     ref, _, _ = mhe.cpx_gamma_criterion(jnp.asarray(sla.expm(A * 1e-3)), jnp.asarray(sla.expm(-A * 1e-3)),
                                         jnp.asarray(Cm))
-    assert abs(got["gamma"] / float(ref) - 1) < 1e-6
+    return float(ref)
+
+
+def test_gamma_criterion_matches_theory_and_thesis():
+    got = S.DipCpxLdf().gamma_criterion()
+    assert abs(got["gamma"] / _reference_criterion() - 1) < 1e-6
     assert abs(got["gamma"] / 24400.0 - 1) < 0.02
 
 
 def test_gamma_criterion_without_mw_is_the_printed_equations_number():
     # the same route from the plain-function model with Table 3.3's Mw taken off the cart: the criterion the
     # fidelity rows name beside the default's (29148 against 24362)
-    plant = dip.make("printed")
-    A, _ = linearize(plant.f, plant.default_params()._replace(Mw=0.0), jnp.zeros(6), 0.0)
-    A = np.asarray(A)
-    Cm = np.zeros((3, 6))
-    for i, n in enumerate(("xc", "alpha", "theta")):
-        Cm[i, plant.index(n)] = 1.0
-    ref, _, _ = mhe.cpx_gamma_criterion(jnp.asarray(sla.expm(A * 1e-3)), jnp.asarray(sla.expm(-A * 1e-3)),
-                                        jnp.asarray(Cm))
+    ref = _reference_criterion(Mw=0.0)
     got = S.DipCpxLdf().gamma_criterion(dip.DIP(variant="printed", Mw=0.0))["gamma"]
-    assert abs(got / float(ref) - 1) < 1e-6
+    assert abs(got / ref - 1) < 1e-6
     assert abs(got / 29148.0 - 1) < 1e-3 and abs(got / 24400.0 - 1) > 0.15
 
 
