@@ -120,26 +120,12 @@ def test_x0_per_member_evaluates_each_member_on_its_own_draw():
         _nl(final="best")
 
 
-def _load_script(name):
-    import importlib.util
-    import os
-    import sys
-
-    exp = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "experiments")
-    if exp not in sys.path:
-        sys.path.insert(0, exp)
-    spec = importlib.util.spec_from_file_location(name, os.path.join(exp, f"{name}.py"))
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_partial_twip_run_keeps_the_other_parts():
-    """fidelity_twip.py --only <some parts>: the other parts' rows and page text survive unchanged, the parts
+    """python -m experiments.fidelity.twip --only <some parts>: the other parts' rows and page text survive unchanged, the parts
     run replace their own sections (marked, or by heading on an older page) and rows; a run of every part keeps
     no old row."""
-    T = _load_script("fidelity_twip")
+    from experiments.fidelity import twip as T
+
     old_rows = [{"claim": "stumfoll:table-8.3-param-lqr", "reading": "a"},
                 {"claim": "stumfoll:fig-8.18", "reading": "old"},
                 {"claim": "stumfoll:fig-8.13", "reading": "b"}]

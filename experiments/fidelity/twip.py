@@ -33,9 +33,8 @@ import tempfile
 import numpy as np
 
 import jaxdip  # noqa: F401  (float64)
-from fidelity_runs import command as _cmd, run as _run  # noqa: E402  (beside this script)
+from experiments.fidelity.runs import ROOT, command as _cmd, run as _run
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PARTS = ("table_8_3", "kf", "dmso", "transients", "allan", "rwp", "rwp_fig3", "fig_8_18")
 # the claims a part replaces in twip.json, with their "<claim>-<part>" rows (parts not listed here: the claims
 # of the rows they return)

@@ -1,9 +1,9 @@
 """The inventory's claims of Stumfoll's thesis (TWIP, DMSO, extra control) and of Aranovskiy et al. (reaction-wheel
-pendulum); ``experiments/fidelity_claims.py`` appends them to its ``CLAIMS``."""
+pendulum); ``experiments/fidelity/claims.py`` appends them to its ``CLAIMS``."""
 
 from __future__ import annotations
 
-from fidelity_claim_types import Check, Choice, Claim, _below
+from experiments.fidelity.claim_types import Check, Choice, Claim, _below
 
 # (4)'s printed B has k/J where (2), (3) and the observer (9) give -k/J; every reaction-wheel loop takes (2)-(3)
 # the quick run scores the KF's prediction (``kf``); (170) as printed (``kf_printed``) runs in the full run only

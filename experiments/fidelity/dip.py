@@ -29,9 +29,8 @@ import tempfile
 
 
 import jaxdip  # noqa: F401  (float64)
-from fidelity_runs import command as _cmd, run  # noqa: E402  (beside this script)
+from experiments.fidelity.runs import ROOT, command as _cmd, run
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PARTS = ("cpx_ldf", "controllers", "eki", "theory", "eki_nonlinear")
 DEG = 180.0 / math.pi
 
