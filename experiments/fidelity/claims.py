@@ -172,7 +172,7 @@ _CLAIMS_DIP: list[Claim] = [
     Claim("thesis:claim-2.7.2-v", "§2.7.2, 'after about 250 iterations the ensemble mean was' v = [.995, .1003]",
           "On the nonlinear example the search (J = 100, K = 4) ends at a stabilising v close to [0.995, 0.1003].",
           "v = [0.995, 0.1003], ~250 iterations", exp="eki-nonlinear",
-          keys="eki-nonlinear (x0_draw, final, R, init_var, iterations, K, judge_std); fidelity_dip.py eki_nonlinear",
+          keys="eki-nonlinear (x0_draw, final, R, init_var, iterations, K, judge_std); experiments.fidelity.dip_search.eki_nonlinear",
           checks=(Check("eki-nonlinear", "true", "stabilizing", "found P stabilising"),
                   Check("eki-nonlinear", "ge", "stabilizing_fraction_single_ensemble", "searches with one ensemble "
                         "(the thesis's procedure) ending stabilising, at least 0.9", value=0.9),
