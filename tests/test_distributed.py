@@ -144,7 +144,6 @@ MC_SCRIPT = textwrap.dedent(
         distributed.initialize(f"127.0.0.1:{port}", 2, pid)
     import jax, jax.numpy as jnp
     import jaxdip as jd
-    sys.path.insert(0, sys.argv[4])
     from test_distributed import lorenz_rollout, noise_and_index, first_half
 
     if pid >= 0:
@@ -201,12 +200,13 @@ def first_half(out):
 
 @pytest.mark.slow  # 30-65 s on 2 busy cores: the CLI test below is the default suite's two-process check
 def test_monte_carlo_over_two_processes_equals_one_process(tmp_path):
+    # the script imports this module: the tests folder on the children's PYTHONPATH
     res = launch_pair(lambda i, port: [sys.executable, "-c", MC_SCRIPT, str(i), str(port),
-                                       str(tmp_path / f"p{i}.npz"), HERE], timeout=300)
+                                       str(tmp_path / f"p{i}.npz")], timeout=300, PYTHONPATH=HERE)
     for i, (rc, _, err) in enumerate(res):
         assert rc == 0, f"process {i}:\n{err[-3000:]}"
-    single = subprocess.run([sys.executable, "-c", MC_SCRIPT, "-1", "0", str(tmp_path / "one.npz"), HERE],
-                            cwd=ROOT, env=clean_env(), capture_output=True, text=True, timeout=300)
+    single = subprocess.run([sys.executable, "-c", MC_SCRIPT, "-1", "0", str(tmp_path / "one.npz")],
+                            cwd=ROOT, env=clean_env(PYTHONPATH=HERE), capture_output=True, text=True, timeout=300)
     assert single.returncode == 0, single.stderr[-3000:]
     one, p0, p1 = (np.load(tmp_path / f) for f in ("one.npz", "p0.npz", "p1.npz"))
     assert len(one.files) == len(p0.files) > 10

@@ -214,11 +214,10 @@ SHARD_SCRIPT = textwrap.dedent(
     """
     import sys
     import jax, jax.numpy as jnp, numpy as np
-    sys.path.insert(0, sys.argv[1])
     import jaxdip as jd
     from test_driver import assert_same, dip_rollout, lorenz_rollout
     assert jax.device_count() == 8, jax.devices()
-    r = dip_rollout(steps=100) if sys.argv[2] == "dip" else lorenz_rollout(steps=100)
+    r = dip_rollout(steps=100) if sys.argv[1] == "dip" else lorenz_rollout(steps=100)
     key = jax.random.PRNGKey(3)
     compiled = []
     jax.monitoring.register_event_duration_secs_listener(
@@ -246,8 +245,9 @@ SHARD_SCRIPT = textwrap.dedent(
 
 
 def run_sharded(rollout):
-    env = dict(os.environ, XLA_FLAGS=host_devices_flags(8), JAX_PLATFORMS="cpu")
-    out = subprocess.run([sys.executable, "-c", SHARD_SCRIPT, os.path.dirname(__file__), rollout], env=env,
+    # the script imports this module: the tests folder on the child's PYTHONPATH
+    env = dict(os.environ, XLA_FLAGS=host_devices_flags(8), JAX_PLATFORMS="cpu", PYTHONPATH=os.path.dirname(__file__))
+    out = subprocess.run([sys.executable, "-c", SHARD_SCRIPT, rollout], env=env,
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "max_abs_diff" in out.stdout

@@ -1,7 +1,6 @@
-"""The generator of docs/fidelity.md (experiments/fidelity_index.py): its status logic on a synthetic inventory
+"""The generator of docs/fidelity.md (experiments/fidelity/index.py): its status logic on a synthetic inventory
 and synthetic rows, and that the committed readings rows name claims the inventory knows."""
 
-import importlib.util
 import json
 import os
 import re
@@ -10,22 +9,12 @@ import sys
 
 import pytest
 
+from experiments.fidelity import index as FI
+from experiments.fidelity import lorenz_published_p as fid
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-EXP = os.path.join(ROOT, "experiments")
 READINGS = os.path.join(ROOT, "docs", "fidelity")
 
-
-def _load(name):
-    if EXP not in sys.path:
-        sys.path.insert(0, EXP)
-    spec = importlib.util.spec_from_file_location(name, os.path.join(EXP, f"{name}.py"))
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod  # dataclasses look their module up there
-    spec.loader.exec_module(mod)
-    return mod
-
-
-FI = _load("fidelity_index")
 FC = FI.FC
 
 
@@ -139,7 +128,6 @@ def test_a_claim_in_parts_holds_only_when_every_part_holds():
 
 
 def test_lorenz_rows_agree_with_their_own_intervals_and_with_lorenz_md():
-    fid = _load("fidelity")
     with open(os.path.join(READINGS, "lorenz.md")) as fh:
         rebuilt = fid.lorenz_rows_from_markdown(fh.read())
     with open(os.path.join(READINGS, "lorenz.json")) as fh:
@@ -285,14 +273,12 @@ def test_a_per_state_interval_is_found_beside_its_dict():
     assert FI.evaluate(FC.Check("e", "ratio_ge", "kf/t/x", "l", value=8.0, other="dm/t/x"), res)[0] == "undecided"
 
 
-@pytest.mark.parametrize("first", ["fidelity_claims_propositions", "fidelity_claims"])
-def test_a_propositions_module_is_appended_whichever_is_imported_first(tmp_path, first):
-    # the propositions module imports Claim from the inventory, which appends its CLAIMS: a circular import that
-    # must work in both orders (a fresh interpreter, so the inventory already loaded here is not reused)
-    (tmp_path / "fidelity_claims_propositions.py").write_text(
-        "from fidelity_claims import Claim\n"
-        "CLAIMS = (Claim('thesis:prop-9.9.9', 'w', 'c', 'd', test='tests/x.py::t'),)\n")
-    code = (f"import sys; sys.path[:0] = [{str(tmp_path)!r}, {EXP!r}]; import {first}; import fidelity_claims as FC; "
-            "ids = [c.id for c in FC.CLAIMS]; assert ids[-1] == 'thesis:prop-9.9.9', ids[-3:]; "
-            "assert 'thesis:prop-9.9.9' in FC.by_id() and len(ids) == len(set(ids))")
-    subprocess.run([sys.executable, "-c", code], check=True, cwd=tmp_path)
+@pytest.mark.parametrize("first", ["claims_propositions", "claims"])
+def test_the_propositions_are_appended_whichever_is_imported_first(first):
+    # the inventory appends the propositions module's CLAIMS, whichever of the two a fresh interpreter (so the
+    # inventory already loaded here is not reused) imports first
+    code = (f"from experiments.fidelity import {first}; from experiments.fidelity import claims as FC, "
+            "claims_propositions as FP; ids = [c.id for c in FC.CLAIMS]; last = FP.CLAIMS[-1].id; "
+            "assert ids[-len(FP.CLAIMS):] == [c.id for c in FP.CLAIMS], ids[-3:]; "
+            "assert last in FC.by_id() and len(ids) == len(set(ids))")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)

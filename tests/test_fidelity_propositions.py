@@ -1,19 +1,14 @@
-"""The rows for the documents' numbered results (experiments/fidelity_claims_propositions.py): one row per
+"""The rows for the documents' numbered results (experiments/fidelity/claims_propositions.py): one row per
 numbered proposition, lemma, theorem and corollary, each a test or not attempted, and every test it names
 exists."""
 
-import importlib
 import os
 import re
-import sys
+
+from experiments.fidelity import claims as FC
+from experiments.fidelity import claims_propositions as FP
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-EXP = os.path.join(ROOT, "experiments")
-if EXP not in sys.path:
-    sys.path.insert(0, EXP)
-# the inventory first: it may import the propositions module itself, which needs the Claim class defined
-FC = importlib.import_module("fidelity_claims")
-FP = importlib.import_module("fidelity_claims_propositions")
 
 
 def _cited_tests(text):

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 import jaxdip as jd
+from experiments.fidelity import twip as T
+from experiments.fidelity import twip_pages
 from jaxdip import config as C
 from jaxdip.estimators import homd
 from jaxdip.estimators import luenberger as lu
@@ -120,26 +122,10 @@ def test_x0_per_member_evaluates_each_member_on_its_own_draw():
         _nl(final="best")
 
 
-def _load_script(name):
-    import importlib.util
-    import os
-    import sys
-
-    exp = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "experiments")
-    if exp not in sys.path:
-        sys.path.insert(0, exp)
-    spec = importlib.util.spec_from_file_location(name, os.path.join(exp, f"{name}.py"))
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_partial_twip_run_keeps_the_other_parts():
-    """fidelity_twip.py --only <some parts>: the other parts' rows and page text survive unchanged, the parts
+    """python -m experiments.fidelity.twip --only <some parts>: the other parts' rows and page text survive unchanged, the parts
     run replace their own sections (marked, or by heading on an older page) and rows; a run of every part keeps
     no old row."""
-    T = _load_script("fidelity_twip")
     old_rows = [{"claim": "stumfoll:table-8.3-param-lqr", "reading": "a"},
                 {"claim": "stumfoll:fig-8.18", "reading": "old"},
                 {"claim": "stumfoll:fig-8.13", "reading": "b"}]
@@ -150,12 +136,12 @@ def test_partial_twip_run_keeps_the_other_parts():
     # a page from before the markers: its '## ' sections are kept, except those a part run now writes again
     old_page = ("# head\n\nintro\n\n## A\n\nold a\n\n## B\n\nold b\n\n"
                 "<!-- part: fig_8_18 -->\n## F\nold section\n<!-- end part: fig_8_18 -->\n")
-    page = T._page(old_page, ["# fresh head", ""], {"fig_8_18": ["## F", "new section"]}, ["table_8_3", "fig_8_18"])
+    page = twip_pages.page(old_page, ["# fresh head", ""], {"fig_8_18": ["## F", "new section"]}, ["table_8_3", "fig_8_18"])
     assert "old a" in page and "old b" in page and "new section" in page and "old section" not in page
     assert page.count("# fresh head") == 1 and "# head" not in page and page.count("## F") == 1
-    page2 = T._page(old_page, ["# fresh head", ""], {"table_8_3": ["## B", "new b"]}, ["table_8_3", "fig_8_18"])
+    page2 = twip_pages.page(old_page, ["# fresh head", ""], {"table_8_3": ["## B", "new b"]}, ["table_8_3", "fig_8_18"])
     assert "old a" in page2 and "old b" not in page2 and "new b" in page2 and "old section" in page2
     assert page2.count("## B") == 1 and page2.index("new b") < page2.index("old section")
     # the next run of that part replaces its (now marked) section again
-    page3 = T._page(page2, ["# fresh head", ""], {"table_8_3": ["## B", "newer b"]}, ["table_8_3", "fig_8_18"])
+    page3 = twip_pages.page(page2, ["# fresh head", ""], {"table_8_3": ["## B", "newer b"]}, ["table_8_3", "fig_8_18"])
     assert "new b" not in page3 and "newer b" in page3 and "old a" in page3 and "old section" in page3

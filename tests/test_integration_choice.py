@@ -1,26 +1,14 @@
-"""experiments/integration_choice.py: the comparison of two runs' results in units of the 95% half-widths."""
+"""experiments/fidelity/integration_choice.py: the comparison of two runs' results in units of the 95% half-widths."""
 
-import importlib.util
 import json
 import os
-import sys
+
+from experiments.fidelity import integration_choice as ic
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def _module():
-    exp = os.path.join(ROOT, "experiments")
-    if exp not in sys.path:  # the script imports its neighbour fidelity_runs
-        sys.path.insert(0, exp)
-    spec = importlib.util.spec_from_file_location("integration_choice",
-                                                  os.path.join(ROOT, "experiments", "integration_choice.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_changes_are_measured_in_half_widths_of_the_reference_interval():
-    ic = _module()
     base = {"a": {"var": 2.0, "var_ci95": [1.0, 3.0], "score_mean": 10.0, "score_ci95": [8.0, 12.0]},
             "n_failed": 0, "ok": True, "wall_s": 1.0}
     new = {"a": {"var": 2.1, "var_ci95": [1.1, 3.1], "score_mean": 10.5, "score_ci95": [8.0, 12.0]},
@@ -34,7 +22,6 @@ def test_changes_are_measured_in_half_widths_of_the_reference_interval():
 
 
 def test_a_flipped_decision_or_count_is_not_acceptable_however_small_the_change():
-    ic = _module()
     base = {"x": 1.0, "x_ci95": [0.0, 2.0], "stabilized": True, "diverged": 0}
     for new, flip in (({**base, "stabilized": False}, "/stabilized: True -> False"),
                       ({**base, "diverged": 1}, "/diverged: 0 -> 1")):
@@ -44,7 +31,6 @@ def test_a_flipped_decision_or_count_is_not_acceptable_however_small_the_change(
 
 
 def test_the_committed_table_follows_the_rule_and_the_defaults_follow_the_table():
-    ic = _module()
     with open(os.path.join(ROOT, "docs", "integration.json")) as fh:
         rows = json.load(fh)
     from jaxdip.experiments import registry

@@ -103,11 +103,12 @@ def test_discard_removes_the_staging_folder_and_the_ancestors_it_made(tmp_path):
 
 def _locked_staging_in_another_process(parent, dest_name):
     """A live process holding a staging folder (its owner lock) until its stdin closes."""
-    code = ("import sys; sys.path.insert(0, 'tests'); from outdir_world import light_import; od = light_import()\n"
+    code = ("import sys; from outdir_world import light_import; od = light_import()\n"
             f"st = od.prepare({str(parent / dest_name)!r}, 'dip-lqr'); print(st.container, flush=True)\n"
             "sys.stdin.read()\n")
     p = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-                         cwd=os.path.dirname(os.path.dirname(__file__)))
+                         cwd=os.path.dirname(os.path.dirname(__file__)),
+                         env=dict(os.environ, PYTHONPATH=os.path.dirname(os.path.abspath(__file__))))
     return p, p.stdout.readline().strip()
 
 

@@ -30,6 +30,10 @@ from snapshots import snapshot
 world, fake = W.world, W.fake  # the shared fixtures
 
 
+def _tests_on_path() -> dict:
+    """The environment of a child that imports outdir_world: this folder on its PYTHONPATH."""
+    return dict(os.environ, PYTHONPATH=os.path.dirname(os.path.abspath(__file__)))
+
 
 # ---- a file of the user's in the way, found before the run -------------------------------------------------
 
@@ -244,10 +248,10 @@ def test_cli_run_gets_the_umask(world, fake, capsys, mask):
 
 
 def test_staging_of_a_killed_cli_run_is_cleaned_by_the_next(world, fake, capsys):
-    code = ("import sys, os; sys.path.insert(0, 'tests'); from outdir_world import light_import; od = light_import()\n"
+    code = ("import os; from outdir_world import light_import; od = light_import()\n"
             f"st = od.prepare({str(world / 'dest')!r}, 'dip-lqr')\n"
             "open(os.path.join(st.tmp, 'metrics.json'), 'w').write('half'); os.kill(os.getpid(), 9)\n")
-    subprocess.run([sys.executable, "-c", code], cwd=ROOT)
+    subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=_tests_on_path())
     assert [n for n in os.listdir(world) if ".jaxdip-" in n]
     assert run() == 0
     assert sorted(os.listdir(world)) == ["dest", "victim"] and whole(world / "dest") is not None
@@ -267,8 +271,8 @@ def test_reproduce_leaves_no_temporary_folder(world, monkeypatch):
 
 
 def test_light_import_does_not_import_jax():
-    r = subprocess.run([sys.executable, "-c", "import sys; sys.path.insert(0, 'tests'); from outdir_world import "
-                        "light_import; light_import(); print('jax' in sys.modules)"], cwd=ROOT, capture_output=True,
+    r = subprocess.run([sys.executable, "-c", "import sys; from outdir_world import "
+                        "light_import; light_import(); print('jax' in sys.modules)"], cwd=ROOT, env=_tests_on_path(), capture_output=True,
                        text=True)
     assert r.stdout.strip() == "False", r.stderr
 

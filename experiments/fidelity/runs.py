@@ -13,7 +13,8 @@ import shlex
 import subprocess
 import sys
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+# the repository root: the child runs start there, and the pages go under its docs/
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def command(exp: str, sets: list[str], seeds: int | None, quick: bool) -> list[str]:

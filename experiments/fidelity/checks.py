@@ -1,12 +1,12 @@
 """How one ``Check`` of the fidelity inventory is decided on a run's ``metrics.json`` results: the rules of
-``fidelity_claim_types.Check``, on 95% intervals where the results have them (``experiments/fidelity_index.py``
+``claim_types.Check``, on 95% intervals where the results have them (``experiments/fidelity/index.py``
 turns the verdicts into the status column of ``docs/fidelity.md``)."""
 
 from __future__ import annotations
 
 import math
 
-import fidelity_claim_types as FC
+from experiments.fidelity import claim_types as FC
 
 
 def get(results: dict, path: str):

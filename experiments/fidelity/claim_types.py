@@ -1,8 +1,8 @@
 """The vocabulary of the fidelity inventory: ``Check`` (one comparison of a run's result with a document),
 ``Choice`` (a modelling choice a claim's verdict depends on), ``Claim`` and ``Qualitative``.
 
-The inventory itself is ``experiments/fidelity_claims.py`` (which re-exports these names); the generator of
-``docs/fidelity.md`` is ``experiments/fidelity_index.py``.
+The inventory itself is ``experiments/fidelity/claims.py`` (which re-exports these names); the generator of
+``docs/fidelity.md`` is ``experiments/fidelity/index.py``.
 """
 
 from __future__ import annotations

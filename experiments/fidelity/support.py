@@ -1,7 +1,7 @@
 """How far each readings row departs from the document, and the thresholds its numbers are decided against.
 
-``experiments/fidelity_index.py`` gives every row of ``docs/fidelity/*.json`` a field ``support`` (one of
-``fidelity_claim_types.SUPPORT``: printed, supported, unprinted, contradicts) and ``support_where`` from the
+``experiments/fidelity/index.py`` gives every row of ``docs/fidelity/*.json`` a field ``support`` (one of
+``claim_types.SUPPORT``: printed, supported, unprinted, contradicts) and ``support_where`` from the
 rules below, and re-decides a row's ``holds`` on the 95% intervals printed in its ``ours`` where a threshold is
 listed here (a readings study decides on points; an interval across the threshold is undecided).
 
@@ -15,8 +15,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from fidelity_checks import run_size
-from fidelity_claim_types import SUPPORT
+from experiments.fidelity.checks import run_size
+from experiments.fidelity.claim_types import SUPPORT
 
 
 @dataclass(frozen=True)

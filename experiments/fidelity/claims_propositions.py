@@ -1,22 +1,17 @@
 """The numbered propositions, lemmas, theorems and corollaries of the four documents that
-``fidelity_claims.CLAIMS`` does not already hold, each checked by a test or marked not attempted with why.
+``claims.CLAIMS`` does not already hold, each checked by a test or marked not attempted with why.
 
 ``NUMBERED`` lists every numbered result of the documents (definitions, assumptions and remarks are not claims;
 Aranovskiy's "Theorem 10" is a result of its reference [14], not of the paper) with the id of the row that
-decides it, here or in ``fidelity_claims``; ``tests/test_fidelity_propositions.py`` checks that each id has
+decides it, here or in ``claims``; ``tests/test_fidelity_propositions.py`` checks that each id has
 exactly one row and that every test a row here names exists.
 
-``fidelity_claims`` appends ``CLAIMS`` to its own list by importing this module at its end, after ``Claim`` is
-defined; import ``fidelity_claims`` (not this module) first, or that cycle finds ``CLAIMS`` not yet defined.
+``claims`` appends ``CLAIMS`` to its own list.
 """
 
 from __future__ import annotations
 
-import os
-import sys
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from fidelity_claims import Claim  # noqa: E402
+from experiments.fidelity.claim_types import Claim
 
 _MHE = "tests/test_propositions_mhe.py"
 _PROJ = "tests/test_propositions_projection.py"

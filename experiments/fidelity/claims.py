@@ -2,12 +2,12 @@
 
 One ``Claim`` per numbered table, per figure with a quantitative message and per numeric claim in the prose of
 the paper (Bernstein, King, Tran), King's thesis (ch. 1-4), Stumfoll's thesis and Aranovskiy et al.; figures with
-nothing to score are listed once in ``QUALITATIVE``. ``experiments/fidelity_index.py`` turns this list, the
+nothing to score are listed once in ``QUALITATIVE``. ``experiments/fidelity/index.py`` turns this list, the
 readings rows ``docs/fidelity/*.json`` and the ``metrics.json`` of experiment runs into ``docs/fidelity.md``.
 
 A claim's status is decided in one of these ways (in this order of precedence):
 
-- ``readings=True``: rows of the readings studies (``experiments/fidelity*.py`` write ``docs/fidelity/<name>.json``,
+- ``readings=True``: rows of the readings studies (the studies in ``experiments/fidelity/`` write ``docs/fidelity/<name>.json``,
   one row per reading with ``holds`` yes/no/undecided) under the claim's id. No rows yet: "readings pending" (and
   the default run's checks, if any, are shown beside it).
 - ``checks``: ``Check``s on the ``results`` of ``jaxdip run <experiment>`` (``metrics.json``), each with the
@@ -17,10 +17,10 @@ A claim's status is decided in one of these ways (in this order of precedence):
 - ``input``: a table of parameters the models use; nothing to reproduce.
 - ``not_attempted``: why not.
 
-A claim that holds is classed by how far it departs from the text (``experiments/fidelity_index.py`` states the
+A claim that holds is classed by how far it departs from the text (``experiments/fidelity/index.py`` states the
 rules at the top of ``docs/fidelity.md``): ``choices`` name the modelling choices a default-config verdict depends
 on, each with its support and the number without it; ``ordering`` marks a claim checked only as an ordering on
-a metric we chose; readings rows get their support from ``experiments/fidelity_support.py``.
+a metric we chose; readings rows get their support from ``experiments/fidelity/support.py``.
 
 Claim ids: ``<doc>:<kind>-<number>[<suffix>]`` with the document's own numbering; kind ``claim`` plus a slug for
 a number in the prose. Tolerances are ours (the documents state none); each ``Check`` says its rule.
@@ -28,9 +28,10 @@ a number in the prose. Tolerances are ours (the documents state none); each ``Ch
 
 from __future__ import annotations
 
-from fidelity_claim_types import (  # noqa: F401  (re-exported: the inventory's API)
+from experiments.fidelity.claim_types import (  # noqa: F401  (re-exported: the inventory's API)
     DOCUMENTS, RULES, SUPPORT, Check, Choice, Claim, Qualitative, _below)
-import fidelity_claims_twip as _twip
+from experiments.fidelity import claims_propositions as _propositions
+from experiments.fidelity import claims_twip as _twip
 
 # --------------------------------------------------------------------------------------------------------------
 # the checks shared by the paper's Table 1 and the thesis's Table 3.2 (the same laboratory table, printed twice)
@@ -171,7 +172,7 @@ _CLAIMS_DIP: list[Claim] = [
     Claim("thesis:claim-2.7.2-v", "§2.7.2, 'after about 250 iterations the ensemble mean was' v = [.995, .1003]",
           "On the nonlinear example the search (J = 100, K = 4) ends at a stabilising v close to [0.995, 0.1003].",
           "v = [0.995, 0.1003], ~250 iterations", exp="eki-nonlinear",
-          keys="eki-nonlinear (x0_draw, final, R, init_var, iterations, K, judge_std); fidelity_dip.py eki_nonlinear",
+          keys="eki-nonlinear (x0_draw, final, R, init_var, iterations, K, judge_std); experiments.fidelity.dip_search.eki_nonlinear",
           checks=(Check("eki-nonlinear", "true", "stabilizing", "found P stabilising"),
                   Check("eki-nonlinear", "ge", "stabilizing_fraction_single_ensemble", "searches with one ensemble "
                         "(the thesis's procedure) ending stabilising, at least 0.9", value=0.9),
@@ -275,34 +276,9 @@ _CLAIMS_DIP: list[Claim] = [
           "no number", not_attempted="no scored metric: implemented in jaxdip.immune (docs/immune.md) without a "
                                      "results key to compare"),
 ]
-# Stumfoll and Aranovskiy et al. are in experiments/fidelity_claims_twip.py; the numbered propositions and
-# theorems of the documents in experiments/fidelity_claims_propositions.py, where that module exists.
-_CLAIMS_BASE = _CLAIMS_DIP + list(_twip.CLAIMS)
-
-
-def _propositions() -> list[Claim]:
-    try:
-        import fidelity_claims_propositions as mod
-    except ModuleNotFoundError as e:  # only the module's own absence; an error inside it is raised
-        if e.name != "fidelity_claims_propositions":
-            raise
-        return []
-    return list(mod.CLAIMS)
-
-
-def claims() -> list[Claim]:
-    """Every scored claim: ``CLAIMS``."""
-    if "CLAIMS" not in globals():
-        globals()["CLAIMS"] = _CLAIMS_BASE + _propositions()
-    return globals()["CLAIMS"]
-
-
-def __getattr__(name: str):
-    # CLAIMS is assembled on first use, not at import, so that the propositions module may import Claim and
-    # Check from here (at import, a circular import would see that module half-initialised, without its CLAIMS)
-    if name == "CLAIMS":
-        return claims()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+# Stumfoll and Aranovskiy et al. are in experiments/fidelity/claims_twip.py; the numbered propositions and
+# theorems of the documents in experiments/fidelity/claims_propositions.py
+CLAIMS: list[Claim] = _CLAIMS_DIP + list(_twip.CLAIMS) + list(_propositions.CLAIMS)
 
 
 QUALITATIVE: list[Qualitative] = [
@@ -348,7 +324,7 @@ QUALITATIVE: list[Qualitative] = [
 
 def by_id() -> dict[str, Claim]:
     out: dict[str, Claim] = {}
-    for c in claims():
+    for c in CLAIMS:
         if c.id in out:
             raise ValueError(f"claim id {c.id} twice")
         out[c.id] = c

@@ -1,9 +1,9 @@
 """The inventory's claims of Stumfoll's thesis (TWIP, DMSO, extra control) and of Aranovskiy et al. (reaction-wheel
-pendulum); ``experiments/fidelity_claims.py`` appends them to its ``CLAIMS``."""
+pendulum); ``experiments/fidelity/claims.py`` appends them to its ``CLAIMS``."""
 
 from __future__ import annotations
 
-from fidelity_claim_types import Check, Choice, Claim, _below
+from experiments.fidelity.claim_types import Check, Choice, Claim, _below
 
 # (4)'s printed B has k/J where (2), (3) and the observer (9) give -k/J; every reaction-wheel loop takes (2)-(3)
 # the quick run scores the KF's prediction (``kf``); (170) as printed (``kf_printed``) runs in the full run only
@@ -146,7 +146,7 @@ CLAIMS: list[Claim] = [
     Claim("stumfoll:fig-8.18", "§8.2.2, Fig. 8.18 (unmodeled gains 3/4 and 2/5)", "LQR alone goes unstable; LQR + "
           "extra control keeps the TWIP up.", "visual", exp="twip-extra-control",
           keys="twip-extra-control (unmodeled_unstable, variants, d_gains_unstable, d1_freq, init_spread); "
-               "fidelity_twip.py fig_8_18",
+               "experiments.fidelity.twip_fig_8_18",
           checks=(Check("twip-extra-control", "ge", "unmodeled_unstable/lqr_diverged_fraction", "LQR falls in at "
                         "least 10% of the seeds", value=0.1),
                   Check("twip-extra-control", "ge", "unmodeled_unstable/extra_bounded_fraction", "LQR + extra "
@@ -171,7 +171,7 @@ CLAIMS: list[Claim] = [
           "provide system stabilization'", "HOMD settles faster than the Luenberger observer from 0.1; from 0.15 the "
           "Luenberger loop falls, the HOMD loop holds.", "theta(0) 0.1 and 0.15; visual", exp="rwp-bias",
           keys="rwp-bias (current_limit, observer_current, luenberger_omega, luenberger_vref, settle_tol, "
-               "init_velocity_std, hold); fidelity_twip.py rwp_fig3",
+               "init_velocity_std, hold); experiments.fidelity.rwp.rwp_fig3",
           checks=(_below("rwp-bias", "no_bias/homd/0.1/settle_time", "no_bias/luenberger/0.1/settle_time",
                          "settle time from 0.1 (s): HOMD below Luenberger"),
                   Check("rwp-bias", "le", "no_bias/luenberger/0.15/stabilized_fraction", "Luenberger from 0.15: "
