@@ -95,3 +95,10 @@ def test_every_experiment_page_is_in_the_readme_table():
     linked = set(re.findall(r"\]\(docs/experiments/([\w-]+)\.md\)", README.read_text()))
     pages = {p.stem for p in (ROOT / "docs" / "experiments").glob("*.md")}
     assert len(pages) == 16 and linked == pages
+
+
+def test_ci_runs_the_readme_test_command():
+    block = re.search(r"```bash\n(.*?)```", README.read_text(), re.S).group(1)
+    command = block.split("# 2.")[1].splitlines()[1]
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert "pytest" in command and all(part in ci for part in command.split(" && "))
