@@ -322,7 +322,7 @@ def cmd_reproduce(args, argv=None) -> int:
 
 def cmd_bench(args, argv=None) -> int:
     from jaxdip import outdir
-    from jaxdip.bench import check_outputs, run_bench
+    from jaxdip.bench.scoreboard import check_outputs, run_bench
 
     try:
         check_outputs(args.out)
