@@ -16,7 +16,7 @@ from jaxdip import config as C
 from jaxdip import outdir
 from jaxdip.cli_errors import emit, error
 
-GENERATED = ("# Generated from the defaults in code by `jaxdip config --write configs` (not edited here): pass an "
+GENERATED = ("Generated from the defaults in code by `jaxdip config --write configs` (not edited here): pass an "
              "edited copy with --config FILE.")
 
 
@@ -28,7 +28,7 @@ def default_toml(exp) -> str:
 def _written_by_us(exp_id: str):
     def is_ours(data: bytes) -> bool:
         lines = data.decode("utf-8", "replace").splitlines()
-        return bool(lines) and lines[0].startswith(f"# {exp_id}: ") and GENERATED in lines[:3]
+        return bool(lines) and lines[0].startswith(f"# {exp_id}: ") and f"# {GENERATED}" in lines[:3]
 
     return is_ours
 

@@ -48,7 +48,7 @@ def documented_toml(cfg, title: str = "", source: str = "", note: str = "") -> s
     if source:
         lines.append(f"# Reproduces: {source}")
     if note:
-        lines.append(note)
+        lines.append(f"# {note}")
     if lines:
         lines.append("")
     for f in dataclasses.fields(cfg):
