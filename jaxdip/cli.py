@@ -322,7 +322,7 @@ def cmd_reproduce(args, argv=None) -> int:
 
 def cmd_bench(args, argv=None) -> int:
     from jaxdip import outdir
-    from jaxdip.bench import check_outputs, run_bench
+    from jaxdip.bench.scoreboard import check_outputs, run_bench
 
     try:
         check_outputs(args.out)
@@ -354,15 +354,9 @@ def _command(args, argv) -> int:
             emit(exp_id if exp.reproduce else f"{exp_id}  (fidelity readings; reproduce --only {exp_id})")
         return 0
     if args.cmd == "config":
-        from jaxdip import config as C
-        from jaxdip.experiments import get
+        from jaxdip.cli_config import cmd_config
 
-        try:
-            exp = get(args.id)
-        except KeyError as e:
-            return _unknown(args.id, e)
-        emit(C.documented_toml(exp.config_cls(), f"{exp.id}: {exp.title}", exp.source), end="")
-        return 0
+        return cmd_config(args, _unknown)
     return {"run": cmd_run, "reproduce": cmd_reproduce, "bench": cmd_bench}[args.cmd](args, argv)
 
 

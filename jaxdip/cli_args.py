@@ -78,8 +78,11 @@ def parser(description: str = "") -> Parser:
     r.add_argument("--force", action="store_true",
                    help="replace a jaxdip result folder of another experiment (a user's files are never replaced)")
 
-    c = sub.add_parser("config", help="print an experiment's default config as TOML")
-    c.add_argument("id")
+    c = sub.add_parser("config", help="print an experiment's default config as TOML, or write every one's")
+    c.add_argument("id", nargs="?")
+    c.add_argument("--write", metavar="DIR",
+                   help="write DIR/<id>.toml for every experiment (the repository's configs/), replacing only files "
+                        "this command wrote")
 
     b = sub.add_parser("bench", help="closed-loop throughput against a plain NumPy loop")
     b.add_argument("--quick", action="store_true")
@@ -136,7 +139,7 @@ def special_kind(path: str) -> str | None:
 def check_paths(args) -> int:
     """0, or the error status for a path argument that cannot name anything: empty, or relative to a working
     folder that no longer exists (``os.getcwd`` fails once it has been deleted)."""
-    paths = {flag: getattr(args, flag, None) for flag in ("out", "config")}
+    paths = {flag: getattr(args, flag, None) for flag in ("out", "config", "write")}
     for flag, v in paths.items():
         if v is None:
             continue

@@ -1,15 +1,19 @@
 """Typed experiment configs loaded from TOML and validated before anything compiles.
 
-An experiment's config is a dataclass whose defaults are the documents' values. Each field may carry
-``check`` metadata (see ``positive``, ``nonneg``, ...). ``load`` merges, in order: the defaults, the
-experiment's ``--quick`` overrides, a TOML file, ``--seeds`` and ``--set key=value`` pairs (so what the user
-wrote is never silently replaced by ``--quick``); then checks every key's type and constraint and the config's
-own ``validate()``. Any problem raises ``ConfigError(key, why)``, which the CLI prints as one line
+An experiment's config is a dataclass whose defaults are the documents' values: the one source of each key's
+default, type, constraint (``check`` metadata: ``positive``, ``nonneg``, ...) and doc. ``configs/<id>.toml`` is
+generated from it (``jaxdip config --write configs``; a test fails on a stale file), not read by a run: a TOML
+cannot hold the types and constraints, and an installed package has no configs/ folder (docs/config.md).
+
+``load`` merges, in order: the defaults, the experiment's ``--quick`` overrides, a TOML file, ``--seeds`` and
+``--set key=value`` pairs (so what the user wrote is never silently replaced by ``--quick``); then checks every
+key's type and constraint and the config's own ``validate()``. Any problem raises ``ConfigError(key, why)``, which the CLI prints as one line
 ``error: <key>: <why>``.
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import difflib
 import math
@@ -90,8 +94,6 @@ def field(default, *checks, doc: str = ""):
     """A config field with constraints; mutable defaults are copied per instance."""
     meta = {"checks": checks, "doc": doc}
     if isinstance(default, (list, dict)):
-        import copy
-
         return dataclasses.field(default_factory=lambda: copy.deepcopy(default), metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
 
@@ -154,14 +156,10 @@ def _check_type(key: str, value: Any, tp) -> Any:
     raise TypeError(f"unsupported config type {tp!r} for {key}")
 
 
-def _hints(cls):
-    return typing.get_type_hints(cls)
-
-
 def from_dict(cls, data: dict, prefix: str = ""):
     """Build a config dataclass from nested dicts, checking keys, types and constraints."""
     fields = {f.name: f for f in dataclasses.fields(cls)}
-    hints = _hints(cls)
+    hints = typing.get_type_hints(cls)
     unknown = [k for k in data if k not in fields]
     if unknown:
         k = unknown[0]
@@ -346,7 +344,7 @@ def check_layer(cls, layer: dict, prefix: str = "") -> None:
     right type, within its constraints, so that a value a later layer replaces is still refused when wrong.
     (Checks across keys, ``validate()``, apply to the merged config only.)"""
     fields = {f.name: f for f in dataclasses.fields(cls)}
-    hints = _hints(cls)
+    hints = typing.get_type_hints(cls)
     for name, value in layer.items():
         f = fields.get(name)
         if f is None:

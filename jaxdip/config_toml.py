@@ -41,13 +41,16 @@ def to_toml(d: dict, header: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-def documented_toml(cfg, title: str = "", source: str = "") -> str:
-    """A config as TOML with each key's doc as a comment above it (the format of configs/<id>.toml)."""
+def documented_toml(cfg, title: str = "", source: str = "", note: str = "") -> str:
+    """A config as TOML with each key's doc as a comment above it (the format of configs/<id>.toml, written by
+    ``jaxdip config --write``): ``title``, ``source`` and ``note`` head it as comment lines."""
     lines = [f"# {title}"] if title else []
     if source:
         lines.append(f"# Reproduces: {source}")
+    if note:
+        lines.append(f"# {note}")
     if lines:
-        lines += ["# Defaults are the documents' values; edit a copy and pass it with --config FILE.", ""]
+        lines.append("")
     for f in dataclasses.fields(cfg):
         doc = f.metadata.get("doc", "")
         if doc:

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxdip as jd
-from jaxdip.bench import integration_errors, numpy_dip_f, numpy_loop, scipy_loop
+from jaxdip.bench.scoreboard import integration_errors, numpy_dip_f, numpy_loop, scipy_loop
 from jaxdip.plants.dip import DIPParams
 
 

@@ -19,12 +19,12 @@ world = W.world  # the shared fixture
 
 @pytest.fixture
 def no_bench(monkeypatch):
-    import jaxdip.bench
+    import jaxdip.bench.scoreboard
 
     def never(**k):
         raise AssertionError("the bench ran")
 
-    monkeypatch.setattr(jaxdip.bench, "run_bench", never)
+    monkeypatch.setattr(jaxdip.bench.scoreboard, "run_bench", never)
 
 
 def _bench_files(world, png=b"\x89PNG ours"):
@@ -73,7 +73,7 @@ def test_bench_out_named_like_its_figure(world, capsys, no_bench):
 
 
 def test_bench_may_replace_its_own_files(world):
-    from jaxdip.bench import check_outputs
+    from jaxdip.bench.scoreboard import check_outputs
 
     _bench_files(world)
     check_outputs(str(world / "b.json"))

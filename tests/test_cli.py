@@ -96,10 +96,35 @@ def test_run_writes_contract_and_is_reproducible(dip_lqr_uncached, cached_runs):
 
 @pytest.mark.parametrize("exp_id", sorted(registry()))
 def test_config_files_match_defaults(exp_id):
+    """configs/<id>.toml is generated from the config's defaults in code, and reads back as those defaults."""
+    from jaxdip.cli_config import default_toml
+
     exp = registry()[exp_id]
     path = os.path.join(ROOT, "configs", f"{exp_id}.toml")
-    assert os.path.isfile(path), f"configs/{exp_id}.toml missing"
+    assert os.path.isfile(path), f"configs/{exp_id}.toml missing: run `jaxdip config --write configs`"
+    with open(path, encoding="utf-8") as fh:
+        assert fh.read() == default_toml(exp), f"configs/{exp_id}.toml is stale: run `jaxdip config --write configs`"
     assert C.load(exp.config_cls, path=path) == exp.config_cls()
+
+
+def test_config_write_replaces_only_its_own_files(tmp_path, capsys):
+    """`config --write DIR` writes every experiment's file, the same bytes as configs/; it replaces a file it
+    wrote (here changed in a value), and refuses, before writing anything, a file of the same name it did not."""
+    assert cli.main(["config", "--write", str(tmp_path)]) == 0
+    names = sorted(os.listdir(tmp_path))
+    assert names == sorted(f"{i}.toml" for i in registry())
+    for name in names:
+        assert (tmp_path / name).read_bytes() == open(os.path.join(ROOT, "configs", name), "rb").read()
+    ours = tmp_path / "dip-lqr.toml"
+    ours.write_text(ours.read_text().replace("seeds = 4096", "seeds = 5"))
+    assert cli.main(["config", "--write", str(tmp_path)]) == 0
+    assert "seeds = 4096" in ours.read_text()
+    (tmp_path / "dip-lqr.toml").write_text("seeds = 5\n")
+    (tmp_path / "tune.toml").unlink()
+    capsys.readouterr()
+    assert cli.main(["config", "--write", str(tmp_path)]) == 2
+    assert "dip-lqr.toml exists and was not written by jaxdip" in capsys.readouterr().err
+    assert (tmp_path / "dip-lqr.toml").read_text() == "seeds = 5\n" and not (tmp_path / "tune.toml").exists()
 
 
 def _no_nulls(obj, path="results"):

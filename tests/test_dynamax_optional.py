@@ -1,6 +1,6 @@
 """Optional: jaxdip's batch KF/RTS smoother/log-likelihood against dynamax's (skipped unless dynamax is
 installed, e.g. ``pip install -e ".[peers]"``). dynamax adds a fixed 1e-9 to the diagonal of every matrix it
-solves with; it is set to 0 here, as in benchmarks/peers.py, so the two must agree to rounding."""
+solves with; it is set to 0 here, as in jaxdip.bench.peers, so the two must agree to rounding."""
 
 import functools
 

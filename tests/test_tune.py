@@ -9,15 +9,42 @@ import pytest
 
 from jaxdip import config as C
 from jaxdip.experiments import tune_config as T
-from jaxdip.experiments import tune_targets as TT
-from jaxdip.tune import (Bounded, Log, Softplus, SPDFactor, random_search, to_constrained,
+from jaxdip.scenarios import heldout as H
+from jaxdip.scenarios import tune_targets as TT
+from jaxdip.tune import (Bounded, Log, Softplus, SPDFactor, Unconstrained, random_search, to_constrained,
                          to_unconstrained, tune, value_and_grad_fn)
+
+
+class _Draw(eqx.Module):
+    """A trial whose output is its key's first normal draw times a hyperparameter."""
+
+    scale: jax.Array
+
+    def __call__(self, key):
+        return self.scale * jax.random.normal(key)
+
+
+def test_mc_objective_runs_seed_i_with_fold_in_of_the_key():
+    """mc_objective at scattered seed indices: seed i's loss is the trial run alone with fold_in(key, i), in the
+    order given (one monte_carlo call per contiguous run), its mean the objective, its gradient the analytic one."""
+    from jaxdip.tune import mc_objective, seed_runs
+
+    seeds = [0, 1, 2, 7, 1_000_000, 1_000_001]
+    assert seed_runs(seeds) == [(0, 3), (7, 1), (1_000_000, 2)]
+    key = jax.random.PRNGKey(11)
+    obj = mc_objective(lambda th: _Draw(th["s"]), seeds, lambda y: y**2)
+    ref = np.array([float(jax.random.normal(jax.random.fold_in(key, i))) ** 2 for i in seeds])
+    got = np.asarray(obj.per_seed({"s": jnp.asarray(1.0)}, key))
+    np.testing.assert_allclose(got, ref, rtol=1e-14)
+    np.testing.assert_allclose(float(obj({"s": jnp.asarray(2.0)}, key)), 4.0 * ref.mean(), rtol=1e-13)
+    g = jax.grad(lambda s: obj({"s": s}, key))(jnp.asarray(2.0))  # d/ds mean (s y)^2 = 2 s mean y^2
+    np.testing.assert_allclose(float(g), 4.0 * ref.mean(), rtol=1e-12)
 
 
 def test_transforms_round_trip():
     theta = {"a": jnp.asarray(3.0), "b": jnp.asarray([0.2, 5.0]), "c": jnp.asarray(0.3),
-             "P": jnp.asarray([[2.0, 0.5], [0.5, 1.0]])}
-    spec = {"a": Log(), "b": Softplus(), "c": Bounded(0.0, 1.0), "P": SPDFactor()}
+             "P": jnp.asarray([[2.0, 0.5], [0.5, 1.0]]), "d": jnp.asarray([-1.5, 0.0])}
+    spec = {"a": Log(), "b": Softplus(), "c": Bounded(0.0, 1.0), "P": SPDFactor(), "d": Unconstrained()}
     back = to_constrained(spec, to_unconstrained(spec, theta))
     for k in theta:
         np.testing.assert_allclose(back[k], theta[k], rtol=1e-12)
@@ -305,7 +332,7 @@ def test_scenario_draw_is_uniform_per_entry_and_keeps_the_trials_noise():
 
     a, s, n = jnp.array([2.0, -0.5]), 0.4, 4000
     plain = jd.monte_carlo(_Probe(a), jax.random.PRNGKey(3), n)
-    drawn = jd.monte_carlo(T.with_scenarios(_Probe(a), {"x0": [lambda p: p.a]}, {"x0": s}),
+    drawn = jd.monte_carlo(H.with_scenarios(_Probe(a), {"x0": [lambda p: p.a]}, {"x0": s}),
                            jax.random.PRNGKey(3), n)
     np.testing.assert_array_equal(np.asarray(plain[1]), np.asarray(drawn[1]))  # the trial's noise unchanged
     f = np.asarray(drawn[0]) / np.asarray(a)
@@ -314,7 +341,7 @@ def test_scenario_draw_is_uniform_per_entry_and_keeps_the_trials_noise():
     assert abs(np.corrcoef(f[:, 0], f[:, 1])[0, 1]) < 0.1
     # a spread of 0 (or a kind the trial lacks) leaves the trial itself
     p = _Probe(a)
-    assert T.with_scenarios(p, {"x0": [lambda q: q.a]}, {"x0": 0.0, "bias": 0.3}) is p
+    assert H.with_scenarios(p, {"x0": [lambda q: q.a]}, {"x0": 0.0, "bias": 0.3}) is p
 
 
 def test_heldout_spreads_are_validated():
@@ -329,7 +356,7 @@ def test_heldout_scenarios_change_each_seed_and_spread_zero_is_the_tuning_scenar
     tg = TT.make_target(cfg, **({"quantize": False} if target == "rwp" else {}))
     key, seeds = jax.random.PRNGKey(0), np.arange(4)
     nominal = np.asarray(tg.objective(seeds, smooth=False).per_seed(tg.paper, key))
-    zero = {k: 0.0 for k in T.SCENARIO_KINDS}
+    zero = {k: 0.0 for k in H.SCENARIO_KINDS}
     same = np.asarray(tg.objective(seeds, smooth=False, scenarios=zero).per_seed(tg.paper, key))
     np.testing.assert_array_equal(nominal, same)
     varied = np.asarray(tg.objective(seeds, smooth=False, scenarios=cfg.scenario_spreads()).per_seed(tg.paper, key))

@@ -10,7 +10,7 @@ cpx: gamma of CPX on the DIP stabilisation task of ``dip-cpx-ldf`` (the scenario
 loss per seed = time variance of alpha plus that of theta (deg^2) + ``divergence_penalty`` if it diverged.
 The encoders quantise, so one sample path's loss is piecewise constant in gamma with jumps (finite differences
 of it measure the jumps); ``smoothing = "straight_through"`` differentiates the quantiser as the identity
-(``jaxdip.tune.straight_through_sensor``), ``"none"`` uses the exact pathwise derivative (round' = 0).
+(the sensors' ``straight_through``), ``"none"`` uses the exact pathwise derivative (round' = 0).
 
 rwp, dmso, rp, extra: see ``RWPTarget``, ``DMSOTarget`` (Gamma and diag K_MSO on the noisy TWIP case of
 ``twip-dmso``; ``smoothing`` picks that experiment's ``encoder_gradient``), ``RPTarget`` (gamma of (2.14) on the
@@ -23,8 +23,8 @@ Held-out scenarios. The tuning seeds run the target's nominal scenario; every he
 0.5 each; 0 everywhere gives the tuning scenario with new noise only, the behaviour before these keys). Which
 leaves each kind scales is the target's ``scenario_leaves``; a kind a target lacks is not drawn.
 
-The config and the scenario draw are in ``tune_config``, the targets in ``tune_targets``; this module runs and
-reports.
+The config is in ``tune_config``, the targets in ``jaxdip.scenarios.tune_targets`` and the scenario draw in
+``jaxdip.scenarios.heldout``; this module runs and reports.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from jaxdip.engine import effort
 from jaxdip.experiments.base import Experiment, Outcome, RunContext
 from jaxdip.experiments.common import fmt_ci
 from jaxdip.experiments.tune_config import HELDOUT_OFFSET, TuneConfig
-from jaxdip.experiments.tune_targets import make_target
+from jaxdip.scenarios.tune_targets import make_target
 from jaxdip.tune import random_search, tune
 
 # ---- run ----------------------------------------------------------------------------------------------------

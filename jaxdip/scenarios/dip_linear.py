@@ -1,5 +1,5 @@
 """The linearised DIP estimation benchmark: ZOH at 1 ms, outputs xc, alpha, theta with white noise, process
-noise on every state, a discrete LQR on the estimate. Shared by the estimator benchmarks (benchmarks/) and the
+noise on every state, a discrete LQR on the estimate. Shared by the estimator benchmarks (jaxdip.bench) and the
 weighted-MHE tests, so both run exactly the same loop."""
 
 from __future__ import annotations

@@ -127,8 +127,6 @@ def sweep_of(loops):
 def scores_at(lp: jd.Loop, x0, spread, steps: int, key, seeds):
     """(scores, diverged) of the given seed indices (increasing; seed 0 starts at x0 exactly), as arrays over
     the seeds: differentiable in ``lp``'s leaves (the tuning target's objective)."""
-    from jaxdip.scenarios.twip_initial import seed_runs
+    from jaxdip.tune import monte_carlo_at
 
-    run = scored(lp, x0, spread, steps)
-    parts = [jd.monte_carlo(run, key, n, offset=off, index=True) for off, n in seed_runs(seeds)]
-    return (jnp.concatenate([p[0] for p in parts]), jnp.concatenate([p[1] for p in parts]))
+    return monte_carlo_at(scored(lp, x0, spread, steps), key, seeds, index=True)

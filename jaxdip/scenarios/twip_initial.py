@@ -33,14 +33,3 @@ def exact_first(rollout, key, i):
     ``fn(key, i)`` by ``jd.monte_carlo(..., index=True)``, so seed 0 and the rest share one program."""
     x = jnp.where(i == 0, rollout.x0.x0, rollout.initial_state(key))
     return eqx.tree_at(lambda r: r.x0, rollout, x)
-
-
-def seed_runs(seeds) -> list[list[int]]:
-    """The contiguous runs [offset, length] of an increasing list of seed indices (one ``monte_carlo`` each)."""
-    out: list[list[int]] = []
-    for s in (int(v) for v in seeds):
-        if out and s == out[-1][0] + out[-1][1]:
-            out[-1][1] += 1
-        else:
-            out.append([s, 1])
-    return out

@@ -97,8 +97,8 @@ class LinearSensor(Sensor):
     """``linear_sensor`` as an engine sensor: ``SensorParams``' fields as array fields (build them with
     ``LinearSensor.of(sensor_params(...), dt)``), y = Q(C x + const_bias + walking bias + white noise).
     ``aux`` is the walking bias after the step. Numbers identical to ``linear_sensor(dt, stationary_start)``.
-    ``straight_through=True`` differentiates the quantiser as the identity (values unchanged; the sensor of
-    ``jaxdip.tune.straight_through_sensor``)."""
+    ``straight_through=True`` differentiates the quantiser as the identity (values unchanged; why: the
+    docstring of ``jaxdip.tune.objective``)."""
 
     C: jax.Array = param()
     white_std: jax.Array = param()

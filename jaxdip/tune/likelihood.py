@@ -25,7 +25,7 @@ from jax.flatten_util import ravel_pytree
 
 from jaxdip.engine import effort
 from jaxdip.estimators.lgssm import log_likelihood
-from jaxdip.tune.transforms import identity_spec, to_constrained, to_unconstrained
+from jaxdip.tune.transforms import unconstrained_spec, to_constrained, to_unconstrained
 from jaxdip.tune.tuner import TuneResult, tune
 
 
@@ -67,7 +67,7 @@ def fit_marginal_likelihood(build: Callable[[Any], LGSSMModel], theta0, ys, us=N
     """Maximise the marginal likelihood of ``ys`` (B, T, p) over theta (starting at ``theta0``)."""
     ys = jnp.asarray(ys, dtype=jnp.result_type(float))
     us = None if us is None else jnp.asarray(us, dtype=ys.dtype)
-    spec = identity_spec(theta0) if spec is None else spec
+    spec = unconstrained_spec(theta0) if spec is None else spec
     scale = 1.0 / (ys.shape[0] * ys.shape[1])
 
     def neg_ll(theta):

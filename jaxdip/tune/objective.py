@@ -1,27 +1,32 @@
-"""Monte Carlo objectives over closed loops, with memory bounded on long horizons.
+"""Monte Carlo objectives over closed loops, evaluated by ``jd.monte_carlo`` (its seed convention: seed i of a
+base key ``key`` runs with ``fold_in(key, i)``), with memory bounded on long horizons.
+
+``mc_objective`` is J(theta, key) = mean over given seeds of a loss of ``monte_carlo``'s outputs; the seeds may
+be any increasing indices (``monte_carlo_at``: one ``monte_carlo`` call per contiguous run), so the tuning seeds
+and a disjoint held-out set are two calls of one code path.
 
 ``checkpointed`` runs a ``jd.Rollout`` as an outer ``lax.scan`` over chunks whose body is
 ``jax.checkpoint``-ed: reverse mode stores one loop state per chunk and recomputes a chunk's periods while it
 differentiates through it, so memory grows like n_steps / chunk + chunk instead of n_steps (chunk ~ sqrt(n_steps)
 is the usual choice). Randomness is per period (keyed by the absolute period index), so the chunking changes no number.
 
-``straight_through_sensor`` is the sensor of ``jaxdip.sim.sensors.linear_sensor`` whose quantiser passes
-gradients straight through (forward: the same rounded readings; backward: d round(y)/dy := 1). With the exact
-quantiser the pathwise derivative treats every reading as locally constant (round' = 0), which is the
-derivative of one sample path but misses the feedback through the encoders; with white noise of a fraction of a
-count before rounding, E[round(y + noise)] is close to y, so the straight-through derivative approximates the
+Quantised sensors: with the exact quantiser the pathwise derivative treats every reading as locally constant
+(round' = 0), which is the derivative of one sample path but misses the feedback through the encoders. A sensor
+built with ``straight_through=True`` (``jd.LinearSensor``, the DIP and TWIP encoders) passes gradients straight
+through its quantiser (forward: the same rounded readings; backward: d round(y)/dy := 1); with white noise of a
+fraction of a count before rounding, E[round(y + noise)] is close to y, so that derivative approximates the
 derivative of the *expected* loss.
 """
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Any, Callable, Optional
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from jaxdip.sim.component import Component
-from jaxdip.sim.sensors import linear_sensor, quantize
+from jaxdip.engine.driver import monte_carlo
 
 
 class Objective:
@@ -37,15 +42,37 @@ class Objective:
         return jnp.mean(self.per_seed(theta, key))
 
 
-def straight_through_sensor(dt: float, stationary_start: bool = True) -> Component:
-    base = linear_sensor(dt, stationary_start)
+def seed_runs(seeds) -> list[tuple[int, int]]:
+    """The contiguous runs (offset, length) of a list of seed indices, in order (one ``monte_carlo`` each)."""
+    out: list[list[int]] = []
+    for s in (int(v) for v in seeds):
+        if out and s == out[-1][0] + out[-1][1]:
+            out[-1][1] += 1
+        else:
+            out.append([s, 1])
+    if not out:
+        raise ValueError("no seeds")
+    return [(off, n) for off, n in out]
 
-    def step(params, bias, x, key, k):
-        bias, y_raw = base.step(params._replace(quantum=jnp.zeros_like(params.quantum)), bias, x, key, k)
-        y_q = quantize(jax.lax.stop_gradient(y_raw), params.quantum)
-        return bias, y_raw + jax.lax.stop_gradient(y_q - y_raw)
 
-    return Component(base.init, step)
+def monte_carlo_at(fn: Callable, key, seeds, *, then: Optional[Callable] = None, **monte_carlo_kw) -> Any:
+    """``monte_carlo(fn, key, ...)`` at the given seed indices: one call per contiguous run, each call's output
+    passed through ``then`` (if given), the results concatenated over the seeds in the order given."""
+    parts = []
+    for offset, n in seed_runs(seeds):
+        out = monte_carlo(fn, key, n, offset=offset, **monte_carlo_kw)
+        parts.append(out if then is None else then(out))
+    return jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *parts)
+
+
+class Checkpointed(eqx.Module):
+    """A ``jd.Rollout`` run as ``checkpointed(rollout, key, chunk)``: a trial ``monte_carlo`` can batch."""
+
+    rollout: Any
+    chunk: int = eqx.field(static=True)
+
+    def __call__(self, key):
+        return checkpointed(self.rollout, key, self.chunk)
 
 
 def checkpointed(rollout, key, chunk: int = 0):
@@ -69,14 +96,23 @@ def checkpointed(rollout, key, chunk: int = 0):
     return rollout.finish(state, None)
 
 
-def mc_objective(make_rollout: Callable, loss_fn: Callable, seeds, chunk: int = 0) -> Objective:
-    """``J(theta, key)`` = mean over ``seeds`` of ``loss_fn(solution)``, the rollout ``make_rollout(theta)``
-    run for seed i with the Monte Carlo driver's key ``fold_in(key, i)`` (the seeds of ``jd.monte_carlo``),
-    rematerialised per ``chunk`` periods for reverse mode (see ``checkpointed``)."""
-    seeds = jnp.asarray(seeds, dtype=jnp.uint32)
+def mc_objective(make_fn: Callable, seeds, loss: Optional[Callable] = None, *, diverged: Optional[Callable] = None,
+                 chunk: int = 0, **monte_carlo_kw) -> Objective:
+    """``J(theta, key)`` = mean over ``seeds`` (increasing indices) of the per-seed losses
+    ``loss(monte_carlo(make_fn(theta), key, ...))`` (``loss`` maps a batch of outputs to one loss per seed;
+    ``None``: the outputs are the losses), seed i running with ``fold_in(key, i)``. ``diverged`` maps a batch of
+    outputs to per-seed failure flags (the objective's ``diverged``). ``chunk > 0``: ``make_fn(theta)`` is a
+    ``jd.Rollout`` rematerialised per ``chunk`` periods for reverse mode (``checkpointed``). Further keywords go
+    to ``monte_carlo`` (``shard``, ``index``)."""
+
+    def fn(theta):
+        f = make_fn(theta)
+        return Checkpointed(f, chunk) if chunk > 0 else f
 
     def per_seed(theta, key):
-        r = make_rollout(theta)
-        return jax.vmap(lambda i: loss_fn(checkpointed(r, jax.random.fold_in(key, i), chunk)))(seeds)
+        return monte_carlo_at(fn(theta), key, seeds, then=loss, **monte_carlo_kw)
 
-    return Objective(per_seed)
+    def flags(theta, key):
+        return monte_carlo_at(fn(theta), key, seeds, then=diverged, **monte_carlo_kw)
+
+    return Objective(per_seed, flags if diverged is not None else None)

@@ -1,6 +1,6 @@
 """Constrained hyperparameters, tuned in an unconstrained space (the dynamax habit, as bijectors per leaf).
 
-A *spec* is a pytree shaped like the hyperparameters whose leaves are transforms: ``Identity()``, ``Log()``
+A *spec* is a pytree shaped like the hyperparameters whose leaves are transforms: ``Unconstrained()``, ``Log()``
 (positive scalars or arrays, theta = exp(u)), ``Softplus()`` (positive, theta = softplus(u), gentler for values
 that may approach 0), ``Bounded(lo, hi)`` (theta = lo + (hi - lo) sigmoid(u)) and ``SPDFactor()`` (an SPD matrix
 theta = L L^T + eps I with L lower-triangular, its diagonal through exp). ``to_unconstrained(spec, theta)`` and
@@ -24,7 +24,9 @@ class Transform:
         return type(self).__name__ + "()"
 
 
-class Identity(Transform):
+class Unconstrained(Transform):
+    """Real values, any sign: theta = u (the identity map; not ``jd.Identity``, the engine's identity role)."""
+
     def forward(self, u):
         return u
 
@@ -107,5 +109,6 @@ def to_unconstrained(spec, theta):
     return jax.tree_util.tree_map(lambda t, x: t.inverse(x), spec, theta, is_leaf=_is_tf)
 
 
-def identity_spec(theta):
-    return jax.tree_util.tree_map(lambda _: Identity(), theta)
+def unconstrained_spec(theta):
+    """A spec of ``Unconstrained()`` for every leaf of ``theta``: tuning in theta's own coordinates."""
+    return jax.tree_util.tree_map(lambda _: Unconstrained(), theta)

@@ -21,7 +21,7 @@ import numpy as np
 from jaxdip import checkpoint as ckpt
 from jaxdip.engine import effort
 from jaxdip.progress import Progress
-from jaxdip.tune.transforms import identity_spec, to_constrained, to_unconstrained
+from jaxdip.tune.transforms import unconstrained_spec, to_constrained, to_unconstrained
 
 
 class TuneResult(NamedTuple):
@@ -92,7 +92,7 @@ def tune(objective: Callable, init_params, key, *, steps: int = 100, lr: float =
          zero_nonfinite_grads: bool = False) -> TuneResult:
     """Minimise ``objective(theta, key) -> scalar`` from ``init_params``.
 
-    ``spec``: pytree of transforms (default: all ``Identity``). ``optimizer``: an optax GradientTransformation
+    ``spec``: pytree of transforms (default: all ``Unconstrained``). ``optimizer``: an optax GradientTransformation
     (default ``clip_by_global_norm(clip)`` then ``adam(lr)``). ``callback(step, theta, loss)`` is called after
     every step (host side). ``mode``: "forward" (``jacfwd``: one forward pass carrying one tangent per
     unconstrained coordinate; no stored trajectory, and far cheaper to compile for a handful of
@@ -105,7 +105,7 @@ def tune(objective: Callable, init_params, key, *, steps: int = 100, lr: float =
     """
     if steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps}")
-    spec = identity_spec(init_params) if spec is None else spec
+    spec = unconstrained_spec(init_params) if spec is None else spec
     opt = optimizer or default_optimizer(lr, clip)
     u0 = to_unconstrained(spec, init_params)
 

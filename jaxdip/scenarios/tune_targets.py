@@ -1,10 +1,12 @@
-"""tune's targets: for each (cpx, rwp, dmso, rp, extra), J(theta, key) on given seeds, the documents' theta,
-the search space and a sampler for the random search (see ``jaxdip.experiments.tune``)."""
+"""The tuning targets (cpx, rwp, dmso, rp, extra): for each, J(theta, key) on given seeds over one of the
+scenarios, the documents' theta, the search space and a sampler for the random search. Every objective is
+``jaxdip.tune.mc_objective``, so its seeds follow ``jd.monte_carlo``'s convention. The ``tune`` experiment
+tunes them and evaluates them on held-out seeds with scenarios drawn by ``jaxdip.scenarios.heldout``."""
 
 from __future__ import annotations
 
 import math
-from typing import Optional
+from typing import Optional, Protocol
 
 import equinox as eqx
 import jax
@@ -12,8 +14,21 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxdip as jd
-from jaxdip.experiments.tune_config import SCENARIO_TAG, TuneConfig, scenario_factor, with_scenarios
-from jaxdip.tune import Bounded, Log, Objective
+from jaxdip.scenarios.heldout import SCENARIO_TAG, scenario_factor, with_scenarios
+from jaxdip.tune import Bounded, Log, mc_objective
+
+
+class TargetSettings(Protocol):
+    """What a target reads from its caller's config (the ``tune`` experiment's)."""
+
+    target: str
+    duration: float  # simulated time per closed loop (s)
+    substeps: int  # RK4 sub-steps per period
+    divergence_penalty: float  # added to a diverged seed's loss
+    search_low: float  # cpx: random search / landscape range of gamma
+    search_high: float
+    search_factor: float  # the other targets: paper value x/÷ this
+    wheel_weight: float  # rwp: weight of the wheel speed in the loss
 
 
 # ---- targets ------------------------------------------------------------------------------------------------
@@ -52,7 +67,7 @@ class CPXTarget(Target):
 
     name, param = "cpx", "gamma"
 
-    def __init__(self, cfg: TuneConfig, quanta=None):
+    def __init__(self, cfg: TargetSettings, quanta=None):
         import dataclasses
 
         from jaxdip.scenarios import dip_cpx_ldf as S
@@ -78,19 +93,12 @@ class CPXTarget(Target):
     scenario_leaves = {"x0": [lambda r: r.x0.radius], "disturbance": [lambda r: r.loop.actuator.white_std]}
 
     def objective(self, seeds, smooth: bool, scenarios: Optional[dict] = None):
-        from jaxdip.engine import monte_carlo
-
-        seeds = np.asarray(seeds)
-        if seeds.size == 0 or np.any(np.diff(seeds) != 1):
-            raise ValueError("the cpx target's seeds must be consecutive (monte_carlo's offset .. offset + n - 1)")
-        offset, n = int(seeds[0]), int(seeds.size)
         base = self.rollouts[bool(smooth)]
 
-        def per_seed(theta, key):
-            r = with_scenarios(self.with_gamma(base, theta["gamma"]), self.scenario_leaves, scenarios)
-            return self.loss(monte_carlo(r, key, n, offset=offset, shard=False))
+        def make(theta):
+            return with_scenarios(self.with_gamma(base, theta["gamma"]), self.scenario_leaves, scenarios)
 
-        return Objective(per_seed)
+        return mc_objective(make, seeds, self.loss, shard=False)
 
     def sample(self, key):
         return {"gamma": jnp.exp(jax.random.uniform(key, minval=math.log(self.lo), maxval=math.log(self.hi)))}
@@ -109,7 +117,7 @@ class RWPTarget(Target):
     HOMD = (5.0, 12.0, 0.9)  # Table 2: [k1, k2, alpha] of (10) and (12)
     L0, BIAS, THETA0, OBSERVER_SUBSTEPS = 0.01, -0.08, 0.1, 10
 
-    def __init__(self, cfg: TuneConfig, quantize=None):
+    def __init__(self, cfg: TargetSettings, quantize=None):
         from jaxdip.estimators import bias_observers as bo
         from jaxdip.estimators import homd
         from jaxdip.plants import rwp
@@ -138,20 +146,17 @@ class RWPTarget(Target):
     scenario_leaves = {"x0": [lambda r: r.x0.theta0], "bias": [lambda r: r.loop.sensor.const_bias]}
 
     def objective(self, seeds, smooth: bool, scenarios: Optional[dict] = None):
-        import jaxdip as jd
+        rollout = self.rollouts[bool(smooth)]
 
-        seeds = np.asarray(seeds)
-        if seeds.size == 0 or np.any(np.diff(seeds) != 1):
-            raise ValueError("the rwp target takes consecutive seeds")
-        rollout, offset, n = self.rollouts[bool(smooth)], int(seeds[0]), int(seeds.size)
-
-        def per_seed(theta, key):
+        def make(theta):
             r = eqx.tree_at(self._where, rollout, (theta["k_p1"], theta["k_p2"], theta["alpha_p"], theta["L0"]))
-            sol = jd.monte_carlo(with_scenarios(r, self.scenario_leaves, scenarios), key, n, offset=offset)
+            return with_scenarios(r, self.scenario_leaves, scenarios)
+
+        def loss(sol):
             x2 = sol.metrics["x2"]
             return self.dt * (x2[:, 0] + self.w * x2[:, 3]) + self.penalty * (sol.result != jd.RESULTS.ok)
 
-        return Objective(per_seed)
+        return mc_objective(make, seeds, loss)
 
     def sample(self, key):
         ks = jax.random.split(key, 4)
@@ -170,7 +175,7 @@ class DMSOTarget(Target):
 
     name, param = "dmso", "Gamma"
 
-    def __init__(self, cfg: TuneConfig, quantum=None):
+    def __init__(self, cfg: TargetSettings, quantum=None):
         from jaxdip.scenarios import twip_dmso as S
         from jaxdip.scenarios.twip_initial import thesis_x0
 
@@ -197,17 +202,10 @@ class DMSOTarget(Target):
     scenario_leaves = {"x0": [lambda run: run.rollout.x0.x0]}
 
     def objective(self, seeds, smooth: bool, scenarios: Optional[dict] = None):
-        import jaxdip as jd
-        from jaxdip.scenarios.twip_initial import seed_runs
+        def make(theta):
+            return with_scenarios(self.make_run(theta, smooth), self.scenario_leaves, scenarios)
 
-        runs = seed_runs(np.asarray(seeds))
-
-        def per_seed(theta, key):
-            run = with_scenarios(self.make_run(theta, smooth), self.scenario_leaves, scenarios)
-            parts = [jd.monte_carlo(run, key, n, offset=off) for off, n in runs]
-            return jnp.concatenate([e + self.penalty * d for e, d in parts])
-
-        return Objective(per_seed)
+        return mc_objective(make, seeds, lambda ed: ed[0] + self.penalty * ed[1])
 
     def sample(self, key):
         return self.log_uniform_around(("Gamma", "K"), jax.random.split(key))
@@ -226,7 +224,7 @@ class RPTarget(Target):
     # drawn in ``objective`` itself (the trial is a function, not a Module): the setup's x0_std and noise_std
     scenario_leaves = {"x0": [], "disturbance": []}
 
-    def __init__(self, cfg: TuneConfig):
+    def __init__(self, cfg: TargetSettings):
         from jaxdip.control.spd import P_Vs
         from jaxdip.scenarios import eki_dip as S
 
@@ -242,17 +240,13 @@ class RPTarget(Target):
     def objective(self, seeds, smooth: bool, scenarios: Optional[dict] = None):
         from jaxdip.search.p_search import BasisMember, continuous_performance
 
-        seeds = np.asarray(seeds)
-        if seeds.size == 0 or np.any(np.diff(seeds) != 1):
-            raise ValueError("the rp target takes consecutive seeds")
-        offset, n = int(seeds[0]), int(seeds.size)
         # a one-vector member whose P_{V,s} is self.P (member_P re-derives it from V and log s)
         member = BasisMember(self.v1[None, :], jnp.log(jnp.asarray([1e6])))
 
         sx = float((scenarios or {}).get("x0", 0.0))
         sd = float((scenarios or {}).get("disturbance", 0.0))
 
-        def per_seed(theta, key):
+        def make(theta):
             base = self.scfg._replace(gamma=theta["gamma"])
 
             def trial(k):
@@ -263,10 +257,9 @@ class RPTarget(Target):
                                         noise_std=base.noise_std * scenario_factor(kd, sd))
                 return jnp.log(continuous_performance(self.plant, cfg)(member, k)[0])
 
-            # seed i's key is fold_in(key, i), the driver's convention
-            return jd.monte_carlo(trial, key, n, offset=offset, shard=False)
+            return trial
 
-        return Objective(per_seed)
+        return mc_objective(make, seeds, shard=False)
 
     def sample(self, key):
         return self.log_uniform_around(("gamma",), (key,))
@@ -286,7 +279,7 @@ class ExtraTarget(Target):
     KEYS = ("k1", "k2", "gamma11", "gamma12", "gamma21", "gamma22")
     SPREAD = 0.1  # twip-extra-control's init_spread
 
-    def __init__(self, cfg: TuneConfig):
+    def __init__(self, cfg: TargetSettings):
         from jaxdip.scenarios import twip_extra as S
         from jaxdip.scenarios.twip_initial import thesis_x0
 
@@ -320,30 +313,22 @@ class ExtraTarget(Target):
                        "disturbance": [lambda s: s.rollout.loop.plant.g1, lambda s: s.rollout.loop.plant.g2]}
 
     def objective(self, seeds, smooth: bool, scenarios: Optional[dict] = None):
-        import jaxdip as jd
-        from jaxdip.scenarios.twip_initial import seed_runs
+        def make(theta):
+            # the runs of ``twip_extra.scores_at``, each seed's scenario drawn if any (seed 0 would start at its
+            # drawn x0)
+            return with_scenarios(self.S.scored(self.make_loop(theta), self.x0, self.SPREAD, self.n_steps),
+                                  self.scenario_leaves, scenarios)
 
-        seeds = np.asarray(seeds)
-
-        def score_div(theta, key):
-            if not scenarios:
-                return self.S.scores_at(self.make_loop(theta), self.x0, self.SPREAD, self.n_steps, key, seeds)
-            # scores_at's runs with each seed's scenario drawn (seed 0 would start at its drawn x0)
-            run = with_scenarios(self.S.scored(self.make_loop(theta), self.x0, self.SPREAD, self.n_steps),
-                                 self.scenario_leaves, scenarios)
-            parts = [jd.monte_carlo(run, key, n, offset=off, index=True) for off, n in seed_runs(seeds)]
-            return jnp.concatenate([p[0] for p in parts]), jnp.concatenate([p[1] for p in parts])
-
-        def per_seed(theta, key):
-            s, d = score_div(theta, key)
-            return s + self.penalty * d
-
-        return Objective(per_seed, diverged=lambda theta, key: score_div(theta, key)[1])
+        return mc_objective(make, seeds, lambda sd: sd[0] + self.penalty * sd[1], diverged=lambda sd: sd[1],
+                            index=True)
 
     def sample(self, key):
         return self.log_uniform_around(self.KEYS, jax.random.split(key, len(self.KEYS)))
 
 
-def make_target(cfg: TuneConfig, **kw) -> Target:
-    return {"cpx": CPXTarget, "rwp": RWPTarget, "dmso": DMSOTarget, "rp": RPTarget,
-            "extra": ExtraTarget}[cfg.target](cfg, **kw)
+TARGETS = {"cpx": CPXTarget, "rwp": RWPTarget, "dmso": DMSOTarget, "rp": RPTarget, "extra": ExtraTarget}
+
+
+def make_target(cfg: TargetSettings, **kw) -> Target:
+    """The target ``cfg.target`` built from ``cfg``'s settings; ``kw`` are the target's own options."""
+    return TARGETS[cfg.target](cfg, **kw)

@@ -2,9 +2,9 @@
 trajectory-steps per second and velocity RMS error of the KF, CPX (gamma = 150), the weighted MHE with the true
 noise weights (N = 10) and the batch filter/smoother over recorded sequences.
 
-    python benchmarks/estimators.py [--seeds 128] [--steps 2000]
+    python -m jaxdip.bench.estimators [--seeds 128] [--steps 2000]
 
-Not part of the test suite. ``benchmarks/peers.py`` compares with dynamax and do-mpc on the same loop
+Not part of the test suite. ``jaxdip.bench.peers`` compares with dynamax and do-mpc on the same loop
 (``dip_problem`` and ``dip_loop`` below).
 """
 
@@ -20,7 +20,7 @@ import numpy as np
 import jaxdip as jd
 from jaxdip.estimators import lgssm
 from jaxdip.estimators.weighted_mhe import WeightedMHE
-from jaxdip.scenarios.dip_linear import C3, DT, SENSOR_STD, X0_RADIUS  # noqa: F401  (peers.py reads them here)
+from jaxdip.scenarios.dip_linear import C3, DT, SENSOR_STD, X0_RADIUS  # noqa: F401  (peers reads them here)
 from jaxdip.scenarios.dip_linear import loop as dip_loop
 from jaxdip.scenarios.dip_linear import problem as dip_problem
 

@@ -1,9 +1,9 @@
 """Peer benchmark: jaxdip's batch filter/smoother/likelihood against dynamax, and the weighted MHE against do-mpc's
-MHE, on shared data from the linearised DIP loop of ``benchmarks/estimators.py`` (ZOH 1 ms, outputs xc, alpha,
+MHE, on shared data from the linearised DIP loop of ``jaxdip.bench.estimators`` (ZOH 1 ms, outputs xc, alpha,
 theta, LQR, true noise covariances).
 
-    pip install -e ".[peers]"      # dynamax, do-mpc, casadi: never imported by jaxdip or its tests
-    python benchmarks/peers.py [--seeds 1024] [--steps 2000] [--dyn-seeds 128] [--dompc-seeds 4]
+    pip install -e ".[peers]"      # dynamax, do-mpc, casadi: imported by this module only, never by the tests
+    python -m jaxdip.bench.peers [--seeds 1024] [--steps 2000] [--dyn-seeds 128] [--dompc-seeds 4]
                                [--dompc-steps 500] [--out peers.json]
 
 Data: the closed loop driven by the Kalman filter is recorded (true state x_k, outputs y_k, inputs u_k), and every
@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import functools
+import importlib.util
 import json
 import platform
 import sys
@@ -43,13 +44,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import estimators as base  # noqa: E402  (benchmarks/estimators.py: the shared loop)
-
-import jaxdip as jd  # noqa: E402
-from jaxdip.control.riccati import dare  # noqa: E402
-from jaxdip.estimators import lgssm  # noqa: E402
-from jaxdip.estimators.weighted_mhe import WeightedMHE  # noqa: E402
+import jaxdip as jd
+from jaxdip.bench import estimators as base  # the shared loop
+from jaxdip.control.riccati import dare
+from jaxdip.estimators import lgssm
+from jaxdip.estimators.weighted_mhe import WeightedMHE
 
 HORIZON = 10
 
@@ -241,6 +240,12 @@ def main() -> None:
     ap.add_argument("--skip", choices=["dynamax", "dompc"], action="append", default=[])
     ap.add_argument("--out", default="peers.json")
     args = ap.parse_args()
+    # the peers are an optional extra: say what is missing before recording anything
+    needed = {"dynamax": ("dynamax",), "dompc": ("do_mpc", "casadi")}
+    missing = [m for part, mods in needed.items() if part not in args.skip for m in mods
+               if importlib.util.find_spec(m) is None]
+    if missing:
+        sys.exit(f"error: peers: {', '.join(missing)} not installed: pip install \".[peers]\", or --skip that peer")
     x, y, u = record(args.seeds, args.steps)
     res = {"date": datetime.datetime.now().isoformat(timespec="seconds"), "machine": platform.machine(),
            "processor": platform.processor() or platform.machine(), "cpu_count": __import__("os").cpu_count(),

@@ -1,0 +1,8 @@
+"""Benchmarks: timings live here, never in the tests.
+
+- ``scoreboard``: ``jaxdip bench`` (the dip-lqr loop against a NumPy loop, SciPy's RK45 and ode45's defaults,
+  with accuracy against DOP853), the JSON and figure it writes;
+- ``estimators``: throughput of the estimators on the linearised DIP, ``python -m jaxdip.bench.estimators``;
+- ``peers``: the batch filter/smoother/likelihood against dynamax and the weighted MHE against do-mpc,
+  ``python -m jaxdip.bench.peers`` after ``pip install ".[peers]"`` (the only module that imports them).
+"""
