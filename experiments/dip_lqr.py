@@ -16,8 +16,11 @@ import numpy as np
 import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
-from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.common import band_figure, failure_lines, fmt_ci, loop_summary, weight_matrix
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.figures import band_figure
+from jaxdip.runner.results import fmt_ci
+from jaxdip.runner.summaries import failure_lines, loop_summary
+from jaxdip.runner.weights import weight_matrix
 from jaxdip.plants import dip
 from jaxdip.scenarios.dip_lqr import dip_lqr
 
@@ -127,4 +130,5 @@ EXPERIMENT = Experiment(
     quick={"seeds": 64, "duration": 2.0},
     source="thesis §3.2 (LQR, eq. 3.4) with the Table 3.1 weights, on the Table 3.3 model",
     quick_effort="fast",  # compiling dominates its quick run (measured)
+    quick_cost_s=2,
 )

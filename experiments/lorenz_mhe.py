@@ -34,8 +34,8 @@ import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
-from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.common import fmt_ci
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.results import fmt_ci
 from jaxdip.plants import lorenz
 from jaxdip.scenarios import lorenz_mhe as scenario
 from jaxdip.scenarios.lorenz_mhe import METHODS
@@ -387,4 +387,5 @@ EXPERIMENT = Experiment(
     quick={"seeds": 16, "duration": 2.0},
     source="thesis §1.6 (Fig. 1.1-1.2): CPX gamma 0.5, SCPX gamma 50 p 2, EKF and EKF2",
     quick_effort="balanced",  # cold + cached time measured lower than with "fast"
+    quick_cost_s=14,
 )

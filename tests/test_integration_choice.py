@@ -47,7 +47,7 @@ def test_the_committed_table_follows_the_rule_and_the_defaults_follow_the_table(
     ic = _module()
     with open(os.path.join(ROOT, "docs", "integration.json")) as fh:
         rows = json.load(fh)
-    from jaxdip.experiments import registry
+    from jaxdip.runner import registry
 
     reg = registry()
     # every default below the reference was measured acceptable at that very value

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from jaxdip import config as C
-from jaxdip.experiments import tune_config as T
-from jaxdip.experiments import tune_targets as TT
+import experiments.tune.config as T
+import experiments.tune.targets as TT
 from jaxdip.tune import (Bounded, Log, Softplus, SPDFactor, random_search, to_constrained,
                          to_unconstrained, tune, value_and_grad_fn)
 

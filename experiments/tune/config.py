@@ -1,5 +1,5 @@
 """tune's config and its held-out scenarios: which targets exist, the tuning and held-out seeds, and the draw
-that scales each held-out seed's initial state, sensor bias and disturbance (see ``jaxdip.experiments.tune``)."""
+that scales each held-out seed's initial state, sensor bias and disturbance (see ``experiments.tune``)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """tune's targets: for each (cpx, rwp, dmso, rp, extra), J(theta, key) on given seeds, the documents' theta,
-the search space and a sampler for the random search (see ``jaxdip.experiments.tune``)."""
+the search space and a sampler for the random search (see ``experiments.tune``)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxdip as jd
-from jaxdip.experiments.tune_config import SCENARIO_TAG, TuneConfig, scenario_factor, with_scenarios
+from experiments.tune.config import SCENARIO_TAG, TuneConfig, scenario_factor, with_scenarios
 from jaxdip.tune import Bounded, Log, Objective
 
 
