@@ -146,7 +146,7 @@ def _resolve(exp_id, args):
 
 
 def _unknown(exp_id: str, e: KeyError) -> int:
-    """``experiments.get``'s refusal, ``<id>: unknown experiment (...)``, with the id as the line's key."""
+    """``jaxdip.runner.get``'s refusal, ``<id>: unknown experiment (...)``, with the id as the line's key."""
     message = str(e.args[0])
     return error(exp_id, message[len(exp_id) + 2:] if message.startswith(f"{exp_id}: ") else message)
 
