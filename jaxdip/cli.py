@@ -137,7 +137,7 @@ def _flag_keys(args) -> dict:
 
 def _resolve(exp_id, args):
     from jaxdip import config as C
-    from jaxdip.experiments import get
+    from jaxdip.runner import get
 
     exp = get(exp_id)
     cfg = C.load(exp.config_cls, path=args.config, quick=exp.quick if args.quick else None,
@@ -146,7 +146,7 @@ def _resolve(exp_id, args):
 
 
 def _unknown(exp_id: str, e: KeyError) -> int:
-    """``experiments.get``'s refusal, ``<id>: unknown experiment (...)``, with the id as the line's key."""
+    """``jaxdip.runner.get``'s refusal, ``<id>: unknown experiment (...)``, with the id as the line's key."""
     message = str(e.args[0])
     return error(exp_id, message[len(exp_id) + 2:] if message.startswith(f"{exp_id}: ") else message)
 
@@ -177,9 +177,9 @@ def cmd_run(args, argv=None) -> int:
     from jaxdip.checkpoint import CheckpointError
     from jaxdip.config import ConfigError
     from jaxdip.control.riccati import RiccatiError
-    from jaxdip.experiments import run_experiment
-    from jaxdip.experiments.base import run_context
-    from jaxdip.experiments.common import ResultError
+    from jaxdip.runner import run_experiment
+    from jaxdip.runner.experiment import run_context
+    from jaxdip.runner.results import ResultError
     from jaxdip.outdir import OutputError
 
     flags = _flag_keys(args)
@@ -225,7 +225,7 @@ def cmd_reproduce(args, argv=None) -> int:
     from jaxdip import distributed, outdir
     from jaxdip.config import ConfigError
     from jaxdip.control.riccati import RiccatiError
-    from jaxdip.experiments import registry, run_experiment
+    from jaxdip.runner import registry, run_experiment
     from jaxdip.outdir import OutputError
 
     jobs = _reproduce_jobs(args)
@@ -347,7 +347,7 @@ def _command(args, argv) -> int:
     if args.cmd in ("run", "reproduce") and (code := _distributed(args)):
         return code
     if args.cmd == "list":
-        from jaxdip.experiments import registry
+        from jaxdip.runner import registry
 
         for exp_id, exp in sorted(registry().items()):
             # the readings' supporting runs are marked: a plain `reproduce` leaves them out

@@ -36,7 +36,7 @@ def _written_by_us(exp_id: str):
 def write_all(folder: str) -> list[str]:
     """Write ``<folder>/<id>.toml`` for every registered experiment (the folder is made if missing); every
     target is checked before the first is written, so a refusal leaves the folder as it was."""
-    from jaxdip.experiments import registry
+    from jaxdip.runner import registry
 
     exps = sorted(registry().items())
     paths = [os.path.join(folder, f"{exp_id}.toml") for exp_id, _ in exps]
@@ -50,7 +50,7 @@ def write_all(folder: str) -> list[str]:
 
 def cmd_config(args, unknown: Callable[[str, KeyError], int]) -> int:
     """The command's exit status; ``unknown(id, KeyError)`` reports an id the registry does not know."""
-    from jaxdip.experiments import get
+    from jaxdip.runner import get
 
     if args.write is not None:
         if args.id is not None:

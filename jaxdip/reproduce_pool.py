@@ -23,12 +23,6 @@ from jaxdip.cli_errors import error, note
 
 MAX_JOBS = 64  # far beyond the experiments there are; a larger --jobs is a typo, not a plan
 
-# cold --quick wall times (s) of each experiment in the parallel reproduce on a 2-core CPU, at the quick compile
-# efforts (rwp-bias estimated at balanced from its run alone): the parallel reproduce starts the long ones first
-QUICK_COST = {"ifn-protection": 37, "eki-dip": 25, "tune": 18, "rwp-bias": 18, "dip-cpx-ldf": 15,
-              "lorenz-mhe": 14, "dip-controllers": 13, "twip-dmso": 10, "eki-linear": 9, "eki-nonlinear": 7,
-              "twip-extra-control": 6, "dip-lqr": 2}
-
 
 class Workers:
     """``n`` started ``jaxdip.reproduce_worker`` processes and one queue of their answers, ``(worker, answer or
@@ -72,7 +66,7 @@ def close(w):
 
 def run_parallel(args, reg, jobs: int) -> int:
     """Run the experiments ``reg`` (``[(id, Experiment)]``) in ``jobs`` workers; 0 or the exit code."""
-    order = sorted(reg, key=lambda r: -QUICK_COST.get(r[0], 10.0)) if args.quick else list(reg)
+    order = sorted(reg, key=lambda r: -r[1].quick_cost_s) if args.quick else list(reg)
     pending = [exp_id for exp_id, _ in order]
     failed: list = []
     logs = tempfile.mkdtemp(prefix="jaxdip-reproduce-")

@@ -88,11 +88,11 @@ def world(tmp_path, monkeypatch):
 def fake(monkeypatch, world):
     """``fake.during`` (if set) runs inside the stub experiment, between the start checks and the commit; what
     it changes is the user's (or another run's) doing, so the folder is snapshot again after it."""
-    import jaxdip.experiments as experiments  # here, not at the top: the driver processes must not import JAX
+    import jaxdip.runner as runner  # here, not at the top: the driver processes must not import JAX
 
-    real_get = experiments.get
+    real_get = runner.get
     state = type("Fake", (), {"during": None, "calls": 0, "seen": None, "world": world})()
-    monkeypatch.setattr(experiments, "get", lambda exp_id: dataclasses.replace(real_get(exp_id), run=fake_run(state)))
+    monkeypatch.setattr(runner, "get", lambda exp_id: dataclasses.replace(real_get(exp_id), run=fake_run(state)))
     return state
 
 
@@ -100,7 +100,7 @@ def fake_run(state):
     """The stub experiment's run function."""
     from matplotlib.figure import Figure
 
-    from jaxdip.experiments.base import Outcome
+    from jaxdip.runner import Outcome
 
     world = state.world
 

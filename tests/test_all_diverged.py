@@ -26,7 +26,7 @@ import re
 import pytest
 
 from jaxdip import config as C
-from jaxdip.experiments import get, registry, run_experiment
+from jaxdip.runner import get, registry, run_experiment
 
 TINY_BOUND = "[1e-9, 1e-9, 1e-9, 1e-9, 1e-9, 1e-9]"
 
@@ -118,14 +118,14 @@ def test_unwritable_results_are_kept_not_lost(tmp_path, monkeypatch, capsys):
     import dataclasses
     import os
 
-    import jaxdip.experiments as experiments
+    import jaxdip.runner as runner
     from jaxdip import cli
-    from jaxdip.experiments.base import Outcome
+    from jaxdip.runner import Outcome
     from snapshots import snapshot
 
-    real = experiments.get("dip-lqr")
+    real = runner.get("dip-lqr")
     nan_run = lambda cfg, ctx: Outcome(results={"fine": 1.0, "ci": [float("nan"), 2.0]}, report="a report")
-    monkeypatch.setattr(experiments, "get", lambda exp_id: dataclasses.replace(real, run=nan_run))
+    monkeypatch.setattr(runner, "get", lambda exp_id: dataclasses.replace(real, run=nan_run))
     monkeypatch.chdir(tmp_path)
     (tmp_path / "victim").mkdir()
     (tmp_path / "victim" / "notes.txt").write_text("mine\n")

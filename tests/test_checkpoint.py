@@ -17,8 +17,8 @@ import pytest
 
 from jaxdip import checkpoint, cli
 from jaxdip import config as C
-from jaxdip.experiments import get
-from jaxdip.experiments.base import run_context
+from jaxdip.runner import get
+from jaxdip.runner.experiment import run_context
 
 TREE = {"a": jnp.arange(6.0).reshape(2, 3), "k": jnp.asarray([1, 2], dtype=jnp.uint32),
         "hist": jnp.zeros((4, 1))}

@@ -9,7 +9,8 @@ import pytest
 
 from jaxdip import cli, cli_args
 from jaxdip import config as C
-from jaxdip.experiments import dip_lqr, registry
+import experiments.dip_lqr as dip_lqr
+from jaxdip.runner import registry
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

@@ -22,7 +22,7 @@ import warnings
 import pytest
 
 from jaxdip import cli, reproduce_pool
-from jaxdip.experiments import dip_lqr
+import experiments.dip_lqr as dip_lqr
 from jaxdip.resources import FLOAT_BYTES, COPIES, USABLE, available_bytes
 from snapshots import snapshot
 
@@ -188,15 +188,15 @@ def test_warnings_before_a_refusal_are_dropped(world, capsys, monkeypatch):
 
 
 def test_warnings_of_a_command_that_goes_on_are_shown(world, capsys, monkeypatch):
-    from jaxdip import experiments
+    from jaxdip import runner
 
-    registry = experiments.registry
+    registry = runner.registry
 
     def noisy():
         logging.getLogger("jax").warning("held back, then shown")
         return registry()
 
-    monkeypatch.setattr(experiments, "registry", noisy)
+    monkeypatch.setattr(runner, "registry", noisy)
     assert cli.main(["list"]) == 0
     out, err = capsys.readouterr()
     assert "dip-lqr" in out.split()
@@ -300,7 +300,7 @@ def test_deleted_working_folder(tmp_path):
 
 def _vm_size_after_import() -> int:
     """The address space a ``jaxdip run`` uses once its experiments are imported (JAX's backend started)."""
-    code = ("from jaxdip.experiments import registry; registry()\n"
+    code = ("from jaxdip.runner import registry; registry()\n"
             "print([l.split()[1] for l in open('/proc/self/status') if l.startswith('VmSize:')][0])")
     r = subprocess.run([sys.executable, "-c", code], env=_env(), capture_output=True, text=True, timeout=60)
     return int(r.stdout) * 1024

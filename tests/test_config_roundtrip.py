@@ -13,8 +13,8 @@ import pytest
 
 from jaxdip import cli
 from jaxdip import config as C
-from jaxdip.experiments import get, registry
-from jaxdip.experiments.base import config_toml
+from jaxdip.runner import get, registry
+from jaxdip.runner.experiment import config_toml
 
 
 @pytest.mark.parametrize("exp_id", sorted(registry()))

@@ -220,7 +220,7 @@ def test_cli_tiny_run_writes_results(tmp_path):
     assert len(sw["gamma"]) == 2 and len(sw["theta_var"]) == 2 and len(sw["diverged_fraction"]) == 2
     for f in ("gamma_sweep.png", "velocity_estimates.png", "report.md", "config.toml"):
         assert (out / f).is_file(), f
-    from jaxdip.experiments import dip_cpx_ldf as E
+    import experiments.dip_cpx_ldf as E
 
     cfg = C.load(E.DipCpxLdfConfig, path=str(out / "config.toml"))
     assert cfg.seeds == 4 and cfg.sweep_points == 2

@@ -9,7 +9,7 @@ import pytest
 
 from jaxdip import config as C
 from jaxdip.estimators.proximal import prox_from_qr, qr_factor
-from jaxdip.experiments.dip_cpx_ldf import DipCpxLdfConfig
+from experiments.dip_cpx_ldf import DipCpxLdfConfig
 from jaxdip.plants import dip
 from jaxdip.plants.dip_friction import CartFriction
 from jaxdip.scenarios import dip_cpx_ldf as S

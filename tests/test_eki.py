@@ -85,7 +85,7 @@ SHARD_SCRIPT = """
 import jax, numpy as np
 import jaxdip
 from jaxdip import config as C
-from jaxdip.experiments import eki_dip as E
+import experiments.eki_dip as E
 from jaxdip.search.eki import run_eki
 assert len(jax.local_devices()) == 2
 cfg = C.load(E.EkiDipConfig, quick={"ensemble": 6, "T": 0.1, "t_star": 0.05})

@@ -9,7 +9,7 @@ import pytest
 
 from jaxdip import checkpoint
 from jaxdip import config as C
-from jaxdip.experiments import get, run_experiment
+from jaxdip.runner import get, run_experiment
 
 TINY = {"seeds": 4, "ensemble": 6, "iterations": 6, "chunk": 2, "T": 0.3, "t_star": 0.1, "grad_steps": 0,
         "eval_states": 2, "judge_duration": 0.3, "early_stop": False, "min_success": 2}
@@ -68,7 +68,7 @@ def test_resume_refuses_a_checkpoint_of_another_config(tmp_path, monkeypatch):
 
 
 def test_one_free_vector_keeps_its_singular_value_and_per_member_keys_are_wired():
-    from jaxdip.experiments import eki_dip as E
+    import experiments.eki_dip as E
 
     cfg = C.from_dict(E.EkiDipConfig, {"free_vectors": 1, "x0_draw": "per_member", "ensemble": 4, "T": 0.2,
                                             "t_star": 0.1})

@@ -9,7 +9,7 @@ import numpy as np
 
 from jaxdip import config as C
 from jaxdip.control.spd import P_v
-from jaxdip.experiments import eki_examples as E
+import experiments.eki_examples as E
 
 
 class _Compiles(logging.Handler):

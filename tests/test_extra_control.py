@@ -279,7 +279,7 @@ def test_flat_law_keeps_unmodeled_unstable_up_where_lqr_falls():
 
 def test_virtual_sign_reverses_only_the_inverted_gain_and_is_validated():
     from jaxdip import config as C
-    from jaxdip.experiments import twip_extra_control as X
+    import experiments.twip_extra_control as X
 
     d = twip_dlqr(twip.default_params(), Q=(1.0, 1.0, 0.1, 0.1), R=1.0, dt=0.01)
     A1, A2, A3, A4, B1, B2 = ec.model_coefficients(d.A, d.B)

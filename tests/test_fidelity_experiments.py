@@ -15,7 +15,7 @@ from scipy.integrate import solve_ivp
 
 from jaxdip import cli
 from jaxdip import config as C
-from jaxdip.experiments import Experiment, Outcome, registry
+from jaxdip.runner import Experiment, Outcome, registry
 
 IDS = ("twip-transients", "twip-allan", "rwp-remark3", "thesis-theory")
 TINY = {
@@ -236,7 +236,7 @@ def _fake(exp_id: str, reproduce: bool) -> Experiment:
 
 
 def test_plain_reproduce_leaves_readings_out_and_only_runs_them(tmp_path, monkeypatch):
-    import jaxdip.experiments as E
+    import jaxdip.runner as E
 
     fakes = {"headline": _fake("headline", True), "readings": _fake("readings", False)}
     monkeypatch.setattr(E, "registry", lambda: dict(fakes))

@@ -14,8 +14,8 @@ from experiments.fidelity import twip_pages
 from jaxdip import config as C
 from jaxdip.estimators import homd
 from jaxdip.estimators import luenberger as lu
-from jaxdip.experiments import eki_examples as E
-from jaxdip.experiments import rwp_bias as R
+import experiments.eki_examples as E
+import experiments.rwp_bias as R
 from jaxdip.scenarios import rwp as S
 from jaxdip.search.p_search import direction_search, lowest_y1
 

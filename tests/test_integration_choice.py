@@ -33,7 +33,7 @@ def test_a_flipped_decision_or_count_is_not_acceptable_however_small_the_change(
 def test_the_committed_table_follows_the_rule_and_the_defaults_follow_the_table():
     with open(os.path.join(ROOT, "docs", "integration.json")) as fh:
         rows = json.load(fh)
-    from jaxdip.experiments import registry
+    from jaxdip.runner import registry
 
     reg = registry()
     # every default below the reference was measured acceptable at that very value

@@ -15,8 +15,8 @@ import pytest
 
 import jaxdip as jd
 from jaxdip import config as C
-from jaxdip.experiments import get, run_experiment
-from jaxdip.experiments import lorenz_mhe as L
+import experiments.lorenz_mhe as L
+from jaxdip.runner import get, run_experiment
 from jaxdip.scenarios import lorenz_mhe as S
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -13,7 +13,7 @@ import scipy.linalg
 import jaxdip as jd
 from jaxdip import config as C
 from jaxdip.estimators.kf import ExtendedKalmanFilter
-from jaxdip.experiments import lorenz_mhe as L
+import experiments.lorenz_mhe as L
 from jaxdip.plants import lorenz
 from jaxdip.plants.lorenz import Lorenz
 

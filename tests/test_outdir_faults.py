@@ -21,7 +21,7 @@ import sys
 
 import pytest
 
-import jaxdip.experiments as experiments
+import jaxdip.runner as runner
 from jaxdip.outdir import MARKER, swap
 import outdir_world as W
 from outdir_world import ROOT, fake_run, old_run, refused, run, whole, write_run
@@ -174,7 +174,7 @@ def test_disk_full_writing_the_marker(world, fake, capsys, monkeypatch):
 def test_disk_full_writing_the_results(world, fake, capsys, monkeypatch):
     import builtins
 
-    import jaxdip.experiments.base as base
+    import jaxdip.runner.experiment as base
 
     old_run(world, fake, capsys)
 
@@ -315,8 +315,8 @@ def test_a_planted_staging_folder_is_left_alone(world, fake, capsys, kind):
 
 
 def test_reproduce_keeps_a_report_the_user_wrote_during_it(world, fake, capsys, monkeypatch):
-    real = experiments.registry()["dip-lqr"]
-    monkeypatch.setattr(experiments, "registry", lambda: {"dip-lqr": dataclasses.replace(real, run=fake_run(fake))})
+    real = runner.registry()["dip-lqr"]
+    monkeypatch.setattr(runner, "registry", lambda: {"dip-lqr": dataclasses.replace(real, run=fake_run(fake))})
     os.mkdir(world / "repro")
     fake.during = lambda: (world / "repro" / "REPORT.md").write_text("my own report\n")
     line = refused(world, capsys, ["reproduce", "--quick", "--jobs", "1", "--only", "dip-lqr", "--out", "repro"],

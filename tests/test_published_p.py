@@ -12,7 +12,7 @@ import scipy.linalg
 
 import jaxdip as jd
 from jaxdip import config as C
-from jaxdip.experiments import dip_controllers as DC
+import experiments.dip_controllers as DC
 from jaxdip.plants import dip
 from jaxdip.theory import published_p as pp
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from jaxdip import config as C
-from jaxdip.experiments import tune_config as T
+import experiments.tune.config as T
 from jaxdip.scenarios import heldout as H
 from jaxdip.scenarios import tune_targets as TT
 from jaxdip.tune import (Bounded, Log, Softplus, SPDFactor, Unconstrained, random_search, to_constrained,

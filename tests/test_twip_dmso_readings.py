@@ -11,8 +11,8 @@ from scipy.stats import gmean
 
 import jaxdip  # noqa: F401  (float64)
 from jaxdip import config as C
-from jaxdip.experiments import twip_dmso as E
-from jaxdip.experiments import twip_dmso_report as ER
+import experiments.twip_dmso as E
+import experiments.twip_dmso.report as ER
 from jaxdip.scenarios import twip_dmso as S
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -6,7 +6,7 @@ from jaxdip import config as C
 
 
 def test_variants_are_checked():
-    from jaxdip.experiments import twip_extra_control as T
+    import experiments.twip_extra_control as T
 
     cfg = C.load(T.TwipExtraControlConfig, sets=['variants=["k1=4; virtual=printed"]'])
     v = T.variant_config(cfg, cfg.variants[0])

@@ -9,7 +9,7 @@ from experiments.fidelity.runs import command as _cmd, run as _run
 from experiments.fidelity.twip_cells import num, row
 
 def transients(args, workdir: str):
-    from jaxdip.experiments import twip_transients as X
+    import experiments.twip_transients as X
 
     cmd = _cmd("twip-transients", [], None, args.quick)
     c = shlex.join(cmd)
@@ -78,7 +78,7 @@ def transients(args, workdir: str):
 
 
 def allan(args, workdir: str):
-    from jaxdip.experiments import twip_allan as X
+    import experiments.twip_allan as X
 
     cmd = _cmd("twip-allan", [], None, args.quick)
     c = shlex.join(cmd)

@@ -25,7 +25,7 @@ In the loop's init/step interface sample k brings (y_k, u_{k-1}) and the estimat
 xhat_k. For k >= 1 that is (3) advanced from k - 1 with u_{k-1}: the DMSO is a one-step *predictor*; its
 estimate of x_k uses y_0 .. y_{k-1}, not y_k. At k = 0 it returns xhat_0 (the thesis starts it at zero) and
 W_0 (zeros). The KF compared with it in the thesis, (169)-(170) with y_k in the update of x_{k+1}, is a
-predictor on the same information; see ``jaxdip.experiments.twip_dmso`` for how the KF is read.
+predictor on the same information; see ``experiments.twip_dmso`` for how the KF is read.
 
 With Gamma = 0 and f = 0 the error obeys e_{k+1} = (F - K) e_k (11): a Luenberger observer in prediction form.
 """

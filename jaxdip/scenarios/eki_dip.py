@@ -7,7 +7,7 @@ ensemble Kalman search (``eki-dip``) and of the ``rp`` tuning target.
   noise every period, Q on the positions between t* and T, a state norm above 10 ends it with performance 1000
   (the defaults are eki-dip's);
 * ``judge_rollout``: a Monte Carlo trial of (2.14) with a given P from near-upright states, with the metrics
-  of ``jaxdip.experiments.common.loop_summary``.
+  of ``jaxdip.runner.summaries.loop_summary``.
 """
 
 from __future__ import annotations

@@ -40,8 +40,9 @@ import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import checkpoint
 from jaxdip import config as C
-from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.common import failure_lines, fmt_ci, loop_summary
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.results import fmt_ci
+from jaxdip.runner.summaries import failure_lines, loop_summary
 from jaxdip.plants import dip
 from jaxdip.progress import Progress
 from jaxdip.scenarios import eki_dip as S
@@ -347,4 +348,5 @@ EXPERIMENT = Experiment(
                     "grad_steps": 3, "grad_x0": 2, "eval_states": 8, "judge_duration": 2.0},
     source="thesis §3.2.1, Procedure 1, (2.20), (2.24)",
     quick_effort="fast",  # compiling dominates its quick run (measured)
-    resumable=True)
+    resumable=True,
+    quick_cost_s=25)

@@ -26,7 +26,7 @@ from jaxdip import checkpoint
 from jaxdip import config as cfgmod
 from jaxdip import distributed, outdir, resources
 from jaxdip.engine import effort
-from jaxdip.experiments.common import ResultError, check_writable, drop_missing
+from jaxdip.runner.results import ResultError, check_writable, drop_missing
 
 
 @dataclass
@@ -83,6 +83,9 @@ class Experiment:
     quick_effort: str = "full"
     # True for experiments whose run checkpoints (``RunContext``) and so can continue with --resume
     resumable: bool = False
+    # cold --quick wall time (s) in the parallel reproduce on a 2-core CPU at the quick compile effort: the
+    # parallel reproduce starts the long ones first (10 where not measured)
+    quick_cost_s: float = 10.0
 
 
 def _jsonable(o):

@@ -54,8 +54,8 @@ import numpy as np
 import jaxdip as jd
 from jaxdip import stats
 from jaxdip.control.extra_control import ExtraControl, desired_state
-from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.twip_extra_control_config import (DEG, FIGS, STATES, SYSTEMS, THESIS,
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from experiments.twip_extra_control.config import (DEG, FIGS, STATES, SYSTEMS, THESIS,
                                                           TwipExtraControlConfig, variant_config)
 from jaxdip.scenarios import twip_extra as S
 from jaxdip.scenarios.twip_initial import thesis_x0
@@ -304,4 +304,5 @@ EXPERIMENT = Experiment(
     quick={"seeds": 8, "duration": 10.0, "chunk_seeds": 8},
     source="Stumfoll MS thesis §6.2 (eqs. 86-114) and §8.2 (eqs. 179-185, Table 8.3, Figs. 8.15-8.23)",
     quick_effort="balanced",  # "fast" saved no compile time and ran slower (measured)
+    quick_cost_s=6,
 )

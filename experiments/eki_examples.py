@@ -30,7 +30,7 @@ from jaxdip import stats
 from jaxdip.control import StateFeedback, dlqr
 from jaxdip.control.projection import RelaxedProjection, projected_closed_loop
 from jaxdip.control.spd import P_v
-from jaxdip.experiments.base import Experiment, Outcome, RunContext
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext
 from jaxdip.plants import examples2d
 from jaxdip.search import EKI
 from jaxdip.search.eki import align_signs
@@ -326,10 +326,10 @@ EXPERIMENTS = (
                     source="thesis §2.7.1, Fig. 2.1-2.2",
                     # one search of 60 iterations amplifies the last bits in which the levels differ into
                     # visibly different quick numbers (spectral radius 0.21 vs 0.14): keep XLA's default
-                    quick_effort="full"),
+                    quick_effort="full", quick_cost_s=9),
     Experiment(id="eki-nonlinear", title="ensemble Kalman search for P, nonlinear example of §2.7",
                     config_cls=EkiNonlinearConfig, run=run,
                     quick={"seeds": 10, "iterations": 80, "judge_states": 100},
                     source="thesis §2.7.2, Fig. 2.3",
-                    quick_effort="fast"),  # quick results moved by <= 1.3e-4 relative, well inside their spread
+                    quick_effort="fast", quick_cost_s=7),  # quick results moved by <= 1.3e-4 relative, well inside their spread
 )

@@ -37,9 +37,9 @@ from jaxdip import checkpoint as ckpt
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.engine import effort
-from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.common import fmt_ci
-from jaxdip.experiments.tune_config import HELDOUT_OFFSET, TuneConfig
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.results import fmt_ci
+from experiments.tune.config import HELDOUT_OFFSET, TuneConfig
 from jaxdip.scenarios.tune_targets import make_target
 from jaxdip.tune import random_search, tune
 
@@ -220,4 +220,5 @@ EXPERIMENT = Experiment(
     source="the documents' hyperparameter values (CPX gamma = 150, paper §5) against gradient tuning",
     quick_effort="fast",  # compiling dominates its quick run (measured)
     resumable=True,
+    quick_cost_s=18,
 )

@@ -21,7 +21,7 @@ import numpy as np
 
 import jaxdip as jd
 from jaxdip import config as C
-from jaxdip.experiments.base import Experiment, Outcome, RunContext
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext
 
 DEG = math.pi / 180
 TRUTHS = ("8.1", "8.2")

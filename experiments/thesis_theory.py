@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from jaxdip import config as C
-from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.common import weight_matrix
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.weights import weight_matrix
 
 
 @dataclass

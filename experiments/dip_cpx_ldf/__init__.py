@@ -28,9 +28,11 @@ import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
-from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.common import failure_lines, failure_summary, fmt, fmt_ci, na, weight_matrix
-from jaxdip.experiments.dip_cpx_ldf_figures import sweep_figure, velocity_figure
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.results import fmt, fmt_ci, na
+from jaxdip.runner.summaries import failure_lines, failure_summary
+from jaxdip.runner.weights import weight_matrix
+from experiments.dip_cpx_ldf.figures import sweep_figure, velocity_figure
 from jaxdip.plants import dip
 from jaxdip.scenarios import dip_cpx_ldf as S
 from jaxdip.sim import dip_sensors
@@ -350,4 +352,5 @@ EXPERIMENT = Experiment(
     quick={"seeds": 16, "duration": 1.0, "sweep_points": 5, "sweep_seeds": 8},
     source="paper §5 Table 1 / thesis §3.3 Table 3.2, Fig. 3.5, the Prop. 1.4.3 gamma criterion",
     quick_effort="fast",  # compiling dominates its quick run (measured)
+    quick_cost_s=15,
 )

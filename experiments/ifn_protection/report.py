@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from jaxdip.experiments.common import fmt_ci
+from jaxdip.runner.results import fmt_ci
 
 
 def summary(cfg, r) -> list[str]:

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from jaxdip import config as C
-from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.common import fmt_ci
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.results import fmt_ci
 from jaxdip.resources import Load
 
 

@@ -1,5 +1,5 @@
 """tune's config: which target, the tuning and held-out seeds, the optimiser, and the spreads of the held-out
-scenarios (drawn by ``jaxdip.scenarios.heldout``; see ``jaxdip.experiments.tune``)."""
+scenarios (drawn by ``jaxdip.scenarios.heldout``; see ``experiments.tune``)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """rwp-bias's figures (the paper's Figs. 3-6) and its report: the tables of parts (a)-(d) and the paper's claims
-checked, from the results ``jaxdip.experiments.rwp_bias.run`` computes."""
+checked, from the results ``experiments.rwp_bias.run`` computes."""
 
 from __future__ import annotations
 

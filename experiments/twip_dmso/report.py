@@ -1,5 +1,5 @@
 """twip-dmso's report: the thesis's findings (§8.1) checked against the results, the readings of the KF and the
-uncertainty estimate compared, and the tables, from the results ``jaxdip.experiments.twip_dmso.run`` computes."""
+uncertainty estimate compared, and the tables, from the results ``experiments.twip_dmso.run`` computes."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ UNITS = ("m", "m/s", "rad", "rad/s")
 UNCERTAIN_NAMES = ("x_dot", "phi_dot")
 ESTIMATORS = S.ESTIMATORS
 if TYPE_CHECKING:
-    from jaxdip.experiments.twip_dmso_config import TwipDmsoConfig
+    from experiments.twip_dmso.config import TwipDmsoConfig
 
 # the thesis's numbers the report compares against (§8.1.3: time to converge within the measurement noise)
 THESIS_NOISE_TILT_RATE_CONVERGENCE = {"dmso": 0.15, "kf": 1.3}

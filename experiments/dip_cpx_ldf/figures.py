@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from jaxdip.experiments.common import floats
+from jaxdip.runner.results import floats
 from jaxdip.plants import dip
 
 

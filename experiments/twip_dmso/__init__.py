@@ -67,9 +67,10 @@ import numpy as np
 import jaxdip as jd
 from jaxdip import stats
 from jaxdip.control.twip_lqr import TwipDesign
-from jaxdip.experiments.base import Experiment, Outcome, RunContext
-from jaxdip.experiments.twip_dmso_config import TwipDmsoConfig
-from jaxdip.experiments.twip_dmso_report import ESTIMATORS, STATES, UNCERTAIN_NAMES, UNITS, findings, report
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from experiments.twip_dmso.config import TwipDmsoConfig
+import experiments.twip_dmso.report as R  # the module: its report() would shadow it as an attribute
+from experiments.twip_dmso.report import ESTIMATORS, STATES, UNCERTAIN_NAMES, UNITS, findings
 from jaxdip.scenarios import twip_dmso as S
 from jaxdip.scenarios.twip_initial import thesis_x0
 
@@ -360,7 +361,7 @@ def run(cfg: TwipDmsoConfig, ctx: RunContext | None = None, progress: bool = Tru
     results["findings"] = findings(results)
     if fell:  # seeds whose |phi| passed tilt_bound_deg (or whose state became non-finite), per case and estimator
         results["failures"] = {"diverged": fell, "tilt_bound_deg": cfg.tilt_bound_deg}
-    return Outcome(results=results, report=report(cfg, results), figures=figures)
+    return Outcome(results=results, report=R.report(cfg, results), figures=figures)
 
 
 EXPERIMENT = Experiment(
@@ -372,4 +373,5 @@ EXPERIMENT = Experiment(
            "kf_readings": False},
     source="Stumfoll MS thesis §8.1 (Figs. 8.1-8.14), DMSO eqs. (3)-(6), (172)-(178), sensors §7.4",
     quick_effort="fast",  # compiling dominates its quick run (measured)
+    quick_cost_s=10,
 )

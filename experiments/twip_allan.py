@@ -23,7 +23,7 @@ import numpy as np
 
 import jaxdip as jd
 from jaxdip import config as C
-from jaxdip.experiments.base import Experiment, Outcome, RunContext
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext
 
 SENSORS = ("tilt", "gyro")
 HOLD_FRACTION = 0.8  # a sensor holds when the law lies inside our interval at this fraction of the cluster times
