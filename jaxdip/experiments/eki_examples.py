@@ -84,9 +84,8 @@ class EkiExampleConfig:
 THESIS_V = {"linear": [-0.9975, -0.07], "nonlinear": [0.9950, 0.1003]}
 
 
-def _plant(cfg) -> jd.LegacyPlant:
-    plant = examples2d.linear() if cfg.example == "linear" else examples2d.nonlinear()
-    return jd.LegacyPlant(plant, plant.default_params())
+def _plant(cfg) -> jd.DiscretePlant:
+    return examples2d.Linear() if cfg.example == "linear" else examples2d.Nonlinear()
 
 
 def make_eki(cfg):

@@ -10,7 +10,7 @@ cpx: gamma of CPX on the DIP stabilisation task of ``dip-cpx-ldf`` (the scenario
 loss per seed = time variance of alpha plus that of theta (deg^2) + ``divergence_penalty`` if it diverged.
 The encoders quantise, so one sample path's loss is piecewise constant in gamma with jumps (finite differences
 of it measure the jumps); ``smoothing = "straight_through"`` differentiates the quantiser as the identity
-(``jaxdip.tune.straight_through_sensor``), ``"none"`` uses the exact pathwise derivative (round' = 0).
+(``jaxdip.sim.sensors.LinearSensor(..., straight_through=True)``), ``"none"`` uses the exact pathwise derivative (round' = 0).
 
 rwp, dmso, rp, extra: see ``RWPTarget``, ``DMSOTarget`` (Gamma and diag K_MSO on the noisy TWIP case of
 ``twip-dmso``; ``smoothing`` picks that experiment's ``encoder_gradient``), ``RPTarget`` (gamma of (2.14) on the

@@ -2,7 +2,7 @@
 (``Log``, ``Softplus``, ``Bounded``, ``SPDFactor``), a random-search baseline, and memory-bounded Monte Carlo
 objectives over closed loops (``mc_objective``: ``jax.checkpoint`` over chunks of the scan)."""
 
-from jaxdip.tune.objective import Objective, checkpointed, mc_objective, straight_through_sensor
+from jaxdip.tune.objective import Objective, checkpointed, mc_objective
 from jaxdip.tune.transforms import (Bounded, Identity, Log, Softplus, SPDFactor, Transform, identity_spec,
                                     to_constrained, to_unconstrained)
 from jaxdip.tune.tuner import (SearchResult, TuneResult, default_optimizer, random_search, tune,
@@ -10,4 +10,4 @@ from jaxdip.tune.tuner import (SearchResult, TuneResult, default_optimizer, rand
 
 __all__ = ["Bounded", "Identity", "Log", "Softplus", "SPDFactor", "Transform", "identity_spec", "to_constrained",
            "to_unconstrained", "SearchResult", "TuneResult", "default_optimizer", "random_search", "tune", "value_and_grad_fn",
-           "Objective", "checkpointed", "mc_objective", "straight_through_sensor"]
+           "Objective", "checkpointed", "mc_objective"]

@@ -4,13 +4,6 @@
 ``jax.checkpoint``-ed: reverse mode stores one loop state per chunk and recomputes a chunk's periods while it
 differentiates through it, so memory grows like n_steps / chunk + chunk instead of n_steps (chunk ~ sqrt(n_steps)
 is the usual choice). Randomness is per period (keyed by the absolute period index), so the chunking changes no number.
-
-``straight_through_sensor`` is the sensor of ``jaxdip.sim.sensors.linear_sensor`` whose quantiser passes
-gradients straight through (forward: the same rounded readings; backward: d round(y)/dy := 1). With the exact
-quantiser the pathwise derivative treats every reading as locally constant (round' = 0), which is the
-derivative of one sample path but misses the feedback through the encoders; with white noise of a fraction of a
-count before rounding, E[round(y + noise)] is close to y, so the straight-through derivative approximates the
-derivative of the *expected* loss.
 """
 
 from __future__ import annotations
@@ -19,9 +12,6 @@ from typing import Callable
 
 import jax
 import jax.numpy as jnp
-
-from jaxdip.sim.component import Component
-from jaxdip.sim.sensors import linear_sensor, quantize
 
 
 class Objective:
@@ -35,17 +25,6 @@ class Objective:
 
     def __call__(self, theta, key):
         return jnp.mean(self.per_seed(theta, key))
-
-
-def straight_through_sensor(dt: float, stationary_start: bool = True) -> Component:
-    base = linear_sensor(dt, stationary_start)
-
-    def step(params, bias, x, key, k):
-        bias, y_raw = base.step(params._replace(quantum=jnp.zeros_like(params.quantum)), bias, x, key, k)
-        y_q = quantize(jax.lax.stop_gradient(y_raw), params.quantum)
-        return bias, y_raw + jax.lax.stop_gradient(y_q - y_raw)
-
-    return Component(base.init, step)
 
 
 def checkpointed(rollout, key, chunk: int = 0):
