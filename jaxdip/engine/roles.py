@@ -16,8 +16,8 @@ index. A plant is continuous (``vector_field(x, u)``, integrated by RK4 sub-step
 discrete (``step(x, u)``); it names its states and inputs (``state_names``, ``input_names``) and may override
 ``equilibrium()``, the point the loop's state bound is measured from.
 
-This module imports nothing else from jaxdip at import time, so plants and sensors can subclass these roles
-without import cycles.
+This module imports only the engine's own modules (compile effort, RK4), so plants and sensors can subclass
+these roles without import cycles.
 """
 
 from __future__ import annotations
