@@ -249,7 +249,8 @@ class ExtraControl(Controller):
     extra: jax.Array = param()  # 1: apply u_e; 0: LQR alone (the networks still adapt, unused)
     v_scale: jax.Array = param()  # V1, V2 ~ U(-v_scale, v_scale)
     a_virtual: jax.Array = param()  # the gain inverted in (93): A2 as printed (see the module doc for the alternatives)
-    beta: jax.Array = param()  # 0 as printed; B1/B2 in the "flat" variant: e1, e2 are errors of x1 - beta x3, x2 - beta x4
+    # 0 as printed; B1/B2 in the "flat" variant: e1, e2 are errors of x1 - beta x3, x2 - beta x4
+    beta: jax.Array = param()
     tau_d: jax.Array = param()  # time constant (s) of the filtered difference that gives xbar4 (0: raw difference)
     ff: jax.Array = param()  # 1: u_nom includes the desired input u_d of (183); 0: (84) literally, u = -K (x - x_d)
     n_hidden: int = eqx.field(default=10, static=True)
