@@ -84,9 +84,8 @@ class EkiExampleConfig:
 THESIS_V = {"linear": [-0.9975, -0.07], "nonlinear": [0.9950, 0.1003]}
 
 
-def _plant(cfg) -> jd.LegacyPlant:
-    plant = examples2d.linear() if cfg.example == "linear" else examples2d.nonlinear()
-    return jd.LegacyPlant(plant, plant.default_params())
+def _plant(cfg) -> jd.DiscretePlant:
+    return examples2d.Linear() if cfg.example == "linear" else examples2d.Nonlinear()
 
 
 def make_eki(cfg):
@@ -138,7 +137,7 @@ def lqr_rollout(cfg, K, steps) -> jd.Rollout:
 def stabilizes(cfg, v, key, n_states):
     """Linear: spectral radius test; nonlinear: simulation from n_states random initial states."""
     if cfg.example == "linear":
-        prm = _plant(cfg).params
+        prm = _plant(cfg)
         T = projected_closed_loop(jnp.asarray(prm.A), jnp.asarray(prm.B).reshape(2, 1), P_v(v, cfg.s))
         rho = jnp.max(jnp.abs(jnp.linalg.eigvals(T)))
         return rho < 1.0, rho
@@ -176,7 +175,7 @@ def _steps(s: dict, k: str) -> str:
 def run(cfg: EkiExampleConfig, ctx: RunContext | None = None) -> Outcome:
     import matplotlib.pyplot as plt
 
-    prm = _plant(cfg).params
+    prm = _plant(cfg)
     base = jax.random.PRNGKey(cfg.seed)
     v, hist = search(cfg, jax.random.fold_in(base, 0))  # search 0; searches 1.. are search_success's
     v = np.asarray(v)

@@ -213,7 +213,7 @@ def window_spectrum(cfg: LorenzMheConfig):
     from jaxdip.theory.mhe import eig_gram
 
     x = jnp.asarray(cfg.x0_mean, dtype=jnp.float64)
-    lm = local_model(lorenz.f, lorenz.default_params(), x, jnp.zeros(1), cfg.h)
+    lm = local_model(lorenz.f, lorenz.Lorenz(), x, jnp.zeros(1), cfg.h)
     lam, _ = eig_gram(centered_matrix(lm, lorenz.output_matrix()))
     return np.asarray(lam)
 

@@ -19,7 +19,7 @@ from jaxdip import plants, sim  # noqa: E402,F401
 from jaxdip import control, estimators  # noqa: E402,F401
 from jaxdip.engine import (  # noqa: E402,F401
     RESULTS, Actuator, Aux, Ball, Controller, DiscretePlant, Estimator, FanOut, FanOutAux, Identity, KeySchedule,
-    Legacy, LegacyPlant, Loop, Passthrough, Plant, Rollout, Sample, Sensor, Solution, State, init_state, linearize,
+    Loop, Passthrough, Plant, Rollout, Sample, Sensor, Solution, State, init_state, linearize,
     metrics, monte_carlo, param, simulate, split_lanes,
 )
 from jaxdip.sim import sensors  # noqa: E402,F401

@@ -1,5 +1,7 @@
 """The closed loop jaxdip ran before the engine (``jaxdip.engine``), kept frozen as a reference: tests check that
-the engine and its native components reproduce it. Not part of the library.
+the engine reproduces it. Not part of the library. Its own scan, key schedule and statistics; the components are
+the engine's roles, stepped here (their ``aux`` is dropped), and they travel in ``Loop``, which the callers pass
+through ``eqx.filter_jit`` so their numbers are traced as the engine's are.
 
 The generic closed loop: plant, sensor, estimator, controller and actuator in one ``lax.scan``.
 
@@ -22,32 +24,25 @@ from typing import Any, Callable, NamedTuple, Optional
 import jax
 import jax.numpy as jnp
 
-from jaxdip.plants.base import Plant
-from jaxdip.sim.component import Component, identity
-from jaxdip.sim.integrate import make_period_map
+import jaxdip as jd
 
 
 class Loop(NamedTuple):
-    """Structure of a closed loop (static under jit): which functions, not which numbers."""
+    """The closed loop's components (engine roles) and its timing."""
 
-    plant: Plant
+    plant: jd.Plant
     dt: float
-    sensor: Component
-    estimator: Component
-    controller: Component
-    actuator: Component = identity
+    sensor: jd.Sensor
+    estimator: jd.Estimator
+    controller: jd.Controller
+    actuator: jd.Actuator = jd.Identity()
     substeps: int = 10
     tail_steps: int = 0  # length of the final window whose max |x| decides "stabilised"
 
 
 class LoopParams(NamedTuple):
-    """Everything numeric about a loop: the pytree that is vmapped, sharded and differentiated."""
+    """The loop's noise and bound."""
 
-    plant: Any
-    sensor: Any
-    estimator: Any
-    controller: Any
-    actuator: Any = ()
     process_noise_std: Any = 0.0  # std of Gaussian noise added to the state after each period
     state_bound: Any = jnp.inf  # |x - x_eq| above this (per state) counts as divergence
 
@@ -101,10 +96,10 @@ def init_carry(loop: Loop, params: LoopParams, x0, seed_key) -> Carry:
     return Carry(
         k=jnp.zeros((), jnp.int32),
         x=x0,
-        sensor=loop.sensor.init(params.sensor, k_sens, x0),
-        estimator=loop.estimator.init(params.estimator, k_est, x0),
-        controller=loop.controller.init(params.controller, k_ctrl, x0),
-        actuator=loop.actuator.init(params.actuator, k_act, x0),
+        sensor=loop.sensor.init(k_sens, x0),
+        estimator=loop.estimator.init(k_est, x0),
+        controller=loop.controller.init(k_ctrl, x0),
+        actuator=loop.actuator.init(k_act, x0),
         u_prev=jnp.zeros(m),
         diverged=jnp.zeros((), bool),
         diverged_at=jnp.full((), -1, jnp.int32),
@@ -114,29 +109,28 @@ def init_carry(loop: Loop, params: LoopParams, x0, seed_key) -> Carry:
 
 def make_step(loop: Loop, n_steps: int) -> Callable:
     """One period of the loop as ``(params, seed_key, carry) -> (carry, Record)``."""
-    period = make_period_map(loop.plant, loop.dt, loop.substeps)
     tail_start = n_steps - loop.tail_steps
 
     def step(params: LoopParams, seed_key, c: Carry):
         key = jax.random.fold_in(jax.random.fold_in(seed_key, 2), c.k)
         k_sens, k_est, k_ctrl, k_act, k_proc = jax.random.split(key, 5)
-        s_sens, y = loop.sensor.step(params.sensor, c.sensor, c.x, k_sens, c.k)
-        s_est, xhat = loop.estimator.step(params.estimator, c.estimator, (y, c.u_prev), k_est, c.k)
-        s_ctrl, u = loop.controller.step(params.controller, c.controller, xhat, k_ctrl, c.k)
+        s_sens, y, _ = loop.sensor.step(c.sensor, c.x, k_sens, c.k)
+        s_est, xhat, _ = loop.estimator.step(c.estimator, y, c.u_prev, k_est, c.k)
+        s_ctrl, u, _ = loop.controller.step(c.controller, xhat, k_ctrl, c.k)
         u = jnp.reshape(u, (loop.plant.m,))
-        s_act, u_applied = loop.actuator.step(params.actuator, c.actuator, u, k_act, c.k)
+        s_act, u_applied, _ = loop.actuator.step(c.actuator, u, k_act, c.k)
 
-        x_next = period(params.plant, c.x, u_applied)
+        x_next = loop.plant.period(c.x, u_applied, loop.dt, loop.substeps)
         noise = params.process_noise_std * jax.random.normal(k_proc, c.x.shape)
         x_next = x_next + noise
-        dev = jnp.abs(x_next - loop.plant.x_eq(params.plant))
+        dev = jnp.abs(x_next - loop.plant.equilibrium())
         bad = ~jnp.all(jnp.isfinite(x_next)) | jnp.any(dev > params.state_bound)
         newly = bad & ~c.diverged
         diverged = c.diverged | bad
         live = ~diverged  # this period's statistics count only if the trajectory is still alive after it
 
         st = c.stats
-        ax = jnp.abs(c.x - loop.plant.x_eq(params.plant))
+        ax = jnp.abs(c.x - loop.plant.equilibrium())
         au = jnp.abs(u)
         w = live.astype(c.x.dtype)
         in_tail = (c.k >= tail_start) & live

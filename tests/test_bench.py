@@ -5,8 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxdip as jd
-from jaxdip.bench.scoreboard import integration_errors, numpy_dip_f, numpy_loop, scipy_loop
-from jaxdip.plants.dip import DIPParams
+from jaxdip.bench.scoreboard import integration_errors, numpy_dip_f, numpy_dip_params, numpy_loop, scipy_loop
 
 
 def test_numpy_dip_equals_the_jax_model():
@@ -15,7 +14,7 @@ def test_numpy_dip_equals_the_jax_model():
     for _ in range(20):
         x = rng.uniform(-1, 1, 6) * np.array([0.5, 1.0, 1.0, 2.0, 5.0, 5.0])
         V = rng.uniform(-5, 5)
-        ref = numpy_dip_f(DIPParams(), x, V)
+        ref = numpy_dip_f(numpy_dip_params(), x, V)
         got = np.asarray(plant.vector_field(jnp.asarray(x), jnp.asarray([V])))
         np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12 * np.max(np.abs(ref)))
 

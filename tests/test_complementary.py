@@ -7,25 +7,23 @@ import numpy as np
 import jax
 import jax.numpy as jnp
 
-from jaxdip.estimators.complementary import (complementary_filter, complementary_params, complementary_update,
-                                             tilt_prefilter)
-from jaxdip.sim import chain
-from jaxdip.sim.twip_sensors import table_7_1, twip_sensor, twip_sensor_params
+from jaxdip.estimators.complementary import ComplementaryFilter
+from jaxdip.sim.twip_sensors import TwipSensors, complementary_update, table_7_1
 
 ALPHA, DT = 0.99, 0.01
 
 
 def run_cf(rates, angles, init_from_angle=True, alpha=ALPHA):
-    comp = complementary_filter(init_from_angle)
-    p = complementary_params(alpha, DT)
+    """The filter on the measurement [angle, rate] (angle_index 0, rate_index 1); returns the filtered angles."""
+    comp = ComplementaryFilter(alpha, DT, angle_index=0, rate_index=1, init_from_angle=init_from_angle)
 
     def body(th, inp):
         k, r, a = inp
-        th, out = comp.step(p, th, (r, a), None, k)
-        return th, out
+        th, y, _ = comp.step(th, jnp.stack([a, r]), None, None, k)
+        return th, y[0]
 
-    _, out = jax.lax.scan(body, comp.init(p, None, None), (jnp.arange(len(rates)), jnp.asarray(rates),
-                                                            jnp.asarray(angles)))
+    _, out = jax.lax.scan(body, comp.init(None, None), (jnp.arange(len(rates)), jnp.asarray(rates),
+                                                         jnp.asarray(angles)))
     return np.asarray(out)
 
 
@@ -72,27 +70,22 @@ def test_accelerometer_white_noise_is_attenuated_as_predicted():
     assert abs(var / pred - 1) < 4 * rel_se, (var, pred)
 
 
-def test_tilt_prefilter_replaces_only_the_angle_channel():
-    comp = tilt_prefilter(2, 3)
-    p = complementary_params(ALPHA, DT)
+def test_filter_replaces_only_the_angle_channel():
+    comp = ComplementaryFilter(ALPHA, DT, angle_index=2, rate_index=3)
     y = jnp.array([1.0, 2.0, 0.3, 0.5])
-    st = comp.init(p, None, None)
-    st, out0 = comp.step(p, st, y, None, 0)
-    st, out1 = comp.step(p, st, y, None, 1)
+    st = comp.init(None, None)
+    st, out0, _ = comp.step(st, y, None, None, 0)
+    st, out1, _ = comp.step(st, y, None, None, 1)
     np.testing.assert_allclose(np.asarray(out0), [1.0, 2.0, 0.3, 0.5])
     np.testing.assert_allclose(np.asarray(out1), [1.0, 2.0, ALPHA * (0.3 + 0.5 * DT) + (1 - ALPHA) * 0.3, 0.5])
 
 
-def _sensor_run(params, xs, use_cf=True, dt=DT):
-    comp = twip_sensor(dt)
-    if use_cf:
-        comp = chain(comp, tilt_prefilter(2, 3))
-        params = (params, complementary_params(ALPHA, dt))
-    st = comp.init(params, jax.random.PRNGKey(1), xs[0])
+def _sensor_run(sens, xs):
+    st = sens.init(jax.random.PRNGKey(1), xs[0])
 
     def body(st, inp):
         k, x = inp
-        return comp.step(params, st, x, jax.random.fold_in(jax.random.PRNGKey(2), k), k)
+        return sens.step(st, x, jax.random.fold_in(jax.random.PRNGKey(2), k), k)[:2]
 
     _, ys = jax.lax.scan(body, st, (jnp.arange(xs.shape[0]), jnp.asarray(xs)))
     return np.asarray(ys)
@@ -102,11 +95,12 @@ def test_noiseless_twip_sensor_encoder_and_filter():
     """With the inertial noise off: the position is quantised, the velocity is the difference of quantised
     positions over dt (0 at the first sample), the filtered tilt follows a smooth angle, the gyro is exact."""
     q = 0.000147
-    p = twip_sensor_params(0.0, 0.0, 1.0, 0.0, 0.0, 1.0, q)
+    sens = TwipSensors.table_7_1(DT, tilt_white_std=0.0, tilt_gm_sigma=0.0, tilt_gm_tau=1.0, gyro_white_std=0.0,
+                                 gyro_gm_sigma=0.0, gyro_gm_tau=1.0, encoder_quantum=q, cf_alpha=ALPHA)
     n = 300
     t = np.arange(n) * DT
     xs = np.stack([0.3 * np.sin(t), 0.3 * np.cos(t), 0.1 * t, np.full(n, 0.1)], 1)
-    ys = _sensor_run(p, xs)
+    ys = _sensor_run(sens, xs)
     pq = q * np.round(xs[:, 0] / q)
     np.testing.assert_allclose(ys[:, 0], pq, rtol=0, atol=1e-15)
     assert np.abs(ys[:, 0] - xs[:, 0]).max() <= q / 2 + 1e-15
@@ -120,18 +114,17 @@ def test_twip_sensor_noise_levels_of_table_7_1():
     """White noise of the Table 7.1 variances on the raw tilt and gyro channels; the walking biases start at
     zero (calibrated at start-up) and wander by about sigma_b sqrt(t)."""
     t71 = table_7_1()
-    p = twip_sensor_params(**t71)
-    comp = twip_sensor(DT)
+    comp = TwipSensors.table_7_1(DT, cf_alpha=0.0)  # alpha = 0: the tilt channel is the raw theta_a
     n_seeds, n = 2000, 50
 
     def one(key):
-        st = comp.init(p, key, jnp.zeros(4))
+        st = comp.init(key, jnp.zeros(4))
 
         def body(st, k):
-            return comp.step(p, st, jnp.zeros(4), jax.random.fold_in(key, k), k)
+            return comp.step(st, jnp.zeros(4), jax.random.fold_in(key, k), k)[:2]
 
         st, ys = jax.lax.scan(body, st, jnp.arange(n))
-        return ys, st.bias
+        return ys, st[0].bias
 
     ys, bias = jax.jit(jax.vmap(one))(jax.random.split(jax.random.PRNGKey(0), n_seeds))
     ys, bias = np.asarray(ys), np.asarray(bias)

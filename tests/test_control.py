@@ -7,18 +7,18 @@ import numpy as np
 import pytest
 
 from jaxdip.control import care, dare, dlqr, lqr
-from jaxdip.control.power_series import power_series_law, ps_params, third_order_term
+from jaxdip.control.power_series import PowerSeries, third_order_term
 from jaxdip.control.projection import projected_closed_loop
 from jaxdip.control.spd import P_v, P_Vs, gram_schmidt_basis, householder_basis, surface_normal
 from jaxdip.plants import dip, examples2d
-from jaxdip.sim import linearize, zoh
+from jaxdip.engine.roles import linearize
+from jaxdip.sim import zoh
 
 Q_DIP = np.diag([30.0, 350.0, 100.0, 0, 0, 0])
 
 
 def _dip_linear():
-    plant = dip.make()
-    return [np.asarray(m) for m in linearize(plant.f, plant.default_params(), jnp.zeros(6), jnp.zeros(1))]
+    return [np.asarray(m) for m in linearize(dip.DIP(), jnp.zeros(6), jnp.zeros(1))]
 
 
 def _fd(f, x, eps):
@@ -83,9 +83,8 @@ def test_lqr_gain_gradient_wrt_weights_on_dip():
 
 
 def test_third_order_term_matches_finite_differences():
-    plant = dip.make()
-    p = plant.default_params()
-    drift = lambda z: plant.f(p, z, jnp.zeros(1))
+    plant = dip.DIP()
+    drift = lambda z: plant.vector_field(z, jnp.zeros(1))
     A = np.asarray(jax.jacfwd(drift)(jnp.zeros(6)))
     x = jnp.array([0.2, 0.5, -0.3, 1.0, 2.0, -1.0])
     f3 = np.asarray(third_order_term(drift, x))
@@ -101,15 +100,14 @@ def test_third_order_term_matches_finite_differences():
 
 
 def test_power_series_linear_part_is_lqr():
-    plant = dip.make()
-    p = plant.default_params()
-    ps = ps_params(plant, p, Q_DIP, 0.1)
-    J = np.asarray(jax.jit(jax.jacfwd(lambda x: power_series_law(plant, ps, x)))(jnp.zeros(6)))
+    ps = PowerSeries.design(dip.DIP(), Q_DIP, 0.1)
+    law = lambda x: ps.step((), x, None, 0)[1]
+    J = np.asarray(jax.jit(jax.jacfwd(law))(jnp.zeros(6)))
     A, B = _dip_linear()
     Kc, _, _ = ct.lqr(A, B, Q_DIP, 0.1)
     np.testing.assert_allclose(J, -Kc, rtol=1e-9, atol=1e-9)
     x = jnp.array([0.0, 0.1, -0.05, 0, 0, 0])
-    assert abs(float(jax.jit(lambda z: power_series_law(plant, ps, z))(x)[0]) + float(Kc[0] @ x)) > 1e-4  # the cubic part is not nil
+    assert abs(float(jax.jit(law)(x)[0]) + float(Kc[0] @ x)) > 1e-4  # the cubic part is not nil
 
 
 def test_spd_constructions():
@@ -135,7 +133,7 @@ def test_spd_constructions():
 
 
 def test_linear_example_thesis_v_is_stabilising():
-    prm = examples2d.linear().default_params()
+    prm = examples2d.Linear()
     A, B = jnp.asarray(prm.A), jnp.asarray(prm.B).reshape(2, 1)
     T = projected_closed_loop(A, B, P_v(jnp.array([-0.9975, -0.07]), 1e6))
     assert np.max(np.abs(np.linalg.eigvals(np.asarray(T)))) < 1

@@ -19,8 +19,8 @@ from jaxdip.estimators.ldf import LDFParams, ldf
 from jaxdip.estimators.run import filter_sequence
 from jaxdip.plants import dip
 from jaxdip.scenarios import dip_cpx_ldf as S
-from jaxdip.sim import dip_sensors, linearize
-from jaxdip.sim.disturbance import input_disturbance, input_disturbance_params
+from jaxdip.sim import dip_sensors
+from jaxdip.sim.disturbance import InputDisturbance
 from jaxdip.theory import mhe
 
 
@@ -74,13 +74,12 @@ def test_ldf_frequency_response_matches_analytic(w):
 
 def test_encoder_outputs_are_whole_counts():
     names = dip.STATE_NAMES
-    sp = dip_sensors.encoder_params(names, noise_counts=0.7)
+    sp = dip_sensors.encoders(1e-3, names, noise_counts=0.7)
     assert np.allclose(sp.quantum, [2.2749e-5, 2 * np.pi / 4096, 2 * np.pi / 4096], rtol=1e-4)
-    sensor = dip_sensors.encoder_sensor(1e-3)
     xs = jax.random.uniform(jax.random.PRNGKey(1), (500, 6), minval=-0.3, maxval=0.3)
     keys = jax.random.split(jax.random.PRNGKey(2), 500)
-    st = sensor.init(sp, keys[0], xs[0])
-    ys = jax.vmap(lambda x, k: sensor.step(sp, st, x, k, 0)[1])(xs, keys)
+    st = sp.init(keys[0], xs[0])
+    ys = jax.vmap(lambda x, k: sp.step(st, x, k, 0)[1])(xs, keys)
     counts = np.asarray(ys) / np.asarray(sp.quantum)
     assert np.allclose(counts, np.round(counts), atol=1e-9)
     idx = [names.index(n) for n in ("xc", "alpha", "theta")]
@@ -88,31 +87,30 @@ def test_encoder_outputs_are_whole_counts():
     # noise of 0.7 count plus rounding (variance 1/12 count^2) -- and not just rounding
     assert np.all(np.abs(err.std(axis=0) - math.sqrt(0.49 + 1 / 12)) < 0.1)
     # without noise: exactly the nearest count
-    clean = dip_sensors.encoder_params(names, noise_counts=0.0)
-    y0 = sensor.step(clean, st, xs[3], keys[3], 0)[1]
+    clean = dip_sensors.encoders(1e-3, names, noise_counts=0.0)
+    y0 = clean.step(st, xs[3], keys[3], 0)[1]
     q = np.asarray(clean.quantum)
     assert np.allclose(np.asarray(y0), q * np.round(np.asarray(xs[3])[idx] / q), atol=1e-15)
 
 
 def test_input_disturbance_offset_and_white_part():
-    act = input_disturbance()
-    p = input_disturbance_params(offset_std=0.3, white_std=2.0)
+    act = InputDisturbance(offset_std=0.3, white_std=2.0)
     offs, outs = [], []
     for s in range(400):
-        st = act.init(p, jax.random.PRNGKey(s), jnp.zeros(6))
+        st = act.init(jax.random.PRNGKey(s), jnp.zeros(6))
         offs.append(float(st[0]))
-    st = act.init(p, jax.random.PRNGKey(0), jnp.zeros(6))
+    st = act.init(jax.random.PRNGKey(0), jnp.zeros(6))
     keys = jax.random.split(jax.random.PRNGKey(9), 4000)
-    outs = np.asarray(jax.vmap(lambda k: act.step(p, st, jnp.ones(1), k, 0)[1])(keys))[:, 0]
+    outs = np.asarray(jax.vmap(lambda k: act.step(st, jnp.ones(1), k, 0)[1])(keys))[:, 0]
     assert abs(np.std(offs) - 0.3) < 0.05
     assert abs(np.mean(outs) - (1.0 + float(st[0]))) < 0.1 and abs(np.std(outs) - 2.0) < 0.1
 
 
 def _reference_criterion(**changes) -> float:
-    """Prop. 1.4.3's criterion at 1 ms from the plain-function printed model (``changes`` to its parameters),
+    """Prop. 1.4.3's criterion at 1 ms from the printed model (``changes`` to its parameters),
     the ZOH matrices by SciPy's expm, the outputs xc, alpha, theta."""
-    plant = dip.make("printed")
-    A, _ = linearize(plant.f, plant.default_params()._replace(**changes), jnp.zeros(6), 0.0)
+    plant = dip.DIP(**changes)
+    A, _ = jd.linearize(plant, jnp.zeros(6), 0.0)
     A = np.asarray(A)
     Cm = np.zeros((3, 6))
     for i, n in enumerate(("xc", "alpha", "theta")):
@@ -129,7 +127,7 @@ def test_gamma_criterion_matches_theory_and_thesis():
 
 
 def test_gamma_criterion_without_mw_is_the_printed_equations_number():
-    # the same route from the plain-function model with Table 3.3's Mw taken off the cart: the criterion the
+    # the same route from the printed model with Table 3.3's Mw taken off the cart: the criterion the
     # fidelity rows name beside the default's (29148 against 24362)
     ref = _reference_criterion(Mw=0.0)
     got = S.DipCpxLdf().gamma_criterion(dip.DIP(variant="printed", Mw=0.0))["gamma"]

@@ -10,12 +10,10 @@ import scipy.linalg as sla
 import scipy.signal as ssig
 
 from jaxdip.plants import dip
-from jaxdip.sim.discretize import linearize, linearize_discrete, zoh
+from jaxdip.engine.roles import linearize
+from jaxdip.sim.discretize import zoh
 
 TOL = 1e-12
-
-# linearize is what is tested; jit only avoids ~8 s of op-by-op dispatch of the Lagrangian's nested autodiff
-jlinearize = jax.jit(linearize, static_argnums=0)
 
 
 def rel(a, b):
@@ -40,9 +38,8 @@ def _random_systems():
 
 def _dip_systems():
     out = []
-    p = dip.default_params()
     for v in ("printed", "lagrangian"):
-        A, B = jlinearize(dip.make(v).f, p, jnp.zeros(6), 0.0)
+        A, B = linearize(dip.DIP(variant=v), jnp.zeros(6), 0.0)
         out.append((f"dip-{v}", np.asarray(A), np.asarray(B), 1e-3))
     return out
 
@@ -89,15 +86,6 @@ def test_zoh_singular_A_integrator_closed_form():
     np.testing.assert_allclose(d.Phi_inv, Phi_inv, rtol=1e-14, atol=1e-15)
 
 
-def test_linearize_discrete_is_zoh_of_linearize():
-    p = dip.default_params()
-    A, B = jlinearize(dip.f_printed, p, jnp.zeros(6), 0.0)
-    d1 = zoh(A, B, 1e-3)
-    d2 = jax.jit(linearize_discrete, static_argnums=0)(dip.f_printed, p, jnp.zeros(6), 0.0, 1e-3)
-    for a, b in zip(d1, d2):
-        assert rel(a, b) < 1e-15
-
-
 # ---- linearize vs central finite differences --------------------------------------------------------------
 
 
@@ -134,25 +122,24 @@ POINTS = {
 @pytest.mark.parametrize("variant", ["printed", "lagrangian"])
 @pytest.mark.parametrize("point", list(POINTS))
 def test_linearize_vs_finite_differences(variant, point):
-    p = dip.default_params()
-    f = jax.jit(lambda x, u: dip.make(variant).f(p, x, u))
+    plant = dip.DIP(variant=variant)
+    f = jax.jit(lambda x, u: plant.vector_field(x, u))
     x0, u0 = POINTS[point]
-    A, B = jlinearize(dip.make(variant).f, p, x0, u0)
+    A, B = linearize(plant, x0, u0)
     Afd, Bfd = central_fd(f, x0, u0)
     assert A.shape == (6, 6) and B.shape == (6, 1)
     assert rel(A, Afd) < 1e-7, rel(A, Afd)
     assert rel(B, Bfd) < 1e-7, rel(B, Bfd)
     # the test can fail: a Jacobian at the wrong point is far off
     if point == "random":
-        A0, _ = jlinearize(dip.make(variant).f, p, np.zeros(6), 0.0)
+        A0, _ = linearize(plant, np.zeros(6), 0.0)
         assert rel(A0, Afd) > 1e-3
 
 
 def test_linearize_dip_structure():
     """Kinematic rows are [0 I]; the input reaches only the accelerations."""
-    p = dip.default_params()
     for v in ("printed", "lagrangian"):
-        A, B = jlinearize(dip.make(v).f, p, np.zeros(6), 0.0)
+        A, B = linearize(dip.DIP(variant=v), np.zeros(6), 0.0)
         np.testing.assert_array_equal(np.asarray(A)[:3], np.hstack([np.zeros((3, 3)), np.eye(3)]))
         np.testing.assert_array_equal(np.asarray(B)[:3], 0.0)
         # the cart position is an integrator: A is singular

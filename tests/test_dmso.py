@@ -39,7 +39,7 @@ def numpy_dmso(F, G, B, K, Gamma, s, c, ys, us):
 def data():
     rng = np.random.default_rng(7)
     T = 1000
-    F, G, _, _ = (np.asarray(a) for a in twip_discrete(twip.default_params(), 0.01))
+    F, G, _, _ = (np.asarray(a) for a in twip_discrete(twip.TWIP(), 0.01))
     t = np.arange(T) * 0.01
     # measurements with the size and smoothness of a TWIP run, plus noise; inputs of a few volts
     ys = np.stack([np.cos(0.3 * t), 0.5 * np.sin(0.7 * t), 0.2 * np.sin(2.1 * t), 0.4 * np.cos(2.1 * t)], 1)
@@ -80,7 +80,7 @@ def test_matrix_gamma_equals_scalar_gamma(data):
 def _linear_run(F, G, K, x0, T, rng):
     """y = x of the exactly linear model x_{k+1} = F x_k + G u_k (no uncertainty) and the DMSO with Gamma = 0.
     u = LQR feedback plus a random excitation keeps the (open-loop unstable) state of order one."""
-    Klqr = np.asarray(twip_dlqr(twip.default_params(), Q_THESIS, R_THESIS, 0.01).K)
+    Klqr = np.asarray(twip_dlqr(twip.TWIP(), Q_THESIS, R_THESIS, 0.01).K)
     xs = [np.asarray(x0, float)]
     us = []
     for _ in range(T):
@@ -95,7 +95,7 @@ def _linear_run(F, G, K, x0, T, rng):
 
 def test_gamma_zero_is_a_luenberger_observer_decaying_at_eig_F_minus_K():
     rng = np.random.default_rng(3)
-    F, G, _, _ = (np.asarray(a) for a in twip_discrete(twip.default_params(), 0.01))
+    F, G, _, _ = (np.asarray(a) for a in twip_discrete(twip.TWIP(), 0.01))
     # K chosen so that F - K = M has eigenvalues 0.9, 0.7, 0.5, 0.3 (a random similarity)
     V = rng.normal(size=(4, 4))
     M = V @ np.diag([0.9, 0.7, 0.5, 0.3]) @ np.linalg.inv(V)
@@ -116,7 +116,7 @@ def test_gamma_zero_is_a_luenberger_observer_decaying_at_eig_F_minus_K():
 def test_thesis_gain_K_identity_has_error_matrix_F_minus_I():
     """With K_MSO = I (174) the error obeys e_{k+1} = (F - I) e_k, whose spectral radius is e^{6.29 dt} - 1."""
     rng = np.random.default_rng(4)
-    F, G, A, _ = (np.asarray(a) for a in twip_discrete(twip.default_params(), 0.01))
+    F, G, A, _ = (np.asarray(a) for a in twip_discrete(twip.TWIP(), 0.01))
     xs, xh, _ = _linear_run(F, G, np.eye(4), [1.0, 0.3, 0.17, 0.017], 12, rng)
     e = xs - xh
     M = F - np.eye(4)
@@ -139,7 +139,7 @@ def test_section_7_1_G_formula_against_augmented_exponential():
     from jaxdip.sim import zoh
 
     dt = 0.01
-    A, B = (np.asarray(a) for a in twip.linear_model_closed_form(twip.default_params()))
+    A, B = (np.asarray(a) for a in twip.linear_model_closed_form(twip.TWIP()))
     assert np.linalg.matrix_rank(A) == 3
     # an invertible A of the same size: the printed formula and zoh agree
     A2 = A + np.diag([-0.5, 0.0, 0.0, 0.0])
@@ -153,14 +153,14 @@ def test_section_7_1_G_formula_against_augmented_exponential():
     for k in range(1, 30):
         G_series += term @ B
         term = term @ A * dt / (k + 1)
-    F, G, _, _ = twip_discrete(twip.default_params(), dt)
+    F, G, _, _ = twip_discrete(twip.TWIP(), dt)
     np.testing.assert_allclose(np.asarray(G), G_series, rtol=1e-13, atol=1e-18)
     np.testing.assert_allclose(np.asarray(F), scipy.linalg.expm(A * dt), rtol=1e-13, atol=1e-16)
 
 
 def test_twip_dlqr_matches_python_control():
     control = pytest.importorskip("control")
-    d = twip_dlqr(twip.default_params(), Q_THESIS, R_THESIS, 0.01)
+    d = twip_dlqr(twip.TWIP(), Q_THESIS, R_THESIS, 0.01)
     K, S, E = control.dlqr(np.asarray(d.F), np.asarray(d.G), np.diag(Q_THESIS), R_THESIS)
     np.testing.assert_allclose(np.asarray(d.K), K, rtol=1e-8)
     np.testing.assert_allclose(np.asarray(d.S), S, rtol=1e-8)
@@ -207,7 +207,7 @@ def test_native_dmso_and_kf_readings_equal_the_components():
     from jaxdip.estimators.kalman import KFParams, kalman
     from jaxdip.estimators.kf import KalmanFilter
 
-    d = twip_dlqr(twip.default_params(), Q_THESIS, R_THESIS, 0.01)
+    d = twip_dlqr(twip.TWIP(), Q_THESIS, R_THESIS, 0.01)
     p = dmso_params(d.F, d.G, selection_matrix(4, (1, 3)), K=0.5 * jnp.eye(4), Gamma=0.2)
     kp = KFParams(d.F, d.G, jnp.eye(4), 1e-3 * jnp.eye(4), 1e-4 * jnp.eye(4), 0.01 * jnp.eye(4), jnp.zeros(4))
     key = jax.random.PRNGKey(2)

@@ -19,8 +19,8 @@ from jaxdip.scenarios.twip_initial import thesis_x0
 
 
 def _params(**kw):
-    d = twip_dlqr(twip.default_params(), Q=(1.0, 1.0, 0.1, 0.1), R=1.0, dt=0.01)
-    return ec.extra_control_params(d.K, d.A, d.B, **kw)
+    d = twip_dlqr(twip.TWIP(), Q=(1.0, 1.0, 0.1, 0.1), R=1.0, dt=0.01)
+    return ec.ExtraControl.design(d.K, d.A, d.B, **kw)
 
 
 def _numpy_step(p, s, x, k):
@@ -61,8 +61,8 @@ def _numpy_step(p, s, x, k):
 @pytest.mark.parametrize("virtual", ["printed", "effective", "flat"])
 def test_one_step_matches_numpy(virtual):
     p = _params(virtual=virtual, gamma=0.3, sigma=0.05, v_scale=0.5)
-    p = p._replace(gamma12=jnp.asarray(0.7), sigma21=jnp.asarray(0.02))
-    comp = ec.ExtraControl.of(p, 10)
+    p = eqx.tree_at(lambda c: (c.gamma12, c.sigma21), p, (jnp.asarray(0.7), jnp.asarray(0.02)))
+    comp = p
     key = jax.random.PRNGKey(3)
     s = comp.init(key, jnp.zeros(4))
     ks = jax.random.split(jax.random.PRNGKey(4), 4)
@@ -98,7 +98,7 @@ def test_error_system_with_true_F_decays_as_linear_part():
     A = np.array([[0, 1, 0, 0], [0, -0.4, 2.0, 0], [0, 0, 0, 1], [0, -0.3, 5.0, 0]], float)
     B = np.array([[0.0], [0.0], [0.0], [1.5]])
     K = np.array([[-1.0, -2.0, 30.0, 6.0]])
-    p = ec.extra_control_params(K, A, B, k1=2.0, k2=3.0, v_d=0.1, u_max=np.inf)
+    p = ec.ExtraControl.design(K, A, B, k1=2.0, k2=3.0, v_d=0.1, u_max=np.inf)
     A1, A2, A3, A4, B1, B2 = (p.A1, p.A2, p.A3, p.A4, p.B1, p.B2)
     d1 = lambda x: 0.3 * x[1] * jnp.sin(2.0 * x[0])  # noqa: E731  smooth unmatched term in x1, x2
     d2 = lambda x: 0.2 * x[1] ** 2 + 0.1 * jnp.sin(x[2])  # noqa: E731
@@ -199,10 +199,10 @@ def test_unmodeled_dynamics_and_backlash_wiring():
     d1, d2 = lp.plant.unmodeled(x)
     assert math.isclose(float(d1), 0.75 * 0.2 * math.sin(180 / math.pi * 0.3)) and math.isclose(float(d2), 0.4 * 0.04)
     u = jnp.array([0.7])
-    ref = twip.f(twip.perturbed_params(), x, u) + jnp.array([0.0, float(d1), 0.0, float(d2)])
+    ref = twip.f(twip.TWIP.table("8.2"), x, u) + jnp.array([0.0, float(d1), 0.0, float(d2)])
     np.testing.assert_allclose(np.asarray(lp.plant.vector_field(x, u)), np.asarray(ref), rtol=1e-15, atol=1e-15)
     assert float(S.loop("unmodeled_unstable", "nominal", c).plant.g1) == 0.0
-    assert float(S.loop("unmodeled_unstable", "nominal", c).plant.km) == twip.default_params().km
+    assert float(S.loop("unmodeled_unstable", "nominal", c).plant.km) == float(twip.TWIP().km)
     lb = S.loop("deadzone_backlash", "extra", c)
     assert math.isclose(float(lb.sensor.d_plus), 0.1 * math.pi / 180) and float(lb.actuator.d_plus) == 0.5
     assert float(lb.controller.extra) == 1.0
@@ -210,17 +210,13 @@ def test_unmodeled_dynamics_and_backlash_wiring():
 
 
 def test_native_components_equal_the_old_functions():
-    """TWIP plant = twip.f; Deadzone = actuators.deadzone; OutputBacklash = actuators.backlash on phi."""
+    """Deadzone = actuators.deadzone; OutputBacklash = actuators.backlash on phi (the TWIP plant against NumPy:
+    tests/test_plants_other.py)."""
     from jaxdip.sim import actuators as A
 
     key = jax.random.PRNGKey(5)
     xs = jax.random.normal(key, (50, 4)) * jnp.array([1.0, 1.0, 0.5, 2.0])
     us = 11.0 * jax.random.normal(jax.random.fold_in(key, 1), (50, 1))
-    for table, p in (("8.1", twip.default_params()), ("8.2", twip.perturbed_params())):
-        pl = twip.TWIP.table(table)
-        a = jax.vmap(pl.vector_field)(xs, us)
-        b = jax.vmap(lambda x, u: twip.f(p, x, u))(xs, us)
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     dz = A.Deadzone(-0.5, 0.5)
     np.testing.assert_array_equal(np.asarray(dz.step((), us[:, 0], key, 0)[1]),
                                   np.asarray(A.deadzone(us[:, 0], -0.5, 0.5)))
@@ -281,11 +277,11 @@ def test_virtual_sign_reverses_only_the_inverted_gain_and_is_validated():
     from jaxdip import config as C
     import experiments.twip_extra_control as X
 
-    d = twip_dlqr(twip.default_params(), Q=(1.0, 1.0, 0.1, 0.1), R=1.0, dt=0.01)
+    d = twip_dlqr(twip.TWIP(), Q=(1.0, 1.0, 0.1, 0.1), R=1.0, dt=0.01)
     A1, A2, A3, A4, B1, B2 = ec.model_coefficients(d.A, d.B)
     for virtual, gain in (("printed", A2), ("effective", A2 - B1 * A4 / B2)):
         for sign in (1.0, -1.0):
-            p = ec.extra_control_params(d.K, d.A, d.B, virtual=virtual, virtual_sign=sign)
+            p = ec.ExtraControl.design(d.K, d.A, d.B, virtual=virtual, virtual_sign=sign)
             np.testing.assert_allclose(float(p.a_virtual), sign * float(gain), rtol=1e-14)
     # the tilt counted the other way (x3, x4 -> -x3, -x4) flips A2 and the effective gain together: the
     # printed law's wrong sign is not a coordinate convention

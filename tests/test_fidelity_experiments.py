@@ -69,7 +69,7 @@ def test_twip_transients_swing_against_dop853(transients):
     from jaxdip.plants import twip
 
     r, _, _ = transients
-    p = twip.default_params()
+    p = twip.TWIP()
     f = jax.jit(lambda s: twip.f(p, s, jax.numpy.zeros(1)))
     rhs = lambda _t, s: np.asarray(f(s))  # noqa: E731
     for sw in r["swing"]:
@@ -100,7 +100,7 @@ def test_twip_transients_overshoot_from_a_numpy_loop(transients):
     d = S.design(dt)
     F, G, K = (np.asarray(a) for a in (d.F, d.G, d.K))
     Q, R = np.diag([1e-4, 1e-2, 1e-4, 1e-2]), np.diag([1e-6, 1e-5, 4e-6, 2e-5])
-    p = twip.perturbed_params()
+    p = twip.TWIP.table("8.2")
     f = jax.jit(lambda s, u: twip.f(p, s, u))
     x = np.array([1.0, 0.3, math.radians(10.0), math.radians(1.0)])
     xp, P, u_prev, phi = np.zeros(4), 0.01 * np.eye(4), np.zeros(1), []

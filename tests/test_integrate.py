@@ -9,9 +9,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from jaxdip.control.riccati import lqr
+from jaxdip.engine.integrate import rk4_zoh
+from jaxdip.engine.roles import linearize
 from jaxdip.plants import dip
-from jaxdip.sim.discretize import linearize
-from jaxdip.sim.integrate import rk4_zoh
 
 DT = 1e-3
 
@@ -47,8 +47,8 @@ def _rk4_closed_loop(f, p, K, x0, dt, n_periods, substeps):
 
 
 def test_rk4_closed_loop_matches_dop853():
-    p = dip.default_params()
-    A, B = jax.jit(linearize, static_argnums=0)(dip.f_printed, p, jnp.zeros(6), 0.0)
+    p = dip.DIP()
+    A, B = linearize(p, jnp.zeros(6), 0.0)
     K, _, E = lqr(A, B, np.diag([30.0, 350.0, 100.0, 0.0, 0.0, 0.0]), np.array([[0.1]]))
     assert np.all(np.real(np.asarray(E)) < 0)
     K = np.asarray(K)
@@ -70,7 +70,7 @@ def test_rk4_order_is_four():
     """Open loop from a large state (the pendulum falls over, |alpha_dot| reaches ~17 rad/s) under a constant 2 V:
     the error against DOP853 at each period end must fall ~16x per halving of the sub-step."""
     f = dip.f_printed  # (the Lagrangian variant gives 4.03, 4.01; left out to save its compile time)
-    p = dip.default_params()
+    p = dip.DIP()
     x0 = np.array([0.0, 0.5, -0.4, 0.3, 1.0, -2.0])
     u = np.array([2.0])
     dt, n = 5e-3, 100
@@ -98,7 +98,7 @@ def test_rk4_order_is_four():
 
 def _conservative_params():
     # no viscous damping anywhere and Kt = 0, so the motor force (input and back-EMF) vanishes
-    return dip.default_params()._replace(Bc=0.0, B1=0.0, B2=0.0, Kt=0.0)
+    return dip.DIP(Bc=0.0, B1=0.0, B2=0.0, Kt=0.0)
 
 
 def _energy_drift(f, substeps=10, T=5.0):
@@ -150,7 +150,7 @@ def test_lagrangian_power_balance(seed):
     """Work-energy theorem pointwise: dE/dt = grad E . f = (Fc - Bc xc_dot) xc_dot - B1 a_dot^2 - B2 th_dot^2,
     with the damping and the motor on. The printed variant breaks it even without damping."""
     rng = np.random.default_rng(seed)
-    p = dip.default_params()
+    p = dip.DIP()
     x = jnp.asarray(rng.uniform(-1.0, 1.0, 6) * np.array([0.2, 1.5, 1.5, 0.5, 3.0, 3.0]))
     u = jnp.asarray(rng.uniform(-5.0, 5.0, 1))
     lhs = float(_power(dip.f_lagrangian, p, x, u))

@@ -10,7 +10,7 @@ import scipy.linalg as sla
 from jaxdip.estimators import filter_sequence
 from jaxdip.estimators.kalman import EKFParams, KFParams, ekf, kalman, kf_update
 from jaxdip.plants import lorenz
-from jaxdip.sim import rk4_zoh
+from jaxdip.engine.integrate import rk4_zoh
 
 
 def rel(a, b):
@@ -115,7 +115,7 @@ def np_ekf_lorenz(p, C, Q, R, P0, x0, ys, h):
 
 
 def test_ekf_lorenz_matches_numpy():
-    p = lorenz.default_params()
+    p = lorenz.Lorenz()
     h, T = 1e-3, 500
     rng = np.random.default_rng(4)
     C = np.asarray(lorenz.output_matrix())

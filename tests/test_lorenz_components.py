@@ -1,5 +1,6 @@
-"""Native Lorenz plant, linearised CPX/SCPX, EKF, linear sensor and the estimator wrappers against the
-init/step functions they replace (same numbers), and the one-loop comparison's wiring."""
+"""Native Lorenz plant and linear sensor against their equations written by hand, linearised CPX/SCPX, EKF and
+the estimator wrappers against the init/step functions they replace (same numbers), and the one-loop
+comparison's wiring."""
 
 import jaxdip  # noqa: F401  (float64)
 
@@ -14,8 +15,8 @@ from jaxdip.estimators.kalman import EKFParams, ekf
 from jaxdip.plants import lorenz
 from jaxdip.plants.lorenz import Lorenz
 from jaxdip.scenarios import lorenz_mhe as S
-from jaxdip.sim.integrate import rk4_zoh
-from jaxdip.sim.sensors import LinearSensor, linear_sensor, sensor_params
+from jaxdip.engine.integrate import rk4_zoh
+from jaxdip.sim.sensors import LinearSensor
 
 H = 0.001
 
@@ -23,7 +24,7 @@ H = 0.001
 @jax.jit
 def _data(seed=0):
     """A noisy Lorenz trajectory of 60 samples every H (the old pure functions)."""
-    p = lorenz.default_params()
+    p = Lorenz()
     key = jax.random.PRNGKey(seed)
 
     def step(x, k):
@@ -61,16 +62,19 @@ def _run_new(est, x0, ys):
     return jax.lax.scan(step, st, (jnp.arange(ys.shape[0]), ys))[1]
 
 
-def test_lorenz_plant_equals_pure_function():
+def test_lorenz_plant_is_eq_1_28():
+    """The field and its Jacobian against (1.28) written out (sigma = 10, beta = 8/3, rho = 28)."""
     x = jnp.array([1.0, -2.0, 20.0])
-    np.testing.assert_array_equal(Lorenz().vector_field(x, jnp.zeros(1)), lorenz.f(lorenz.default_params(), x))
+    s, b, r = 10.0, 8.0 / 3.0, 28.0
+    np.testing.assert_allclose(Lorenz().vector_field(x, jnp.zeros(1)), [s * (-3.0), 1.0 * (r - 20.0) + 2.0,
+                                                                       -2.0 - b * 20.0], rtol=1e-15)
     A, _ = jd.linearize(Lorenz(), x)
-    np.testing.assert_allclose(A, jax.jacfwd(lambda z: lorenz.f(lorenz.default_params(), z))(x), rtol=1e-15)
+    np.testing.assert_allclose(A, [[-s, s, 0.0], [r - 20.0, -1.0, -1.0], [-2.0, 1.0, -b]], rtol=1e-15)
 
 
 def test_linearized_cpx_and_scpx_equal_old_components():
     xs, ys = _data()
-    Cm, z3, p = lorenz.output_matrix(), jnp.zeros(3), lorenz.default_params()
+    Cm, z3, p = lorenz.output_matrix(), jnp.zeros(3), Lorenz()
     for gamma, keep in ((0.5, None), (50.0, 2)):
         old = _run_old(cpx_linearized(lorenz.f, H, 1, keep=keep, from_truth=True, expm_squarings=3),
                        CPXParams(jnp.asarray(gamma), p, Cm, z3), xs[0], ys)
@@ -83,7 +87,7 @@ def test_linearized_cpx_and_scpx_equal_old_components():
 
 def test_ekf_equals_old_component():
     xs, ys = _data()
-    Cm, z3, p = lorenz.output_matrix(), jnp.zeros(3), lorenz.default_params()
+    Cm, z3, p = lorenz.output_matrix(), jnp.zeros(3), Lorenz()
     Q, R, P0 = 0.01 * jnp.eye(3), 25.0 * jnp.eye(2), jnp.eye(3)
     old = _run_old(ekf(lorenz.f, H, 1, from_truth=True, expm_squarings=3), EKFParams(p, Cm, Q, R, P0, z3), xs[0], ys)
     new, P = _run_new(ExtendedKalmanFilter(Lorenz(), Cm, Q, R, P0, z3, h=H, from_truth=True, expm_squarings=3),
@@ -92,19 +96,26 @@ def test_ekf_equals_old_component():
     assert np.all(np.linalg.eigvalsh(np.asarray(P[-1])) > 0)
 
 
-def test_linear_sensor_equals_old_component():
-    sp = sensor_params(jnp.eye(4)[:2], white_std=[0.1, 0.2], const_bias=[0.05, 0.0], gm_sigma=[0.01, 0.0],
-                       gm_tau=[2.0, 1.0], quantum=[1e-3, 0.0])
-    old, new = linear_sensor(0.01), LinearSensor.of(sp, 0.01)
+def test_linear_sensor_is_its_model_by_hand():
+    """y = Q(C x + c + b + w) and the exact Gauss-Markov recursion of b, in NumPy from the same key draws."""
+    C, white, const = np.eye(4)[:2], np.array([0.1, 0.2]), np.array([0.05, 0.0])
+    sig, tau, q, dt = np.array([0.01, 0.0]), np.array([2.0, 1.0]), np.array([1e-3, 0.0]), 0.01
+    new = LinearSensor(C, dt, white_std=white, const_bias=const, gm_sigma=sig, gm_tau=tau, quantum=q)
     key = jax.random.PRNGKey(4)
-    so, sn = old.init(sp, key, None), new.init(key, None)
+    sn = new.init(key, None)
+    b = np.sqrt(sig**2 * tau / 2) * np.asarray(jax.random.normal(key, (2,)))  # stationary start
+    np.testing.assert_allclose(sn, b, rtol=1e-15)
+    a = np.exp(-dt / tau)
     for k in range(20):
         x = jnp.sin(jnp.arange(4.0) + 0.1 * k)
         kk = jax.random.fold_in(key, k)
-        so, yo = old.step(sp, so, x, kk, k)
+        k_white, k_bias = jax.random.split(kk)
+        raw = C @ np.asarray(x) + const + b + white * np.asarray(jax.random.normal(k_white, (2,)))
+        y = np.where(q > 0, q * np.round(raw / np.where(q > 0, q, 1.0)), raw)
+        b = a * b + np.sqrt(sig**2 * tau / 2 * (1 - a**2)) * np.asarray(jax.random.normal(k_bias, (2,)))
         sn, yn, aux = new.step(sn, x, kk, k)
-        np.testing.assert_array_equal(yn, yo)
-        np.testing.assert_array_equal(aux, so)
+        np.testing.assert_allclose(yn, y, rtol=1e-14, atol=1e-15)
+        np.testing.assert_allclose(aux, b, rtol=1e-13, atol=1e-18)
 
 
 def test_wrappers_initial_error_and_delay():

@@ -13,7 +13,8 @@ import scipy.linalg as sla
 from jaxdip.control.riccati import (RiccatiCode, RiccatiError, care, care_checked, dare, dare_checked, dlqr,
                                    error_if_failed, lqr, lyap, riccati_status)
 from jaxdip.plants import dip
-from jaxdip.sim.discretize import linearize, zoh
+from jaxdip.engine.roles import linearize
+from jaxdip.sim.discretize import zoh
 
 # jit once per shape: the functions under test are unchanged, only their dispatch is
 jlqr = jax.jit(lqr)
@@ -45,10 +46,9 @@ def eig_match(E1, E2):
 
 
 def _dip_continuous():
-    p = dip.default_params()
     out = []
     for v in ("printed", "lagrangian"):
-        A, B = jax.jit(linearize, static_argnums=0)(dip.make(v).f, p, jnp.zeros(6), 0.0)
+        A, B = linearize(dip.DIP(variant=v), jnp.zeros(6), 0.0)
         out.append((f"dip-{v}", np.asarray(A), np.asarray(B), Q_DIP, R_DIP))
     return out
 

@@ -1,6 +1,6 @@
 """Procedure 1 on the engine: the native relaxed projection controller, the norm bound of a Loop, the (2.23)
 and (2.24) evaluations through jd.simulate, and jaxdip.tune's projected steps, each against an independent
-reference (the old pure functions, a hand-written loop, plain NumPy, optax by hand)."""
+reference (the laws in NumPy, a hand-written loop, plain NumPy, optax by hand)."""
 
 import jax
 import jax.numpy as jnp
@@ -9,14 +9,14 @@ import optax
 import pytest
 
 import jaxdip as jd
-from jaxdip.control.projection import RelaxedProjection, relaxed_projection_controller, rp_params
+from jaxdip.control.projection import RelaxedProjection
 from jaxdip.control.spd import P_v
 from jaxdip.plants import dip, examples2d
 from jaxdip.scenarios import eki_dip as S
 from jaxdip.search.p_search import (
     BasisMember, continuous_performance, discrete_performance, member_P, performances, project_member,
 )
-from jaxdip.sim.integrate import rk4_zoh
+from jaxdip.engine.integrate import rk4_zoh
 from jaxdip.tune import tune
 
 
@@ -28,30 +28,36 @@ def _member():
     return project_member(BasisMember(jnp.stack([v1, v2]), jnp.log(jnp.asarray([1e6, 1e4]))))
 
 
-def test_native_controller_equals_the_old_component():
-    """RelaxedProjection's step is relaxed_projection_controller's law with itself as params, bit for bit."""
+def test_native_controller_matches_the_laws_in_numpy():
+    """RelaxedProjection's step against (2.14), (2.10) with the weight (2.18), and (2.9) evaluated in NumPy from
+    the plant's f(x) and g(x) (g by central differences of the DIP's field; the 2-D example's own f and g)."""
     keys = jax.random.split(jax.random.PRNGKey(0), 4)
-    # continuous (2.14) on the DIP, the native plant as model against the old bundle and params
-    P = member_P(_member())
-    old_plant = dip.make("printed")
-    old = relaxed_projection_controller(old_plant)
-    new = RelaxedProjection(dip.DIP(variant="printed"), P, 40.0)
+    # continuous (2.14) on the DIP
+    P = np.asarray(member_P(_member()))
+    plant = dip.DIP(variant="printed")
+    new = RelaxedProjection(plant, jnp.asarray(P), 40.0)
+    field = jax.jit(lambda x, u: plant.vector_field(x, u))
     for i, k in enumerate(keys):
         x = 0.05 * jax.random.normal(k, (6,))
-        u_old = old.step(rp_params(P, 40.0, old_plant.default_params()), (), x, k, i)[1]
-        u_new = new.step((), x, k, i)[1]
-        np.testing.assert_array_equal(np.asarray(u_new), np.asarray(u_old))
+        fx = np.asarray(field(x, jnp.zeros(1)))
+        gx = (np.asarray(field(x, jnp.ones(1))) - np.asarray(field(x, -jnp.ones(1)))) / 2  # affine in u
+        xn = np.asarray(x)
+        ref = -(40.0 * gx @ P @ xn + gx @ P @ fx) / (gx @ P @ gx)
+        np.testing.assert_allclose(np.asarray(new.step((), x, k, i)[1]), [ref], rtol=1e-9)
     # discrete (2.10) with the weight (2.18), and the projection (2.9), on the nonlinear 2-D example
-    pl = examples2d.nonlinear()
-    prm = pl.default_params()
-    Pv = P_v(jnp.asarray([0.995, 0.1003]))
+    pl = examples2d.Nonlinear()
+    Pv = np.asarray(P_v(jnp.asarray([0.995, 0.1003])))
     for proj in (False, True):
-        old = relaxed_projection_controller(pl, kind="discrete", projection_only=proj)
-        new = RelaxedProjection(jd.LegacyPlant(pl, prm), Pv, 0.1, 2.0, kind="discrete", projection_only=proj)
+        new = RelaxedProjection(pl, jnp.asarray(Pv), 0.1, 2.0, kind="discrete", projection_only=proj)
         for i, k in enumerate(keys):
             x = jax.random.normal(k, (2,))
-            u_old = old.step(rp_params(Pv, 0.1, prm, alpha=2.0), (), x, k, i)[1]
-            np.testing.assert_array_equal(np.asarray(new.step((), x, k, i)[1]), np.asarray(u_old))
+            xn = np.asarray(x)
+            fx = np.array([2.2 * np.sin(0.5 * xn[0]) + 0.1 * xn[1], 0.1 * xn[0] ** 2 + 1.8 * xn[1]])
+            gx = np.array([0.0, 2.0 + 0.1 * np.cos(xn[1])])
+            g_k = 0.1 / np.linalg.norm(xn) ** 2.0
+            target = fx if proj else fx - xn / (1.0 + g_k)
+            ref = -(gx @ Pv @ target) / (gx @ Pv @ gx)
+            np.testing.assert_allclose(np.asarray(new.step((), x, k, i)[1]), [ref], rtol=1e-9)
 
 
 def test_norm_bound_ends_a_trajectory_where_numpy_says():
@@ -88,10 +94,9 @@ def _numpy_discrete(A, B, v, key, K, fail_norm, penalty):
 
 
 def test_discrete_performance_matches_numpy():
-    pl = examples2d.linear()
-    prm = pl.default_params()
-    A, B = np.asarray(prm.A), np.asarray(prm.B)
-    G = jax.jit(discrete_performance(jd.LegacyPlant(pl, prm), 1e6, 8, fail_norm=100.0, penalty=1000.0))
+    pl = examples2d.Linear()
+    A, B = np.asarray(pl.A), np.asarray(pl.B)
+    G = jax.jit(discrete_performance(pl, 1e6, 8, fail_norm=100.0, penalty=1000.0))
     failed = 0
     for i in range(12):
         v = np.asarray(jax.random.normal(jax.random.PRNGKey(i), (2,)))

@@ -14,15 +14,16 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from jaxdip.plants import examples2d, lorenz, rwp, twip
-from jaxdip.sim import linearize, rk4_zoh
+from jaxdip.engine.integrate import rk4_zoh
+from jaxdip.engine.roles import linearize
 
 # ---- TWIP ---------------------------------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("table", ["8.1", "8.2"])
 def test_twip_autodiff_linearisation_matches_eq79(table):
-    p = twip.default_params() if table == "8.1" else twip.perturbed_params()
-    A_ad, B_ad = linearize(twip.f, p, jnp.zeros(4), jnp.zeros(1))
+    p = twip.TWIP.table(table)
+    A_ad, B_ad = linearize(p, jnp.zeros(4), jnp.zeros(1))
     A_cf, B_cf = twip.linear_model_closed_form(p)
     A_ad, B_ad, A_cf, B_cf = map(np.asarray, (A_ad, B_ad, A_cf, B_cf))
 
@@ -66,8 +67,9 @@ def _twip_numpy(p, x, V):
     return np.array([xd, xdd, phid, thdd])
 
 
-@pytest.mark.parametrize("params", [twip.default_params(), twip.perturbed_params()])
-def test_twip_nonlinear_matches_numpy_solve(params):
+@pytest.mark.parametrize("table", ["8.1", "8.2"])
+def test_twip_nonlinear_matches_numpy_solve(table):
+    params = twip.TWIP.table(table)
     rng = np.random.default_rng(0)
     f = jax.jit(twip.f)
     for _ in range(20):
@@ -79,7 +81,7 @@ def test_twip_nonlinear_matches_numpy_solve(params):
 
 
 def test_twip_upright_is_an_exact_equilibrium():
-    p = twip.default_params()
+    p = twip.TWIP()
     assert np.all(np.asarray(twip.f(p, jnp.zeros(4), jnp.zeros(1))) == 0.0)
 
 
@@ -87,7 +89,7 @@ def test_twip_upright_is_an_exact_equilibrium():
 
 
 def test_rwp_table2_gains_stabilise_with_settled_B_not_with_printed_B():
-    p = rwp.default_params()
+    p = rwp.RWP()
     A, B = (np.asarray(m) for m in rwp.reduced_linear_model(p))
     K = np.array(rwp.K_TABLE2).reshape(1, 3)
     eig = np.linalg.eigvals(A - B @ K)
@@ -104,8 +106,8 @@ def test_rwp_table2_gains_stabilise_with_settled_B_not_with_printed_B():
 
 
 def test_rwp_reduced_model_matches_autodiff_of_full_plant():
-    p = rwp.default_params()
-    A_full, B_full = linearize(rwp.f, p, jnp.zeros(4), jnp.zeros(1))
+    p = rwp.RWP()
+    A_full, B_full = linearize(p, jnp.zeros(4), jnp.zeros(1))
     keep = [0, 1, 3]  # theta, theta_dot, theta_r_dot
     A_red, B_red = rwp.reduced_linear_model(p)
     np.testing.assert_allclose(np.asarray(A_full)[np.ix_(keep, keep)], A_red, rtol=1e-14, atol=0)
@@ -118,14 +120,14 @@ def test_rwp_reduced_model_uses_table1_numbers():
     # Independent arithmetic from Table 1: J = 3.8e-3 + 0.58*0.1^2 + 0.35*0.22^2, ml = 0.058 + 0.077.
     J = 3.8e-3 + 0.58 * 0.01 + 0.35 * 0.0484
     ml = 0.058 + 0.077
-    A, B = rwp.reduced_linear_model(rwp.default_params())
+    A, B = rwp.reduced_linear_model(rwp.RWP())
     np.testing.assert_allclose(A[1, 0], ml * 9.81 / J, rtol=1e-12)
     np.testing.assert_allclose(A[2, 0], -ml * 9.81 / J, rtol=1e-12)
     np.testing.assert_allclose(np.asarray(B).ravel(), [0.0, -3.69e-2 / J, 3.69e-2 / J + 3.69e-2 / 12.48e-4], rtol=1e-12)
 
 
 def test_rwp_energy_conserved_without_input():
-    p = rwp.default_params()
+    p = rwp.RWP()
     x0 = jnp.array([0.5, 0.0, 0.0, 5.0])  # falls from 0.5 rad, swings through the bottom; wheel spinning
     u = jnp.zeros(1)
     n = int(round(5.0 / rwp.DT))
@@ -158,7 +160,7 @@ def test_rwp_energy_conserved_without_input():
 
 
 def test_lorenz_rk4_matches_dop853():
-    p = lorenz.default_params()
+    p = lorenz.Lorenz()
     x0 = np.array([1.0, 1.0, 1.0])
     dt, n = 0.001, 1000
 
@@ -184,7 +186,7 @@ def test_lorenz_rk4_matches_dop853():
 
 
 def test_lorenz_fixed_points():
-    p = lorenz.default_params()
+    p = lorenz.Lorenz()
     c = np.sqrt(8.0 / 3.0 * 27.0)
     expected = np.array([[0.0, 0.0, 0.0], [c, c, 27.0], [-c, -c, 27.0]])
     np.testing.assert_allclose(lorenz.equilibria(p), expected, rtol=1e-15, atol=0)
@@ -203,29 +205,27 @@ def test_lorenz_output_matrix_measures_y_and_z():
 
 
 def test_example2d_linear_step_matches_numpy():
-    plant = examples2d.linear()
-    p = plant.default_params()
+    plant = examples2d.Linear()
     A = np.array([[0.9974, 0.0539], [-0.1078, 1.1591]])
     B = np.array([0.0013, 0.0539])
     rng = np.random.default_rng(1)
     for _ in range(10):
         x, u = rng.normal(size=2), rng.normal()
-        np.testing.assert_allclose(plant.step(p, jnp.asarray(x), jnp.array([u])), A @ x + B * u, rtol=1e-14, atol=1e-15)
+        np.testing.assert_allclose(plant.step(jnp.asarray(x), jnp.array([u])), A @ x + B * u, rtol=1e-14, atol=1e-15)
 
 
 def test_example2d_nonlinear_step_matches_numpy():
-    plant = examples2d.nonlinear()
-    p = plant.default_params()
+    plant = examples2d.Nonlinear()
     rng = np.random.default_rng(2)
     for _ in range(10):
         x, u = rng.normal(scale=2.0, size=2), rng.normal()
         fx = np.array([2.2 * np.sin(0.5 * x[0]) + 0.1 * x[1], 0.1 * x[0] ** 2 + 1.8 * x[1]])
         gx = np.array([0.0, 2.0 + 0.1 * np.cos(x[1])])
-        np.testing.assert_allclose(plant.step(p, jnp.asarray(x), jnp.array([u])), fx + gx * u, rtol=1e-14, atol=1e-15)
+        np.testing.assert_allclose(plant.step(jnp.asarray(x), jnp.array([u])), fx + gx * u, rtol=1e-14, atol=1e-15)
 
 
 def test_example2d_linear_unstable_and_controllable():
-    p = examples2d.linear().default_params()
+    p = examples2d.Linear()
     A, B = np.asarray(p.A), np.asarray(p.B)
     rho = np.abs(np.linalg.eigvals(A)).max()
     print(f"\n§2.7.1 open-loop spectral radius {rho:.6f}")
@@ -236,23 +236,26 @@ def test_example2d_linear_unstable_and_controllable():
 
 
 def test_example2d_plants_are_discrete_and_jittable():
-    for plant in (examples2d.linear(), examples2d.nonlinear()):
-        assert plant.f is None and not plant.continuous and plant.n == 2 and plant.m == 1
-        step = jax.jit(plant.step)
-        x1 = step(plant.default_params(), jnp.array([2.0, 1.0]), jnp.zeros(1))
+    for plant in (examples2d.Linear(), examples2d.Nonlinear()):
+        assert not plant.continuous and plant.n == 2 and plant.m == 1
+        with pytest.raises(TypeError):
+            plant.vector_field(jnp.zeros(2), jnp.zeros(1))
+        step = jax.jit(lambda x, u: plant.step(x, u))
+        x1 = step(jnp.array([2.0, 1.0]), jnp.zeros(1))
         assert x1.shape == (2,) and x1.dtype == jnp.float64
 
 
 @pytest.mark.parametrize("table", ["8.1", "8.2"])
-def test_twip_native_plant_equals_f(table):
-    """``twip.TWIP`` (an engine plant) has TWIPParams' fields and the same vector field, bit for bit; the
-    unmodeled variant with zero gains too."""
-    p = twip.default_params() if table == "8.1" else twip.perturbed_params()
+def test_twip_plant_vmapped_matches_numpy(table):
+    """``twip.TWIP``'s vector field (vmapped) against the NumPy solve of (72)-(73); the unmodeled variant with zero
+    gains equals it bit for bit."""
+    p = twip.TWIP.table(table)
     key = jax.random.PRNGKey(1)
     xs = jax.random.normal(key, (64, 4))
     us = 5.0 * jax.random.normal(jax.random.fold_in(key, 1), (64, 1))
-    ref = np.asarray(jax.vmap(lambda x, u: twip.f(p, x, u))(xs, us))
-    for plant in (twip.TWIP.table(table), twip.TWIPUnmodeled.table(table)):
-        got = np.asarray(jax.vmap(plant.vector_field)(xs, us))
-        np.testing.assert_array_equal(got, ref)
+    got = np.asarray(jax.vmap(p.vector_field)(xs, us))
+    for x, u, g in zip(np.asarray(xs), np.asarray(us), got):
+        ref = _twip_numpy(p, x, u[0])
+        np.testing.assert_allclose(g, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+    np.testing.assert_array_equal(np.asarray(jax.vmap(twip.TWIPUnmodeled.table(table).vector_field)(xs, us)), got)
     assert twip.TWIP.table(table).state_names == twip.STATE_NAMES

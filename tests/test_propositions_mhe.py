@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import jaxdip  # noqa: F401  (float64)
 from jaxdip.estimators.proximal import prox_ls
 from jaxdip.plants import dip, lorenz
-from jaxdip.sim import linearize
+from jaxdip.engine.roles import linearize
 from jaxdip.theory import mhe
 
 H_DIP = 1e-3
@@ -24,8 +24,8 @@ H_DIP = 1e-3
 
 def _dip_discrete():
     """(Phi, C) of the printed DIP at upright, ZOH at 1 ms (SciPy expm), C picking xc, alpha, theta."""
-    plant = dip.make("printed")
-    A = np.asarray(linearize(plant.f, plant.default_params(), jnp.zeros(6), jnp.zeros(1))[0])
+    plant = dip.DIP()
+    A = np.asarray(linearize(plant, jnp.zeros(6), jnp.zeros(1))[0])
     C = np.zeros((3, 6))
     for i, name in enumerate(("xc", "alpha", "theta")):
         C[i, plant.index(name)] = 1.0
@@ -177,7 +177,7 @@ def test_prop_1_5_2_hypothesis_on_the_thesis_systems():
     dip_alpha = [np.linalg.norm(Phi @ U[:, p:] @ U[:, p:].T, 2) for p in range(1, 6)]
     assert min(dip_alpha) > 1.0
 
-    prm = lorenz.default_params()
+    prm = lorenz.Lorenz()
     Cl, h = np.asarray(lorenz.output_matrix()), 1e-3
     x = np.array([-8.0, 7.0, 27.0])
     e = 1e-6 * np.eye(3)

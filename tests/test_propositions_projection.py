@@ -36,17 +36,16 @@ from jaxdip.control.projection import (
 )
 from jaxdip.control.spd import P_v, surface_normal
 from jaxdip.plants import dip, examples2d
-from jaxdip.sim import linearize
+from jaxdip.engine.roles import linearize
 
 
 def _linear_example():
-    prm = examples2d.linear().default_params()
+    prm = examples2d.Linear()
     return np.asarray(prm.A), np.asarray(prm.B).reshape(2, 1), np.asarray(P_v(jnp.array([-0.9975, -0.07]), 1e6))
 
 
 def _dip_example():
-    plant = dip.make("printed")
-    A, B = [np.asarray(m) for m in linearize(plant.f, plant.default_params(), jnp.zeros(6), jnp.zeros(1))]
+    A, B = [np.asarray(m) for m in linearize(dip.DIP(), jnp.zeros(6), jnp.zeros(1))]
     M = np.zeros((7, 7))
     M[:6, :6], M[:6, 6:] = A, B
     E = sla.expm(M * 1e-3)
@@ -59,7 +58,7 @@ SYSTEMS = {"linear 2.7.1": _linear_example, "DIP 1 ms": _dip_example}
 
 def _nonlinear_fg(x):
     """f and g of §2.7.2 in NumPy (the jaxdip plant's parameters)."""
-    p = examples2d.nonlinear().default_params()
+    p = examples2d.Nonlinear()
     f = np.array([p.a * np.sin(p.w * x[0]) + p.c * x[1], p.d * x[0] ** 2 + p.e * x[1]])
     return f, np.array([[0.0], [p.g0 + p.g1 * np.cos(x[1])]])
 

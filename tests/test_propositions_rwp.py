@@ -29,7 +29,7 @@ from jaxdip.estimators.homd import homd_params
 from jaxdip.plants import rwp
 from jaxdip.theory import rwp as T
 
-PRM = rwp.default_params()
+PRM = rwp.RWP()
 A1 = rwp.mass_moment(PRM) * PRM.g / rwp.inertia(PRM)  # a1 = m l g / J of (2)
 KP1, KP2, ALPHA_P, L0, C0 = 5.0, 12.0, 0.9, 0.01, 0.9
 

@@ -18,7 +18,9 @@ from jaxdip.estimators.proximal import (LSMHEParams, horizon_stack, ls_mhe, ls_m
                                         prox_ls_svd)
 from jaxdip.estimators.scpx import scpx_linearized, scpx_lti
 from jaxdip.plants import dip, lorenz
-from jaxdip.sim import Discrete, linearize, rk4_zoh
+from jaxdip.engine.integrate import rk4_zoh
+from jaxdip.engine.roles import linearize
+from jaxdip.sim import Discrete
 
 GAMMAS = [1e-3, 0.5, 50.0, 150.0, 2.44e4, 1e5]
 
@@ -37,7 +39,7 @@ def brute_prox(G, q, xhat, gamma):
 
 
 def _dip_G():
-    A, _ = linearize(dip.make("printed").f, dip.default_params(), jnp.zeros(6), 0.0)
+    A, _ = linearize(dip.DIP(), jnp.zeros(6), 0.0)
     A = np.asarray(A)
     C = np.eye(6)[:3]
     return np.vstack([C @ sla.expm(-A * 1e-3), C, C @ sla.expm(A * 1e-3)])
@@ -287,7 +289,7 @@ def test_local_model_linear_and_lorenz():
     assert np.abs(np.asarray(lm.b)).max() < 1e-13  # linear dynamics: no offset
     assert rel(lm.Phi_inv, sla.expm(-A * h)) < 1e-13
     # Lorenz: the local affine step is the exponential-Euler step, close to the true flow at h = 1e-3
-    p = lorenz.default_params()
+    p = lorenz.Lorenz()
     x = jnp.array([-5.0, -8.0, 20.0])
     lm = jax.jit(local_model, static_argnums=(0, 4))(lorenz.f, p, x, jnp.zeros(1), 1e-3)
     flow = jax.jit(lambda g, z: rk4_zoh(g, p, z, jnp.zeros(1), 1e-3, 20), static_argnums=0)

@@ -3,23 +3,24 @@ rwp scenario loop against the init/step functions and the loop they replace: sam
 
 import jaxdip  # noqa: F401  (float64)
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 import jaxdip as jd
-from jaxdip.control import feedback_params, state_feedback
+from jaxdip.control import StateFeedback
 from jaxdip.estimators import bias_observers as bo
 from jaxdip.estimators import homd
 from jaxdip.estimators import luenberger as lu
 from jaxdip.plants import rwp
 from jaxdip.plants.rwp import RWP
 from jaxdip.scenarios import rwp as scenario
-from jaxdip.sim import actuators, sensors
+from jaxdip.sim import sensors
 from jaxdip.sim.actuators import Saturation
 from reference_loop import Loop, LoopParams
 from reference_loop import rollout as old_rollout
-from jaxdip.sim.sensors import LinearSensor, sensor_params
+from jaxdip.sim.sensors import LinearSensor
 
 DT = rwp.DT
 
@@ -57,8 +58,14 @@ def _new(est, ys, us):
 
 def test_rwp_plant_equals_pure_function():
     x, u = jnp.array([0.1, -0.3, 2.0, 5.0]), jnp.array([0.7])
-    np.testing.assert_array_equal(RWP().vector_field(x, u), rwp.f(rwp.default_params(), x, u))
-    np.testing.assert_array_equal(RWP().energy(x), rwp.energy(rwp.default_params(), x))
+    # (2)-(3) and the energy written out in NumPy with the Table 1 numbers
+    mp, lp, Jp, mr, lr, Jr, k, g = 0.58, 0.10, 3.8e-3, 0.35, 0.22, 12.48e-4, 3.69e-2, 9.81
+    J, ml = Jp + mp * lp**2 + mr * lr**2, mp * lp + mr * lr
+    th, thd, thrd, I = 0.1, -0.3, 5.0, 0.7
+    ref = [thd, -k / J * I + ml * g / J * np.sin(th), thrd, (J + Jr) * k / (J * Jr) * I - ml * g / J * np.sin(th)]
+    np.testing.assert_allclose(RWP().vector_field(x, u), ref, rtol=1e-14)
+    E = 0.5 * J * thd**2 + 0.5 * Jr * (thrd + thd) ** 2 + ml * g * np.cos(th)
+    np.testing.assert_allclose(RWP().energy(x), E, rtol=1e-14)
 
 
 def test_observers_equal_old_components():
@@ -82,20 +89,23 @@ def test_observers_equal_old_components():
 def test_saturation_and_straight_through_sensor():
     sat = Saturation(jnp.array([-1.0]), jnp.array([2.0]))
     assert float(sat.step((), jnp.array([3.0]), None, 0)[1][0]) == 2.0
-    sp = sensor_params(jnp.eye(4)[:2], const_bias=[0.01, 0.0], quantum=[1e-2, 0.1])
-    # the straight-through sensor's readings are the plain quantising sensor's; only its derivative differs
-    old, new = sensors.linear_sensor(DT), LinearSensor.of(sp, DT, straight_through=True)
+    kw = dict(const_bias=[0.01, 0.0], quantum=[1e-2, 0.1])
+    exact, new = LinearSensor(jnp.eye(4)[:2], DT, **kw), LinearSensor(jnp.eye(4)[:2], DT, straight_through=True, **kw)
     key = jax.random.PRNGKey(0)
 
     def y_old(x):
-        return old.step(sp, old.init(sp, key, x), x, key, 0)[1]
+        """The straight-through rule written out: the unquantised reading plus the rounding, held constant."""
+        raw = LinearSensor(jnp.eye(4)[:2], DT, const_bias=kw["const_bias"])
+        y = raw.step(raw.init(key, x), x, key, 0)[1]
+        return y + jax.lax.stop_gradient(sensors.quantize(y, jnp.asarray(kw["quantum"])) - y)
 
     def y_new(x):
         return new.step(new.init(key, x), x, key, 0)[1]
 
     x = jnp.array([0.123, 1.0, -0.456, 0.0])
     np.testing.assert_array_equal(y_new(x), y_old(x))
-    np.testing.assert_array_equal(jax.jacfwd(y_old)(x), 0.0)  # the exact quantiser's pathwise derivative
+    np.testing.assert_array_equal(y_new(x), exact.step(exact.init(key, x), x, key, 0)[1])  # values: quantised
+    np.testing.assert_array_equal(jax.jacfwd(y_new)(x), jax.jacfwd(y_old)(x))
     np.testing.assert_array_equal(jax.jacfwd(y_new)(x), jnp.eye(4)[:2])  # the quantiser passes gradients
 
 
@@ -108,18 +118,16 @@ def test_scenario_loop_equals_old_loop():
     ``jaxdip.scenarios.rwp`` against the original loop (``tests/reference_loop.py``), every recorded period, bit for bit."""
     K, n, d = rwp.K_TABLE2, 400, -0.08
     jp = bo.joint_params(homd.homd_params(), 0.01)
-    plant = rwp.make()
-    loop = Loop(plant=plant, dt=DT, sensor=sensors.linear_sensor(DT), estimator=bo.rwp_joint(DT),
-                controller=state_feedback(), actuator=actuators.saturation(), substeps=10, tail_steps=n)
-    sp = sensors.sensor_params(jnp.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]]), const_bias=jnp.array([d, 0.0]),
-                               quantum=[rwp.PENDULUM_ANGLE_RESOLUTION, rwp.WHEEL_ANGLE_RESOLUTION])
-    params = LoopParams(plant=plant.default_params(), sensor=sp, estimator=jp,
-                        controller=feedback_params(jnp.array([[K[0], K[1], 0.0, K[2]]])),
-                        actuator=actuators.SaturationParams(jnp.array([-jnp.inf]), jnp.array([jnp.inf])),
-                        state_bound=jnp.array([np.pi / 2, np.inf, np.inf, np.inf]))
+    sens = LinearSensor(jnp.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]]), DT, const_bias=jnp.array([d, 0.0]),
+                        quantum=[rwp.PENDULUM_ANGLE_RESOLUTION, rwp.WHEEL_ANGLE_RESOLUTION])
+    loop = Loop(plant=RWP(), dt=DT, sensor=sens, estimator=bo.JointObserver.of(jp, DT),
+                controller=StateFeedback(jnp.array([[K[0], K[1], 0.0, K[2]]])),
+                actuator=Saturation(jnp.array([-jnp.inf]), jnp.array([jnp.inf])), substeps=10, tail_steps=n)
+    params = LoopParams(state_bound=jnp.array([np.pi / 2, np.inf, np.inf, np.inf]))
     x0 = jnp.array([0.1, 0.01, 0.02, -0.1])
     key = jax.random.fold_in(jax.random.PRNGKey(0), 3)
-    c, rec = jax.jit(lambda p: old_rollout(loop, p, x0, key, n, record_every=5, record_fn=_rec_fn))(params)
+    c, rec = eqx.filter_jit(lambda lp, p: old_rollout(lp, p, x0, key, n, record_every=5, record_fn=_rec_fn))(loop,
+                                                                                                           params)
     new = scenario.loop(bo.JointObserver.of(jp, DT), dt=DT, K=K, d=d)
     sol = jax.jit(lambda lp: jd.simulate(lp, x0, key, n, save=scenario.record, save_every=5,
                                          metrics={"x2": jd.metrics.Sum(scenario.x_squared)}))(new)
@@ -132,8 +140,6 @@ def test_case_sweep_compiles_once():
     """Several low-pass gains and angles sharing one structure: one sweep, one compilation of the batch, and a
     second sweep with new numbers reuses it; each case equals its own run to the last bit."""
     import logging
-
-    import equinox as eqx
 
     compiled = []
 

@@ -14,7 +14,7 @@ from jaxdip.estimators import luenberger as lu
 from jaxdip.estimators.run import filter_sequence
 from jaxdip.plants import rwp
 
-P = rwp.default_params()
+P = rwp.RWP()
 J = P.Jp + P.mp * P.lp**2 + P.mr * P.lr**2
 A1 = (P.mp * P.lp + P.mr * P.lr) * P.g / J
 DT = rwp.DT

@@ -16,7 +16,7 @@ from jaxdip.plants import rwp
 from jaxdip.scenarios import rwp as scenario
 from jaxdip.theory import rwp as T
 
-P = rwp.default_params()
+P = rwp.RWP()
 K = rwp.K_TABLE2
 J = P.Jp + P.mp * P.lp**2 + P.mr * P.lr**2
 A1 = (P.mp * P.lp + P.mr * P.lr) * P.g / J

@@ -8,18 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxdip.sim.actuators import (
-    BacklashParams,
-    DeadzoneParams,
-    SaturationParams,
-    backlash,
-    backlash_component,
-    deadzone,
-    deadzone_component,
-    saturate,
-    saturation,
-)
-from jaxdip.sim.sensors import gauss_markov_coeffs, linear_sensor, quantize, sensor_params
+from jaxdip.sim.actuators import Deadzone, InputBacklash, Saturation, backlash, deadzone, saturate
+from jaxdip.sim.sensors import LinearSensor, gauss_markov_coeffs, quantize
 
 # ---- Gauss-Markov walking bias ----------------------------------------------------------------------------
 
@@ -31,16 +21,16 @@ N_SE = 5.0  # tolerance in standard errors
 
 
 def _simulate_bias(n_seeds, n_steps, stationary_start=True, base=0):
-    """Run the linear_sensor component with C = 0 and no white noise, so y is the walking bias itself."""
-    sp = sensor_params(np.zeros((1, 1)), white_std=0.0, gm_sigma=SIGMA_B, gm_tau=TAU)
-    comp = linear_sensor(DT, stationary_start=stationary_start)
+    """Run the LinearSensor with C = 0 and no white noise, so y is the walking bias itself."""
+    comp = LinearSensor(np.zeros((1, 1)), DT, white_std=0.0, gm_sigma=SIGMA_B, gm_tau=TAU,
+                        stationary_start=stationary_start)
 
     def one(key):
         k0, ks = jax.random.split(key)
-        b0 = comp.init(sp, k0, jnp.zeros(1))
+        b0 = comp.init(k0, jnp.zeros(1))
 
         def body(b, kk):
-            b, y = comp.step(sp, b, jnp.zeros(1), kk, 0)
+            b, y, _ = comp.step(b, jnp.zeros(1), kk, 0)
             return b, y[0]
 
         return jax.lax.scan(body, b0, jax.random.split(ks, n_steps))[1]
@@ -114,14 +104,13 @@ def test_white_noise_has_configured_std():
     rng = np.random.default_rng(0)
     C = rng.standard_normal((3, 4))
     x = rng.standard_normal(4)
-    sp = sensor_params(C, white_std=stds, const_bias=const)
-    comp = linear_sensor(DT)
+    comp = LinearSensor(C, DT, white_std=stds, const_bias=const)
     S, T = 2000, 250
 
     def one(key):
         k0, ks = jax.random.split(key)
-        b0 = comp.init(sp, k0, jnp.asarray(x))
-        return jax.lax.scan(lambda b, kk: comp.step(sp, b, jnp.asarray(x), kk, 0), b0, jax.random.split(ks, T))[1]
+        b0 = comp.init(k0, jnp.asarray(x))
+        return jax.lax.scan(lambda b, kk: comp.step(b, jnp.asarray(x), kk, 0)[:2], b0, jax.random.split(ks, T))[1]
 
     Y = np.asarray(jax.jit(jax.vmap(one))(jax.random.split(jax.random.key(7), S)))  # (S, T, 3)
     noise = (Y - (C @ x + const)).reshape(-1, 3)
@@ -157,12 +146,11 @@ def test_quantize():
 
 def test_sensor_output_is_quantised():
     q = 0.05
-    sp = sensor_params(np.eye(2), white_std=0.3, gm_sigma=0.1, quantum=q)
-    comp = linear_sensor(DT)
-    b = comp.init(sp, jax.random.key(0), jnp.zeros(2))
+    comp = LinearSensor(np.eye(2), DT, white_std=0.3, gm_sigma=0.1, quantum=q)
+    b = comp.init(jax.random.key(0), jnp.zeros(2))
     ys = []
     for k in range(20):
-        b, y = comp.step(sp, b, jnp.array([0.123, -0.456]), jax.random.key(k + 1), k)
+        b, y, _ = comp.step(b, jnp.array([0.123, -0.456]), jax.random.key(k + 1), k)
         ys.append(np.asarray(y))
     ys = np.array(ys) / q
     assert np.all(np.abs(ys - np.round(ys)) < 1e-9)
@@ -175,10 +163,9 @@ def test_saturate():
     u = np.linspace(-20, 20, 401)
     out = np.asarray(saturate(jnp.asarray(u), -6.0, 6.0))
     np.testing.assert_array_equal(out, np.where(u < -6, -6.0, np.where(u > 6, 6.0, u)))
-    # per-channel bounds, and the component wrapper
-    comp = saturation()
-    p = SaturationParams(jnp.array([-1.0, 0.0]), jnp.array([1.0, 5.0]))
-    _, out = comp.step(p, comp.init(p, None, None), jnp.array([3.0, -2.0]), None, 0)
+    # per-channel bounds, and the actuator
+    comp = Saturation(jnp.array([-1.0, 0.0]), jnp.array([1.0, 5.0]))
+    _, out, _ = comp.step(comp.init(None, None), jnp.array([3.0, -2.0]), None, 0)
     np.testing.assert_array_equal(np.asarray(out), [1.0, 0.0])
 
 
@@ -190,9 +177,8 @@ def test_deadzone():
     expected = np.array([0.0 if dm <= v < dp else v for v in u])
     np.testing.assert_array_equal(out, expected)
     assert out[-4] == 0.0 and out[-3] == dp and out[-2] == np.nextafter(dm, -1) and out[-1] == 0.0
-    comp = deadzone_component()
-    p = DeadzoneParams(jnp.array(dm), jnp.array(dp))
-    _, out = comp.step(p, (), jnp.array([0.2, 0.7]), None, 0)
+    comp = Deadzone(dm, dp)
+    _, out, _ = comp.step(comp.init(None, None), jnp.array([0.2, 0.7]), None, 0)
     np.testing.assert_array_equal(np.asarray(out), [0.0, 0.7])
 
 
@@ -229,11 +215,10 @@ def _triangle(amplitude=1.0, step=0.01, periods=3):
 
 
 def _run_backlash(u_seq, m, d_minus, d_plus):
-    comp = backlash_component(size=np.size(m))
-    p = BacklashParams(jnp.asarray(m), jnp.asarray(d_minus), jnp.asarray(d_plus))
-    state = comp.init(p, None, None)
+    comp = InputBacklash(m, d_minus, d_plus)
+    state = comp.init(None, None)
     u = jnp.asarray(u_seq).reshape(len(u_seq), -1)
-    _, out = jax.jit(lambda s, u: jax.lax.scan(lambda s, uk: comp.step(p, s, uk, None, 0), s, u))(state, u)
+    _, out = jax.jit(lambda s, u: jax.lax.scan(lambda s, uk: comp.step(s, uk, None, 0)[:2], s, u))(state, u)
     return np.asarray(out)
 
 
@@ -303,25 +288,39 @@ def test_backlash_vector_channels_and_irregular_input():
 
 
 @pytest.mark.parametrize("variant", [dict(), dict(stationary_start=True, cf_init_from_angle=False)])
-def test_twip_sensors_native_equals_the_chained_components(variant):
-    """``TwipSensors`` = chain(twip_sensor, tilt_prefilter) with the same keys (to 1e-12); ideal = 1: y = x."""
-    from jaxdip.estimators.complementary import complementary_params, tilt_prefilter
-    from jaxdip.sim.component import chain
-    from jaxdip.sim.twip_sensors import TwipSensors, table_7_1_params, twip_sensor
+def test_twip_sensors_equal_their_pieces_composed(variant):
+    """``TwipSensors`` = the raw ``LinearSensor`` channels, the encoder's difference quotient and the
+    ``ComplementaryFilter`` estimator composed by hand, with the keys of a two-stage chain (to 1e-12); ideal = 1:
+    y = x."""
+    from jaxdip.estimators.complementary import ComplementaryFilter
+    from jaxdip.sim.twip_sensors import TwipSensors
 
     dt = 0.01
-    old = chain(twip_sensor(dt, stationary_start=variant.get("stationary_start", False)),
-                tilt_prefilter(2, 3, init_from_angle=variant.get("cf_init_from_angle", True)))
-    op = (table_7_1_params(), complementary_params(0.99, dt))
     new = TwipSensors.table_7_1(dt, **variant)
+    raw = LinearSensor(new.C, dt, new.white_std, new.const_bias, new.gm_sigma, new.gm_tau, new.quantum,
+                       stationary_start=variant.get("stationary_start", False))
+    cf = ComplementaryFilter(0.99, dt, 2, 3, init_from_angle=variant.get("cf_init_from_angle", True))
+
+    def old_init(key, x0):
+        k_raw, k_cf = jax.random.split(key, 2)
+        return raw.init(k_raw, x0), jnp.zeros(()), cf.init(k_cf, x0)
+
+    def old_step(st, x, key, k):
+        bias, p_prev, theta = st
+        k_raw, k_cf = jax.random.split(key, 2)
+        bias, m, _ = raw.step(bias, x, k_raw, k)
+        v = jnp.where(k == 0, 0.0, (m[0] - p_prev) / dt)
+        theta, y, _ = cf.step(theta, jnp.stack([m[0], v, m[2], m[3]]), None, k_cf, k)
+        return (bias, m[0], theta), y
+
     key = jax.random.PRNGKey(7)
     xs = jnp.cumsum(0.01 * jax.random.normal(key, (200, 4)), axis=0)
-    so, sn = old.init(op, key, xs[0]), new.init(key, xs[0])
-    step_old, step_new = jax.jit(old.step), jax.jit(lambda s, x, kk, k: new.step(s, x, kk, k))
+    so, sn = old_init(key, xs[0]), new.init(key, xs[0])
+    step_old, step_new = jax.jit(old_step), jax.jit(lambda s, x, kk, k: new.step(s, x, kk, k))
     ideal = eqx_tree_at_ideal(new)
     for k in range(xs.shape[0]):
         kk = jax.random.fold_in(key, k)
-        so, yo = step_old(op, so, xs[k], kk, k)
+        so, yo = step_old(so, xs[k], kk, k)
         sn, yn, _ = step_new(sn, xs[k], kk, k)
         # to rounding: XLA may fuse (37) into a multiply-add, and the filter state carries the last bits on
         np.testing.assert_allclose(np.asarray(yn), np.asarray(yo), rtol=1e-12, atol=1e-15)

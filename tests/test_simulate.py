@@ -51,7 +51,7 @@ def make_loop(gain_sign=1.0, bound=(0.8, np.inf), u_max=30.0):
     K, _, _ = jd.control.lqr(A, B, np.diag([10.0, 1.0]), 0.1)
     kf = jd.estimators.KalmanFilter(model.Phi, model.W, np.eye(2), 1e-5 * np.eye(2), np.diag([1e-4, 2.5e-3]),
                                     1e-2 * np.eye(2))
-    sat = jd.Legacy(actuators.saturation(), actuators.SaturationParams(jnp.array([-u_max]), jnp.array([u_max])))
+    sat = actuators.Saturation(jnp.array([-u_max]), jnp.array([u_max]))
     return jd.Loop(plant=plant, sensor=jd.sensors.WhiteNoise(jnp.array([0.01, 0.05])), estimator=kf,
                    controller=jd.control.StateFeedback(gain_sign * K), actuator=sat, dt=DT, substeps=SUBSTEPS,
                    process_noise_std=1e-3, state_bound=jnp.asarray(bound))
@@ -284,36 +284,27 @@ def test_fan_out_drives_with_one_and_compares_all_on_the_same_data():
         jd.FanOut({"kf": loop.estimator}, drive="ekf")
 
 
-def test_native_and_legacy_components_reproduce_the_original_loop():
-    """dip-lqr's loop three ways: the original loop (tests/reference_loop.py), the engine with adapted old components, and the engine
-    with the native Modules; same key, same records."""
-    from jaxdip.control import feedback_params, state_feedback
-    from jaxdip.estimators import passthrough
-    from jaxdip.plants import dip
-    from jaxdip.sim import linearize
+def test_engine_reproduces_the_original_loop():
+    """dip-lqr's loop two ways: the original loop (tests/reference_loop.py) with the general linear sensor, and the
+    engine with the white-noise sensor; same key, same records."""
     from reference_loop import Loop as OldLoop
     from reference_loop import LoopParams, rollout
 
-    old_plant, p = dip.make(), dip.default_params()
-    A, B = linearize(old_plant.f, p, jnp.zeros(6), 0.0)
-    K, _, _ = jd.control.lqr(A, B, np.diag([30.0, 350, 100, 0, 0, 0]), 0.1)
+    plant = jd.plants.DIP()
+    K, _, _ = jd.control.lqr(*jd.linearize(plant), np.diag([30.0, 350, 100, 0, 0, 0]), 0.1)
     std = jnp.array([1e-3, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2])
     bound = jnp.array([1.0, 1.5708, 1.5708, np.inf, np.inf, np.inf])
-    old_loop = OldLoop(old_plant, 0.001, sensors.linear_sensor(0.001), passthrough, state_feedback())
-    old_params = LoopParams(p, sensors.full_state_params(6, white_std=std), (), feedback_params(K), state_bound=bound)
+    old_loop = OldLoop(plant, 0.001, sensors.LinearSensor(np.eye(6), 0.001, white_std=std), jd.Passthrough(),
+                       jd.control.StateFeedback(K))
     x0, key, n = jnp.array([0.01, -0.02, 0.03, 0.0, 0.1, 0.0]), jax.random.PRNGKey(9), 300
-    _, rec = jax.jit(lambda q: rollout(old_loop, q, x0, key, n))(old_params)
+    _, rec = eqx.filter_jit(lambda lp, q: rollout(lp, q, x0, key, n))(old_loop, LoopParams(state_bound=bound))
 
-    legacy = jd.Loop(plant=jd.LegacyPlant(old_plant, p),
-                     sensor=jd.Legacy(old_loop.sensor, old_params.sensor), estimator=jd.Legacy(passthrough, ()),
-                     controller=jd.Legacy(state_feedback(), feedback_params(K)), dt=0.001, state_bound=bound)
-    native = jd.Loop(plant=jd.plants.DIP(), sensor=jd.sensors.WhiteNoise(std), estimator=jd.Passthrough(),
+    native = jd.Loop(plant=plant, sensor=jd.sensors.WhiteNoise(std), estimator=jd.Passthrough(),
                      controller=jd.control.StateFeedback(K), dt=0.001, state_bound=bound)
-    for loop in (legacy, native):
-        sol = simulate(loop, x0, key, n, save=lambda s: (s.x, s.xhat, s.u, s.y))
-        for a, b in zip(sol.saved, (rec.x, rec.xhat, rec.u, rec.y)):
-            # 300 closed-loop periods carry last-bit differences of three separately compiled programs
-            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-13)
+    sol = simulate(native, x0, key, n, save=lambda s: (s.x, s.xhat, s.u, s.y))
+    for a, b in zip(sol.saved, (rec.x, rec.xhat, rec.u, rec.y)):
+        # 300 closed-loop periods carry last-bit differences of two separately compiled programs
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-13)
 
 
 def test_native_estimators_equal_their_init_step_versions():

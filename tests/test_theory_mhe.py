@@ -13,7 +13,8 @@ from jaxdip.estimators.linearized import lti_step
 from jaxdip.estimators.proximal import horizon_stack, ls_mhe_filter
 from jaxdip.estimators.scpx import scpx_lti
 from jaxdip.plants import dip
-from jaxdip.sim import Discrete, linearize
+from jaxdip.engine.roles import linearize
+from jaxdip.sim import Discrete
 from jaxdip.theory import mhe
 
 
@@ -168,8 +169,8 @@ def test_prop_1_4_3_bound_1000_seeds():
 
 def test_prop_1_4_3_criterion_dip():
     """Thesis §3.3: the criterion for CPX on the DIP (1 ms, outputs xc, alpha, theta) is gamma >= 24400."""
-    plant = dip.make("printed")
-    A, B = linearize(plant.f, plant.default_params(), jnp.zeros(6), 0.0)
+    plant = dip.DIP()
+    A, B = linearize(plant, jnp.zeros(6), 0.0)
     A = np.asarray(A)
     h = 1e-3
     C = np.zeros((3, 6))

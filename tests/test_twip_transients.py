@@ -12,7 +12,7 @@ from jaxdip.theory import twip_transients as T
 
 def test_swing_matches_dop853():
     t, x = T.swing(10.0, duration=3.0, dt=0.01, substeps=10)
-    p = twip.default_params()
+    p = twip.TWIP()
     rhs = lambda _t, s: np.asarray(twip.f(p, s, np.zeros(1)))
     ref = solve_ivp(rhs, (0.0, 3.0), x[0], method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t)
     np.testing.assert_allclose(x, ref.y.T, atol=1e-9)

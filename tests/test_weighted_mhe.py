@@ -374,7 +374,17 @@ def test_projector_window_weight_gives_scpx():
     kf = jd.estimators.KalmanFilter(model.Phi, model.W, C3, PROC_STD**2 * np.eye(6), np.diag(SENSOR_STD**2),
                                     1e-4 * np.eye(6))
     keep = 4
-    ref = jd.Legacy(scpx_lti(keep), CPXParams(150.0, model, jnp.asarray(C3), jnp.zeros(6)))
+    class SCPXLTI(jd.Estimator):  # the init/step SCPX as an estimator (W1's SCPX module replaces it)
+        params: CPXParams
+
+        def init(self, key, x0):
+            return scpx_lti(keep).init(self.params, key, x0)
+
+        def step(self, state, y, u_prev, key, k):
+            state, out = scpx_lti(keep).step(self.params, state, (y, u_prev), key, k)
+            return state, out, None
+
+    ref = SCPXLTI(CPXParams(jnp.asarray(150.0), model, jnp.asarray(C3), jnp.zeros(6)))
     mhe = WeightedMHE.scpx(model, C3, 150.0, keep)
     loop = dip_loop(jd.FanOut({"kf": kf, "scpx": ref, "mhe": mhe}, drive="kf"), model, K)
     sol = eqx.filter_jit(jd.simulate)(loop, jnp.array([0.01, 0.02, -0.01, 0, 0, 0]), jax.random.PRNGKey(3), 300,

@@ -84,7 +84,7 @@ def _below(a, a_ci, b, b_ci) -> str:
 def rwp_fig3(args, workdir: str):
     from jaxdip.plants import rwp as P
 
-    p = P.default_params()
+    p = P.RWP()
     hold_current = float(P.mass_moment(p) * p.g * math.sin(0.15) / p.k)
     seeds = None if args.quick else RWP_SEEDS
     L = ["## Fig. 3: the homogeneous differentiators against the Luenberger observer (§III-D)", "",

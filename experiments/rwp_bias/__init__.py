@@ -239,7 +239,7 @@ def growth_rate(t, err, window):
 
 def part_d(cfg):
     """γ̄_d of Proposition 2 (two routes, plus sampled simulations around it) and the LMIs (27)."""
-    p = rwp.default_params()
+    p = rwp.RWP()
     gb = T.gamma_bar_routh(p, cfg.K)
     ge = T.gamma_bar_eig(p, cfg.K)
     gammas = [f * gb.gamma_bar for f in cfg.gamma_check]

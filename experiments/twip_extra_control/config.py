@@ -23,7 +23,7 @@ THESIS = {
     "deadzone": {"lqr": 358.42, "extra": 181.53, "nominal": 326.10},
     "deadzone_backlash": {"lqr": 1451.9, "extra": 688.17, "nominal": 1434.5},
 }
-# the controller's own keys: a variant changes numbers in ExtraControlParams only (no recompilation)
+# the controller's own keys: a variant changes numbers in ExtraControl's fields only (no recompilation)
 VARIANT_KEYS = ("virtual", "virtual_sign", "k1", "k2", "gamma", "sigma", "b", "v_scale", "tau_d")
 DEFAULT_VARIANTS = ("virtual=printed", "gamma=[0.0, 0.0, 0.0, 0.0]", "k1=10.0")
 FIGS = {"param": ("8.15", "8.16"), "unmodeled": ("8.17", "8.19"), "unmodeled_unstable": ("8.18", "8.19"),

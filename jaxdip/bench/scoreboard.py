@@ -27,6 +27,7 @@ import os
 import platform
 import statistics
 import time
+import types
 from typing import Callable, Optional
 
 import jax
@@ -37,10 +38,17 @@ import jaxdip as jd
 from jaxdip.scenarios.dip_lqr import dip_lqr
 from jaxdip.outdir import OutputError, check_file, shown, write_file_atomic
 from jaxdip.outdir.files import read_own
-from jaxdip.plants.dip import DIPParams
+from jaxdip.plants.dip import DIP
 
 
-def numpy_dip_f(p: DIPParams, x, V):
+def numpy_dip_params() -> types.SimpleNamespace:
+    """The DIP's Table 3.3 numbers as Python floats (NumPy code on 0-d JAX arrays would dispatch every op)."""
+    d = DIP()
+    return types.SimpleNamespace(**{f.name: float(getattr(d, f.name)) for f in dataclasses.fields(d)
+                                    if f.name != "variant"})
+
+
+def numpy_dip_f(p: types.SimpleNamespace, x, V):
     """Printed DIP equations of motion in plain NumPy (a second, independent transcription)."""
     xc, a, th, xcd, ad, thd = x
     ma = p.M1 * p.l1 + p.M2 * p.L1 + p.Mh * p.L1
@@ -72,7 +80,7 @@ def scipy_loop(K, noise, x0, dt, method="RK45", rtol=1e-6, atol=1e-9):
     """The loop with ``solve_ivp`` restarted every period (input held): final state. ``noise``: (n, 6)."""
     from scipy.integrate import solve_ivp
 
-    p = DIPParams()
+    p = numpy_dip_params()
     x = np.array(x0, dtype=np.float64)
     for w in noise:
         u = float(-(K @ (x + w))[0])
@@ -82,7 +90,7 @@ def scipy_loop(K, noise, x0, dt, method="RK45", rtol=1e-6, atol=1e-9):
 
 def numpy_loop(K, noise, x0, dt, substeps=10):
     """The loop in plain NumPy, RK4 with ``substeps`` steps per period: final state. ``noise``: (n, 6)."""
-    p = DIPParams()
+    p = numpy_dip_params()
     x = np.array(x0, dtype=np.float64)
     h = dt / substeps
     for w in noise:

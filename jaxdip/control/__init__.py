@@ -1,12 +1,11 @@
-"""Controllers: Riccati/LQR, state feedback (power-series, projection control and networks join later)."""
+"""Controllers: Riccati/LQR, state feedback, power-series and relaxed projection control (engine controllers)."""
 
-from jaxdip.control.feedback import ConstantInput, FeedbackParams, StateFeedback, feedback_params, state_feedback
+from jaxdip.control.feedback import ConstantInput, SaturatedFeedback, StateFeedback
 from jaxdip.control.riccati import (RiccatiCode, RiccatiError, care, care_checked, dare, dare_checked, dlqr,
                                    error_if_failed, lqr, lyap, riccati_status)
 
-__all__ = ["ConstantInput", "FeedbackParams", "StateFeedback", "feedback_params", "state_feedback", "care", "dare", "dlqr", "lqr",
-           "lyap", "care_checked", "dare_checked", "riccati_status", "error_if_failed", "RiccatiCode",
-           "RiccatiError"]
+__all__ = ["ConstantInput", "SaturatedFeedback", "StateFeedback", "care", "dare", "dlqr", "lqr", "lyap",
+           "care_checked", "dare_checked", "riccati_status", "error_if_failed", "RiccatiCode", "RiccatiError"]
 from jaxdip.control.power_series import PowerSeries  # noqa: E402
 from jaxdip.control.projection import RelaxedProjection  # noqa: E402
 

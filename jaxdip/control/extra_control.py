@@ -72,7 +72,7 @@ Decisions where the printed text is ambiguous or mangled (re-derived; see also t
                  (A1 - beta A3) x2 + a x3d + d1 - beta d2. It also removes the u feedthrough that makes a raw
                  difference for xbar4 ring (B1 - beta B2 = 0). x1d, x2d, x3d of (182) are unchanged (x4d = 0).
 
-Every number is in ``ExtraControlParams`` (a pytree), so ``jax.grad`` reaches k1, k2, the learning rates, the
+Every number is an array field of ``ExtraControl``, so ``jax.grad`` reaches k1, k2, the learning rates, the
 damping factors, the LQR gain and the model coefficients. The network's random input weights V1, V2 are drawn
 in ``init`` from the component's key (uniform in [-v_scale, v_scale]) and live in the state, with the adapted
 weights (zero at start).
@@ -91,38 +91,6 @@ from jaxdip.engine.roles import Controller, param
 N_IN1 = 10  # P1 = [1, x1, x2, x3, x4, e1, e2, x1d, x2d, u]
 N_IN2 = 12  # P2 = [1, x1, x2, x3, x4, e1, e2, ebar3, ebar4, x1d, x2d, u_nom]
 VIRTUAL = ("printed", "effective", "flat")
-
-
-class ExtraControlParams(NamedTuple):
-    K: jnp.ndarray  # (1, 4) LQR gain of the nominal control (84)
-    dt: jnp.ndarray  # control period (s); also the Euler step of the weight laws
-    A1: jnp.ndarray  # entries of the nominal linear model (79), named as in (87)
-    A2: jnp.ndarray
-    A3: jnp.ndarray
-    A4: jnp.ndarray
-    B1: jnp.ndarray
-    B2: jnp.ndarray
-    v_d: jnp.ndarray  # desired constant velocity (182)
-    x1d0: jnp.ndarray  # desired position at k = 0
-    k1: jnp.ndarray  # (93)
-    k2: jnp.ndarray  # (101)
-    b1: jnp.ndarray  # (n_h,) coefficient vector of (111)
-    b2: jnp.ndarray  # (n_h,) coefficient vector of (113)
-    gamma11: jnp.ndarray
-    gamma12: jnp.ndarray
-    gamma21: jnp.ndarray
-    gamma22: jnp.ndarray
-    sigma11: jnp.ndarray
-    sigma12: jnp.ndarray
-    sigma21: jnp.ndarray
-    sigma22: jnp.ndarray
-    u_max: jnp.ndarray  # saturation of u_nom, u_e and u
-    extra: jnp.ndarray  # 1: apply u_e; 0: LQR alone (the networks still adapt, unused)
-    v_scale: jnp.ndarray  # V1, V2 ~ U(-v_scale, v_scale)
-    a_virtual: jnp.ndarray  # the gain inverted in (93): A2 as printed (see the module doc for the alternatives)
-    beta: jnp.ndarray  # 0 as printed; B1/B2 in the "flat" variant: e1, e2 are errors of x1 - beta x3, x2 - beta x4
-    tau_d: jnp.ndarray  # time constant (s) of the filtered difference that gives xbar4 (0: raw difference)
-    ff: jnp.ndarray  # 1: u_nom includes the desired input u_d of (183); 0: (84) literally, u = -K (x - x_d)
 
 
 class ExtraControlState(NamedTuple):
@@ -153,34 +121,10 @@ def model_coefficients(A, B):
     return A[1, 1], A[1, 2], A[3, 1], A[3, 2], B[1, 0], B[3, 0]
 
 
-def extra_control_params(K, A, B, *, dt=0.01, v_d=0.1, x1d0=0.0, k1=2.5, k2=2.5, n_hidden=10, b=1.0,
-                         gamma=0.1, sigma=0.01, u_max=11.1, extra=1.0, v_scale=1.0, ff=1.0,
-                         tau_d=0.05, virtual="printed", virtual_sign=1.0) -> ExtraControlParams:
-    """The §8.2 values by default: k1 = k2 = 2.5, B1 = B2 = ones(10), all gamma = 0.1, all sigma = 0.01.
-
-    ``virtual``: "printed" (93) as printed; "effective" inverts A2 - B1 A4 / B2 instead of A2; "flat" also
-    measures e1, e2 on the flat output (see the module doc). ``virtual_sign`` = -1 reverses the sign in front
-    of the inverted gain in (93) (the reading "(93) carries a sign slip"; flipping the tilt's orientation does not
-    do this: it reverses A2 and A2 - B1 A4 / B2 together)."""
-    if virtual not in VIRTUAL:
-        raise ValueError(f"virtual must be one of {VIRTUAL}, got {virtual!r}")
-    A1, A2, A3, A4, B1, B2 = model_coefficients(jnp.asarray(A), jnp.asarray(B))
-    ones = jnp.ones(n_hidden)
-    a_virtual = _f(virtual_sign) * (A2 if virtual == "printed" else A2 - B1 * A4 / B2)
-    beta = B1 / B2 if virtual == "flat" else jnp.zeros_like(B1)
-    return ExtraControlParams(
-        K=jnp.reshape(_f(K), (1, 4)), dt=_f(dt), A1=A1, A2=A2, A3=A3, A4=A4, B1=B1, B2=B2, v_d=_f(v_d),
-        x1d0=_f(x1d0), k1=_f(k1), k2=_f(k2), b1=_f(b) * ones, b2=_f(b) * ones,
-        gamma11=_f(gamma), gamma12=_f(gamma), gamma21=_f(gamma), gamma22=_f(gamma),
-        sigma11=_f(sigma), sigma12=_f(sigma), sigma21=_f(sigma), sigma22=_f(sigma),
-        u_max=_f(u_max), extra=_f(extra), v_scale=_f(v_scale), ff=_f(ff),
-        tau_d=_f(tau_d), a_virtual=a_virtual, beta=beta)
-
-
 # ---- the pieces of the law (pure functions, also used by the tests) --------------------------------------
 
 
-def desired_constants(p: ExtraControlParams):
+def desired_constants(p: ExtraControl):
     """(x3d, u_d) of (183): [x3d, u_d] = -[[A2, B1], [A4, B2]]^-1 [A1, A3] x2d (closed-form 2x2 solve)."""
     det = p.A2 * p.B2 - p.B1 * p.A4
     r1, r2 = -p.A1 * p.v_d, -p.A3 * p.v_d
@@ -189,7 +133,7 @@ def desired_constants(p: ExtraControlParams):
     return x3d, u_d
 
 
-def desired_state(p: ExtraControlParams, t):
+def desired_state(p: ExtraControl, t):
     """x_d(t) = [x1d0 + v_d t, v_d, x3d, 0] (182); the discrete x1d recursion is exact for constant v_d."""
     x3d, _ = desired_constants(p)
     t = jnp.asarray(t, jnp.float64)
@@ -204,12 +148,12 @@ def network(V, W_in, w_out, P):
     return w_out @ phi2, phi1, phi2
 
 
-def virtual_tilt(p: ExtraControlParams, e1, e2, x3d, F1hat):
+def virtual_tilt(p: ExtraControl, e1, e2, x3d, F1hat):
     """(93): xbar3 = x3d + A2^-1 (-k1 e2 - e1 - F1hat)."""
     return x3d + (-p.k1 * e2 - e1 - F1hat) / p.a_virtual
 
 
-def extra_law(p: ExtraControlParams, ebar3, ebar4, F2hat):
+def extra_law(p: ExtraControl, ebar3, ebar4, F2hat):
     """(101) before saturation: u_e = B2^-1 (-k2 ebar4 - F2hat - ebar3)."""
     return (-p.k2 * ebar4 - F2hat - ebar3) / p.B2
 
@@ -240,7 +184,7 @@ def _init_state(p, key, n_hidden: int) -> ExtraControlState:
 
 
 def _law(p, s: ExtraControlState, xhat, k):
-    """One control sample (module doc): (new state, u_k, x_d at t_k). ``p`` has ``ExtraControlParams``' fields."""
+    """One control sample (module doc): (new state, u_k, x_d at t_k) of the controller ``p``."""
     x = jnp.asarray(xhat, jnp.float64)
     xd = desired_state(p, k * p.dt)
     x3d, u_d = desired_constants(p)
@@ -274,26 +218,25 @@ class ExtraControlAux(NamedTuple):
 
 
 class ExtraControl(Controller):
-    """LQR + extra control as an engine controller: ``ExtraControlParams``' fields are its array fields,
-    ``n_hidden`` (neurons per layer) is static. ``aux`` is an ``ExtraControlAux``: the controller's new state
+    """LQR + extra control as an engine controller: the gains, rates and model coefficients below are array
+    fields, ``n_hidden`` (neurons per layer) is static. ``aux`` is an ``ExtraControlAux``: the controller's new state
     (network outputs F1hat, F2hat, the split u_nom / u_e, the adapted weights) and x_d(t_k), so a run records
-    them with ``save`` instead of replaying the loop. ``ExtraControl.design(K, A, B, ...)`` takes the keyword
-    arguments of ``extra_control_params``."""
+    them with ``save`` instead of replaying the loop. Build it with ``ExtraControl.design(K, A, B, ...)``."""
 
-    K: jax.Array = param()
-    dt: jax.Array = param()
-    A1: jax.Array = param()
+    K: jax.Array = param()  # (1, 4) LQR gain of the nominal control (84)
+    dt: jax.Array = param()  # control period (s); also the Euler step of the weight laws
+    A1: jax.Array = param()  # entries of the nominal linear model (79), named as in (87)
     A2: jax.Array = param()
     A3: jax.Array = param()
     A4: jax.Array = param()
     B1: jax.Array = param()
     B2: jax.Array = param()
-    v_d: jax.Array = param()
-    x1d0: jax.Array = param()
-    k1: jax.Array = param()
-    k2: jax.Array = param()
-    b1: jax.Array = param()
-    b2: jax.Array = param()
+    v_d: jax.Array = param()  # desired constant velocity (182)
+    x1d0: jax.Array = param()  # desired position at k = 0
+    k1: jax.Array = param()  # (93)
+    k2: jax.Array = param()  # (101)
+    b1: jax.Array = param()  # (n_h,) coefficient vector of (111)
+    b2: jax.Array = param()  # (n_h,) coefficient vector of (113)
     gamma11: jax.Array = param()
     gamma12: jax.Array = param()
     gamma21: jax.Array = param()
@@ -302,22 +245,40 @@ class ExtraControl(Controller):
     sigma12: jax.Array = param()
     sigma21: jax.Array = param()
     sigma22: jax.Array = param()
-    u_max: jax.Array = param()
-    extra: jax.Array = param()
-    v_scale: jax.Array = param()
-    a_virtual: jax.Array = param()
+    u_max: jax.Array = param()  # saturation of u_nom, u_e and u
+    extra: jax.Array = param()  # 1: apply u_e; 0: LQR alone (the networks still adapt, unused)
+    v_scale: jax.Array = param()  # V1, V2 ~ U(-v_scale, v_scale)
+    a_virtual: jax.Array = param()  # the gain inverted in (93): A2 as printed (see the module doc for the alternatives)
+    # 0 as printed; B1/B2 in the "flat" variant: e1, e2 are errors of x1 - beta x3, x2 - beta x4
     beta: jax.Array = param()
-    tau_d: jax.Array = param()
-    ff: jax.Array = param()
+    tau_d: jax.Array = param()  # time constant (s) of the filtered difference that gives xbar4 (0: raw difference)
+    ff: jax.Array = param()  # 1: u_nom includes the desired input u_d of (183); 0: (84) literally, u = -K (x - x_d)
     n_hidden: int = eqx.field(default=10, static=True)
 
     @classmethod
-    def of(cls, p: ExtraControlParams, n_hidden: int = 10) -> "ExtraControl":
-        return cls(**p._asdict(), n_hidden=n_hidden)
+    def design(cls, K, A, B, *, dt=0.01, v_d=0.1, x1d0=0.0, k1=2.5, k2=2.5, n_hidden=10, b=1.0, gamma=0.1,
+               sigma=0.01, u_max=11.1, extra=1.0, v_scale=1.0, ff=1.0, tau_d=0.05, virtual="printed",
+               virtual_sign=1.0) -> "ExtraControl":
+        """The controller for the LQR gain ``K`` and the linear model (A, B) of (79). The §8.2 values by default:
+        k1 = k2 = 2.5, B1 = B2 = ones(10), all gamma = 0.1, all sigma = 0.01.
 
-    @classmethod
-    def design(cls, K, A, B, **kw) -> "ExtraControl":
-        return cls.of(extra_control_params(K, A, B, **kw), kw.get("n_hidden", 10))
+        ``virtual``: "printed" (93) as printed; "effective" inverts A2 - B1 A4 / B2 instead of A2; "flat" also
+        measures e1, e2 on the flat output (see the module doc). ``virtual_sign`` = -1 reverses the sign in front
+        of the inverted gain in (93) (the reading "(93) carries a sign slip"; flipping the tilt's orientation does
+        not do this: it reverses A2 and A2 - B1 A4 / B2 together)."""
+        if virtual not in VIRTUAL:
+            raise ValueError(f"virtual must be one of {VIRTUAL}, got {virtual!r}")
+        A1, A2, A3, A4, B1, B2 = model_coefficients(jnp.asarray(A), jnp.asarray(B))
+        ones = jnp.ones(n_hidden)
+        a_virtual = _f(virtual_sign) * (A2 if virtual == "printed" else A2 - B1 * A4 / B2)
+        beta = B1 / B2 if virtual == "flat" else jnp.zeros_like(B1)
+        return cls(
+            K=jnp.reshape(_f(K), (1, 4)), dt=_f(dt), A1=A1, A2=A2, A3=A3, A4=A4, B1=B1, B2=B2, v_d=_f(v_d),
+            x1d0=_f(x1d0), k1=_f(k1), k2=_f(k2), b1=_f(b) * ones, b2=_f(b) * ones,
+            gamma11=_f(gamma), gamma12=_f(gamma), gamma21=_f(gamma), gamma22=_f(gamma),
+            sigma11=_f(sigma), sigma12=_f(sigma), sigma21=_f(sigma), sigma22=_f(sigma),
+            u_max=_f(u_max), extra=_f(extra), v_scale=_f(v_scale), ff=_f(ff),
+            tau_d=_f(tau_d), a_virtual=a_virtual, beta=beta, n_hidden=n_hidden)
 
     def init(self, key, x0):
         return _init_state(self, key, self.n_hidden)

@@ -1,32 +1,11 @@
-"""Static state feedback u = u_ref - K (xhat - x_ref) as a loop component."""
+"""Static state feedback u = u_ref - K (xhat - x_ref), its saturated form, and a constant (open-loop) input."""
 
 from __future__ import annotations
-
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from jaxdip.engine.roles import Controller, param
-from jaxdip.sim.component import stateless
-
-
-class FeedbackParams(NamedTuple):
-    K: jnp.ndarray  # (m, n)
-    x_ref: jnp.ndarray  # (n,)
-    u_ref: jnp.ndarray  # (m,)
-
-
-def feedback_params(K, x_ref=None, u_ref=None) -> FeedbackParams:
-    K = jnp.atleast_2d(jnp.asarray(K, dtype=jnp.float64))
-    m, n = K.shape
-    x_ref = jnp.zeros(n) if x_ref is None else jnp.asarray(x_ref, dtype=jnp.float64)
-    u_ref = jnp.zeros(m) if u_ref is None else jnp.asarray(u_ref, dtype=jnp.float64)
-    return FeedbackParams(K, x_ref, u_ref)
-
-
-def state_feedback():
-    return stateless(lambda p, xhat, key, k: p.u_ref - p.K @ (xhat - p.x_ref))
 
 
 class StateFeedback(Controller):
@@ -37,8 +16,11 @@ class StateFeedback(Controller):
     u_ref: jax.Array = param()
 
     def __init__(self, K, x_ref=None, u_ref=None):
-        p = feedback_params(K, x_ref, u_ref)
-        self.K, self.x_ref, self.u_ref = p.K, p.x_ref, p.u_ref
+        K = jnp.atleast_2d(jnp.asarray(K, dtype=jnp.float64))
+        m, n = K.shape
+        self.K = K
+        self.x_ref = jnp.zeros(n) if x_ref is None else x_ref
+        self.u_ref = jnp.zeros(m) if u_ref is None else u_ref
 
     def step(self, state, xhat, key, k):
         return state, self.u_ref - self.K @ (xhat - self.x_ref), None
@@ -55,7 +37,7 @@ class ConstantInput(Controller):
 
 class SaturatedFeedback(StateFeedback):
     """u = clip(u_ref - K (xhat - x_ref), u_min, u_max): the clip inside the controller, so the u_{k-1} an
-    estimator is given is the input actually applied (as ``chain(state_feedback(), saturation())``)."""
+    estimator is given is the input actually applied (a ``Saturation`` actuator would hand it the unclipped u)."""
 
     u_min: jax.Array = param()
     u_max: jax.Array = param()

@@ -11,14 +11,13 @@ f_3(x) = phi'''(0) / 6 (three nested forward derivatives along x). Its linear pa
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 
 from jaxdip.control.riccati import care
-from jaxdip.engine.roles import Controller, param
-from jaxdip.sim.component import stateless
+from jaxdip.engine.roles import Controller, linearize, param
 
 
 def third_order_term(f, x):
@@ -33,29 +32,6 @@ def third_order_term(f, x):
     return d3(jnp.zeros((), dtype=x.dtype)) / 6.0
 
 
-class PSParams(NamedTuple):
-    P: jnp.ndarray
-    A: jnp.ndarray
-    B: jnp.ndarray
-    R: jnp.ndarray
-    plant: object
-
-
-def ps_params(plant, plant_params, Q, R) -> PSParams:
-    from jaxdip.sim.discretize import linearize
-
-    n, m = plant.n, plant.m
-    A, B = linearize(plant.f, plant_params, jnp.zeros(n), jnp.zeros(m))
-    R = jnp.atleast_2d(jnp.asarray(R, dtype=jnp.float64))
-    P = care(A, B, Q, R)
-    return PSParams(P, A, B, R, plant_params)
-
-
-def power_series_law(plant, p: PSParams, x):
-    m = plant.m
-    return _law(lambda z: plant.f(p.plant, z, jnp.zeros(m)), p, x)
-
-
 def _law(drift, p, x):
     f3 = third_order_term(drift, x)
     BRB = p.B @ jnp.linalg.solve(p.R, p.B.T)
@@ -63,13 +39,9 @@ def _law(drift, p, x):
     return -jnp.linalg.solve(p.R, p.B.T @ (p.P @ x - corr))
 
 
-def power_series_controller(plant):
-    return stateless(lambda p, xhat, key, k: power_series_law(plant, p, xhat))
-
-
 class PowerSeries(Controller):
-    """The power-series law (3.5) as an engine controller: ``PSParams``' fields, with ``plant`` the controller's
-    model of the plant (an engine ``Plant``, e.g. ``jaxdip.plants.DIP()``; its numbers are leaves too).
+    """The power-series law (3.5) as an engine controller: P, A, B, R as array fields, with ``plant`` the
+    controller's model of the plant (an engine ``Plant``, e.g. ``jaxdip.plants.DIP()``; its numbers are leaves too).
     ``PowerSeries.design(plant, Q, R)`` solves the CARE on the plant's linearisation at its equilibrium."""
 
     P: jax.Array = param()
@@ -80,8 +52,6 @@ class PowerSeries(Controller):
 
     @classmethod
     def design(cls, plant, Q, R) -> "PowerSeries":
-        from jaxdip.engine.roles import linearize
-
         A, B = linearize(plant)
         R = jnp.atleast_2d(jnp.asarray(R, dtype=jnp.float64))
         return cls(care(A, B, Q, R), A, B, R, plant)

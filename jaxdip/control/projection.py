@@ -7,7 +7,7 @@ For x_{k+1} = f(x_k) + g(x_k) u and an SPD matrix P:
 * relaxed, continuous (2.14): u = -(g^T P g)^-1 (gamma g^T P x + g^T P f(x))   for xdot = f(x) + g(x) u
 * state-dependent weights (2.18): gamma_k = gamma / ||x_k||_2^alpha
 
-For a plant given as ``f(params, x, u)`` (continuous or discrete), the drift is f(x, 0) and g(x) = df/du, by
+For the controller's model of the plant (continuous or discrete), the drift is f(x, 0) and g(x) = df/du, by
 autodiff: exact for the control-affine models here. ``linear_input=True`` uses g at the origin instead.
 
 The linear closed form: for x_{k+1} = A x + B u under (2.16), with T = (I - Pi) A, Pi = B (B^T P B)^-1 B^T P
@@ -22,14 +22,13 @@ derived here, and the tests check it against simulation.
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple, Optional
+from typing import Any, Optional
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from jaxdip.engine.roles import Controller, param
-from jaxdip.sim.component import stateless
 
 
 def _solve_gPg(P, g, rhs):
@@ -66,53 +65,11 @@ def state_weight(gamma, alpha, x, floor=1e-300):
 
 
 def drift_and_input(plant_f, plant_params, x, m):
+    """f(x) = plant_f(plant_params, x, 0) and g(x) = d plant_f / du at u = 0 (``m`` inputs)."""
     u0 = jnp.zeros(m)
     fx = plant_f(plant_params, x, u0)
     gx = jax.jacfwd(plant_f, argnums=2)(plant_params, x, u0)
     return fx, gx
-
-
-class RPParams(NamedTuple):
-    P: jnp.ndarray
-    gamma: jnp.ndarray  # weight (constant, or the numerator of (2.18))
-    alpha: jnp.ndarray  # exponent of (2.18); 0 for a fixed weight
-    plant: object  # the controller's model of the plant (may differ from the truth)
-    x_ref: jnp.ndarray
-
-
-def rp_params(P, gamma, plant_params, alpha=0.0, x_ref=None):
-    P = jnp.asarray(P, dtype=jnp.float64)
-    x_ref = jnp.zeros(P.shape[0]) if x_ref is None else jnp.asarray(x_ref, dtype=jnp.float64)
-    return RPParams(P, jnp.asarray(gamma, dtype=jnp.float64), jnp.asarray(alpha, dtype=jnp.float64),
-                    plant_params, x_ref)
-
-
-def relaxed_projection_controller(plant, kind: str = "continuous", linear_input: bool = False,
-                                  projection_only: bool = False):
-    """Loop component; ``kind`` is 'continuous' (2.14) or 'discrete' (2.10); projection_only gives (2.9)."""
-    if kind not in ("continuous", "discrete"):
-        raise ValueError(f"kind must be 'continuous' or 'discrete', got {kind!r}")
-    fn = plant.f if plant.continuous else plant.step
-
-    def law(p: RPParams, xhat, key, k):
-        return _rp_law(fn, plant.m, plant.continuous, p, xhat, kind, linear_input, projection_only)
-
-    return stateless(law)
-
-
-def _rp_law(fn, m, continuous, p, xhat, kind, linear_input, projection_only):
-    """The law of ``relaxed_projection_controller`` for a plant map ``fn(model, x, u)`` (model = ``p.plant``)."""
-    x = xhat - p.x_ref
-    fx, gx = drift_and_input(fn, p.plant, xhat, m)
-    if linear_input:
-        gx = drift_and_input(fn, p.plant, p.x_ref, m)[1]
-    fx = fx - p.x_ref if not continuous else fx
-    if projection_only:
-        return projection(p.P, fx, gx)
-    g_k = state_weight(p.gamma, p.alpha, x)
-    if kind == "continuous":
-        return relaxed_continuous(p.P, fx, gx, x, g_k)
-    return relaxed_discrete(p.P, fx, gx, x, g_k)
 
 
 def _model_map(model, x, u):
@@ -126,8 +83,8 @@ class RelaxedProjection(Controller):
     (2.9) with ``projection_only``. ``model`` is the controller's model of the plant (an engine plant, which
     may differ from the simulated one); f(x) and g(x) come from it by autodiff at the estimate.
 
-    Fields are those of ``RPParams`` and the options of ``relaxed_projection_controller``, and ``step`` is that
-    component's law with ``self`` as its params, so the numbers are the same (tested).
+    Fields: the weight ``P``, gamma and alpha of (2.18) and the reference ``x_ref`` (zero when None) as arrays;
+    the variant (``kind``, ``linear_input``, ``projection_only``) static.
     """
 
     model: Any

@@ -41,7 +41,7 @@ class TwipDesign(NamedTuple):
     B: jnp.ndarray  # (4, 1)
 
 
-def twip_discrete(params: twip.TWIPParams, dt):
+def twip_discrete(params: twip.TWIP, dt):
     """(F, G, A, B): the exact ZOH discretisation (148) of the closed-form linear model (79)."""
     A, B = twip.linear_model_closed_form(params)
     d = zoh(A, B, dt)
@@ -53,9 +53,10 @@ def _weight(Q, n):
     return jnp.diag(Q) if Q.ndim == 1 else Q.reshape(n, n)
 
 
-def twip_dlqr(params: twip.TWIPParams | None = None, Q=Q_THESIS, R=R_THESIS, dt=0.01) -> TwipDesign:
-    """Discrete LQR (150) for the TWIP's nominal linear model. ``Q``: 4 diagonal weights or a 4x4 matrix."""
-    params = twip.default_params() if params is None else params
+def twip_dlqr(params: twip.TWIP | None = None, Q=Q_THESIS, R=R_THESIS, dt=0.01) -> TwipDesign:
+    """Discrete LQR (150) for the TWIP's nominal linear model (Table 8.1 when None). ``Q``: 4 diagonal weights
+    or a 4x4 matrix."""
+    params = twip.TWIP() if params is None else params
     F, G, A, B = twip_discrete(params, dt)
     Qm = _weight(Q, 4)
     Rm = jnp.atleast_2d(jnp.asarray(R, dtype=jnp.float64))

@@ -4,7 +4,7 @@ the ``monte_carlo`` driver. See docs/engine.md. Everything here is re-exported f
 from jaxdip.engine import metrics
 from jaxdip.engine.keys import split_lanes
 from jaxdip.engine.roles import (
-    Actuator, Controller, DiscretePlant, Estimator, FanOut, FanOutAux, Identity, Legacy, LegacyPlant, Passthrough,
+    Actuator, Controller, DiscretePlant, Estimator, FanOut, FanOutAux, Identity, Passthrough,
     Plant, Sensor, linearize, param,
 )
 from jaxdip.engine.simulate import (
@@ -14,7 +14,7 @@ from jaxdip.engine.driver import Ball, Gaussian, Rollout, device_mesh, monte_car
 
 __all__ = [
     "metrics", "Actuator", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux", "Identity",
-    "Legacy", "LegacyPlant", "Passthrough", "Plant", "Sensor", "linearize", "param", "RESULTS", "Aux",
+    "Passthrough", "Plant", "Sensor", "linearize", "param", "RESULTS", "Aux",
     "KeySchedule", "Loop", "split_lanes",
     "Sample", "Solution", "State", "init_state", "simulate", "Ball", "Rollout", "device_mesh", "monte_carlo",
     "Gaussian",

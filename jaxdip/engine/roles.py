@@ -16,8 +16,8 @@ index. A plant is continuous (``vector_field(x, u)``, integrated by RK4 sub-step
 discrete (``step(x, u)``); it names its states and inputs (``state_names``, ``input_names``) and may override
 ``equilibrium()``, the point the loop's state bound is measured from.
 
-This module imports nothing else from jaxdip at import time, so plants and sensors can subclass these roles
-without import cycles.
+This module imports only the engine's own modules (compile effort, RK4), so plants and sensors can subclass
+these roles without import cycles.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine import effort
+from jaxdip.engine.integrate import rk4_zoh
 
 
 def _as_float_array(v):
@@ -87,8 +88,6 @@ class Plant(eqx.Module):
 
     def period(self, x, u, dt: float, substeps: int) -> jax.Array:
         """x after one sample period ``dt`` with ``u`` held: ``substeps`` RK4 steps."""
-        from jaxdip.sim.integrate import rk4_zoh
-
         return rk4_zoh(_vector_field, self, x, u, dt, substeps)
 
 
@@ -213,68 +212,3 @@ class FanOut(Estimator):
         for name, e in self.estimators.items():
             new[name], outs[name], auxes[name] = e.step(state[name], y, u_prev, key, k)
         return new, outs[self.drive], FanOutAux(outs, auxes)
-
-
-# ---- adapters for the init/step components of jaxdip.sim.component ---------------------------------------
-
-
-def _dynamic(params):
-    # The old Monte Carlo driver passed params through jax.jit, which traces Python numbers; do the same here so
-    # filter_jit does not bake them in as constants (no recompile per value, and grad reaches them).
-    return jax.tree_util.tree_map(
-        lambda a: jnp.asarray(a) if isinstance(a, (bool, int, float, complex)) else a, params)
-
-
-class Legacy(eqx.Module):
-    """Any ``Component(init, step)`` with its params pytree, in any non-plant role, running unchanged.
-
-    ``aux`` is the component's new state, so anything it keeps can be recorded. The component (a pair of
-    closures) is static: two ``Legacy`` objects built from separately constructed components compile
-    separately.
-    """
-
-    component: Any = eqx.field(static=True)
-    params: Any = eqx.field(converter=_dynamic)
-
-    def init(self, key, x0):
-        return self.component.init(self.params, key, x0)
-
-    def step(self, state, *args):
-        *inp, key, k = args
-        # the old interface passes one input; an estimator's (y, u_prev) travel as a tuple
-        inp = inp[0] if len(inp) == 1 else tuple(inp)
-        state, out = self.component.step(self.params, state, inp, key, k)
-        return state, out, state
-
-
-class LegacyPlant(Plant):
-    """A ``jaxdip.plants.base.Plant`` bundle with its params pytree as a plant of the engine."""
-
-    plant: Any = eqx.field(static=True)
-    params: Any = eqx.field(converter=_dynamic)
-
-    @property
-    def state_names(self):
-        return self.plant.state_names
-
-    @property
-    def input_names(self):
-        return self.plant.input_names
-
-    @property
-    def continuous(self):
-        return self.plant.continuous
-
-    def equilibrium(self):
-        return self.plant.x_eq(self.params)
-
-    def vector_field(self, x, u):
-        return self.plant.f(self.params, x, u)
-
-    def step(self, x, u):
-        return self.plant.step(self.params, x, u)
-
-    def period(self, x, u, dt, substeps):
-        from jaxdip.sim.integrate import make_period_map
-
-        return make_period_map(self.plant, dt, substeps)(self.params, x, u)

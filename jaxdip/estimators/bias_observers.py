@@ -122,14 +122,11 @@ def beta_z(model, I, y, z3hat):
 
 
 class ReducedParams(NamedTuple):
-    model: object  # RWPParams of the observer's model
+    model: object  # the observer's model of the plant (an RWP)
     L0: jnp.ndarray
 
 
 def reduced_params(model, L0=0.01) -> ReducedParams:
-    from jaxdip.plants import rwp
-
-    model = rwp.RWPParams(*(_f(v) for v in model))
     return ReducedParams(model, _f(L0))
 
 

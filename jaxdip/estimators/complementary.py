@@ -14,61 +14,36 @@ theta_a = true angle) of a ramp is reproduced exactly. Properties the tests chec
 Initialisation (the thesis does not say): with ``init_from_angle`` (the default) the first output is the first
 accelerometer angle, as a robot started at rest would set it; otherwise the filter starts from theta = 0 and
 (37) is applied from the first sample on (its time constant is dt alpha / (1 - alpha), about 1 s at 10 ms).
-Works elementwise on arrays of channels.
+The update itself (``complementary_update``) lives with the TWIP's sensors, which apply it on the robot.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 
-from jaxdip.sim.component import Component
+from jaxdip.engine.roles import Estimator, param
+from jaxdip.sim.twip_sensors import complementary_update
 
 
-class ComplementaryParams(NamedTuple):
-    alpha: jnp.ndarray  # weight of the integrated gyro path (0.99)
-    dt: jnp.ndarray  # sample period (s)
-
-
-def complementary_params(alpha=0.99, dt=0.01) -> ComplementaryParams:
-    return ComplementaryParams(jnp.asarray(alpha, dtype=jnp.float64), jnp.asarray(dt, dtype=jnp.float64))
-
-
-def complementary_update(theta, rate, angle, alpha, dt):
-    """(37): one filter step from theta_{k-1} with the gyro rate and the accelerometer angle of sample k."""
-    return alpha * (theta + rate * dt) + (1.0 - alpha) * angle
-
-
-def complementary_filter(init_from_angle: bool = True, size: int | None = None) -> Component:
-    """Loop component: input ``(rate, angle)`` of sample k, output theta_k. State: theta_{k-1}."""
-
-    def init(params: ComplementaryParams, key, x0):
-        return jnp.zeros(() if size is None else (size,), dtype=jnp.float64)
-
-    def step(params: ComplementaryParams, theta, inp, key, k):
-        rate, angle = inp
-        new = complementary_update(theta, rate, angle, params.alpha, params.dt)
-        if init_from_angle:
-            new = jnp.where(k == 0, angle, new)
-        return new, new
-
-    return Component(init, step)
-
-
-def tilt_prefilter(angle_index: int = 2, rate_index: int = 3, init_from_angle: bool = True) -> Component:
+class ComplementaryFilter(Estimator):
     """(37) applied inside a measurement vector: channel ``angle_index`` (theta_a) is replaced by the filtered
-    tilt, using channel ``rate_index`` (the gyro) as the rate; other channels pass unchanged.
+    tilt, using channel ``rate_index`` (the gyro) as the rate; other channels pass unchanged. State:
+    theta_{k-1} (zero at start); ``aux`` is theta_k. Fields: the weight ``alpha`` and the period ``dt``."""
 
-    Chain it after a sensor (``jaxdip.sim.component.chain``) to reproduce the robot's pre-filtering (§4.3.1).
-    """
-    cf = complementary_filter(init_from_angle)
+    alpha: jax.Array = param(0.99)  # weight of the integrated gyro path
+    dt: jax.Array = param(0.01)  # sample period (s)
+    angle_index: int = eqx.field(default=2, static=True)
+    rate_index: int = eqx.field(default=3, static=True)
+    init_from_angle: bool = eqx.field(default=True, static=True)
 
-    def init(params: ComplementaryParams, key, x0):
-        return cf.init(params, key, x0)
+    def init(self, key, x0):
+        return jnp.zeros((), dtype=jnp.float64)
 
-    def step(params: ComplementaryParams, theta, y, key, k):
-        theta, out = cf.step(params, theta, (y[rate_index], y[angle_index]), key, k)
-        return theta, y.at[angle_index].set(out)
-
-    return Component(init, step)
+    def step(self, state, y, u_prev, key, k):
+        angle = y[self.angle_index]
+        theta = complementary_update(state, y[self.rate_index], angle, self.alpha, self.dt)
+        if self.init_from_angle:
+            theta = jnp.where(k == 0, angle, theta)
+        return theta, y.at[self.angle_index].set(theta), theta

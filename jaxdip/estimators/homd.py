@@ -91,23 +91,23 @@ def error_rhs(g: HOMDGains, e):
 # ---- model terms of (2)-(3) -----------------------------------------------------------------------------
 
 
-def a1(p: rwp.RWPParams):
+def a1(p: rwp.RWP):
     """a1 = ml g / J (the gravity coefficient of (2) and (14))."""
     return rwp.mass_moment(p) * p.g / rwp.inertia(p)
 
 
-def pendulum_accel(p: rwp.RWPParams, I, theta):
+def pendulum_accel(p: rwp.RWP, I, theta):
     """(2): theta'' = -(k/J) I + a1 sin(theta)."""
     return -p.k / rwp.inertia(p) * I + a1(p) * jnp.sin(theta)
 
 
-def wheel_current_gain(p: rwp.RWPParams):
+def wheel_current_gain(p: rwp.RWP):
     """(J + Jr) k / (J Jr), the current's coefficient in (3)."""
     J = rwp.inertia(p)
     return (J + p.Jr) * p.k / (J * p.Jr)
 
 
-def wheel_accel(p: rwp.RWPParams, I, theta):
+def wheel_accel(p: rwp.RWP, I, theta):
     """(3): theta_r'' = ((J + Jr) k / (J Jr)) I - a1 sin(theta)."""
     return wheel_current_gain(p) * I - a1(p) * jnp.sin(theta)
 
@@ -118,12 +118,11 @@ def wheel_accel(p: rwp.RWPParams, I, theta):
 class HOMDParams(NamedTuple):
     pend: HOMDGains  # [k_p1, k_p2, α_p] of (10)
     wheel: HOMDGains  # [k_r1, k_r2, α_r] of (12)
-    model: rwp.RWPParams  # the observer's model of the plant (Table 1)
+    model: rwp.RWP  # the observer's model of the plant (Table 1)
 
 
-def homd_params(pend=(5.0, 12.0, 0.9), wheel=(5.0, 12.0, 0.9), model: rwp.RWPParams | None = None) -> HOMDParams:
-    model = rwp.default_params() if model is None else model
-    model = rwp.RWPParams(*(jnp.asarray(v, dtype=jnp.float64) for v in model))
+def homd_params(pend=(5.0, 12.0, 0.9), wheel=(5.0, 12.0, 0.9), model: rwp.RWP | None = None) -> HOMDParams:
+    model = rwp.RWP() if model is None else model
     return HOMDParams(gains(*pend), gains(*wheel), model)
 
 
@@ -158,7 +157,7 @@ class HOMDObserver(SampledObserver):
 
     pend: HOMDGains = None
     wheel: HOMDGains = None
-    model: rwp.RWPParams = None
+    model: rwp.RWP = None
 
     rhs = staticmethod(rwp_homd_rhs)
     init_xi = staticmethod(_init_from_y)

@@ -32,7 +32,7 @@ from jaxdip.estimators.continuous import SampledObserver, sampled_observer
 from jaxdip.plants import rwp
 
 
-def full_linear_model(p: rwp.RWPParams):
+def full_linear_model(p: rwp.RWP):
     """(A4, B4, C4) of (9), input column from (2)-(3)."""
     a = homd.a1(p)
     z = jnp.zeros(())
@@ -49,7 +49,7 @@ def full_linear_model(p: rwp.RWPParams):
     return A, B, C
 
 
-def decoupled_gain(p: rwp.RWPParams, lp1, lp2, lr1, lr2):
+def decoupled_gain(p: rwp.RWP, lp1, lp2, lr1, lr2):
     """L making A4 - L C4 block-diagonal with blocks [[-l1, 1], [-l2, 0]] (see the module docstring)."""
     a = homd.a1(p)
     z = jnp.zeros(())
@@ -63,12 +63,11 @@ def decoupled_gain(p: rwp.RWPParams, lp1, lp2, lr1, lr2):
 
 class LuenbergerParams(NamedTuple):
     L: jnp.ndarray  # (4, 2)
-    model: rwp.RWPParams
+    model: rwp.RWP
 
 
-def luenberger_params(L, model: rwp.RWPParams | None = None) -> LuenbergerParams:
-    model = rwp.default_params() if model is None else model
-    model = rwp.RWPParams(*(jnp.asarray(v, dtype=jnp.float64) for v in model))
+def luenberger_params(L, model: rwp.RWP | None = None) -> LuenbergerParams:
+    model = rwp.RWP() if model is None else model
     return LuenbergerParams(jnp.asarray(L, dtype=jnp.float64), model)
 
 
@@ -141,7 +140,7 @@ def matched_omega(g: homd.HOMDGains, v_ref: float) -> float:
     return velocity_step_rise_time(lin, 1.0) / velocity_step_rise_time(g, v_ref)
 
 
-def matched_gain(p: rwp.RWPParams, pend: homd.HOMDGains, wheel: homd.HOMDGains, v_ref_p: float, v_ref_r: float):
+def matched_gain(p: rwp.RWP, pend: homd.HOMDGains, wheel: homd.HOMDGains, v_ref_p: float, v_ref_r: float):
     """L of (9) with the rise times of (10) and (12) at velocity steps v_ref_p, v_ref_r; returns (L, ω_p, ω_r)."""
     wp = matched_omega(pend, v_ref_p)
     wr = matched_omega(wheel, v_ref_r)
@@ -154,7 +153,7 @@ class LuenbergerObserver(SampledObserver):
     ``LuenbergerObserver.of(luenberger_params(...), dt, substeps=..., hold=...)``."""
 
     L: jnp.ndarray = None
-    model: rwp.RWPParams = None
+    model: rwp.RWP = None
 
     rhs = staticmethod(luenberger_rhs)
     init_xi = staticmethod(_init_from_y)

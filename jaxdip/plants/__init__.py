@@ -1,9 +1,10 @@
-"""Plant models, each a ``Plant`` bundle of pure functions over a parameter pytree."""
+"""Plant models, each an engine plant (``jaxdip.Plant`` or ``jaxdip.DiscretePlant``) with its constants as array
+fields."""
 
 from jaxdip.plants import dip, examples2d, lorenz, rwp, twip
-from jaxdip.plants.base import Plant
 from jaxdip.plants.dip import DIP
 from jaxdip.plants.lorenz import Lorenz
 from jaxdip.plants.rwp import RWP
+from jaxdip.plants.twip import TWIP
 
-__all__ = ["Plant", "DIP", "Lorenz", "RWP", "dip", "examples2d", "lorenz", "rwp", "twip"]
+__all__ = ["DIP", "Lorenz", "RWP", "TWIP", "dip", "examples2d", "lorenz", "rwp", "twip"]

@@ -18,54 +18,20 @@ Two variants:
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from jaxdip.engine.roles import Plant as EnginePlant
-from jaxdip.engine.roles import param
-from jaxdip.plants.base import Plant
+from jaxdip.engine.roles import Plant, param
 
 STATE_NAMES = ("xc", "alpha", "theta", "xc_dot", "alpha_dot", "theta_dot")
 
 
-class DIPParams(NamedTuple):
-    """Table 3.3 of the thesis (SI units)."""
-
-    Bc: float = 5.4  # viscous damping at the motor pinion
-    B1: float = 0.0024  # viscous damping at the lower pendulum axis
-    B2: float = 0.0024  # viscous damping at the upper pendulum axis
-    g: float = 9.81
-    I1: float = 2.6347e-4  # lower link inertia about its centre of gravity
-    I2: float = 1.1987e-3  # upper link inertia about its centre of gravity
-    Jm: float = 3.9e-7  # motor rotor inertia
-    Kg: float = 3.71  # gearbox ratio
-    Km: float = 0.00767  # back-EMF constant
-    Kt: float = 0.00767  # torque constant
-    l1: float = 0.1143  # pivot to lower link's centre of gravity
-    l2: float = 0.1778  # hinge to upper link's centre of gravity
-    L1: float = 0.2096  # total length of the lower link
-    L2: float = 0.3365  # total length of the upper link (not in the dynamics)
-    Mc: float = 0.57
-    Mh: float = 0.170  # hinge mass, at distance L1 from the pivot
-    Mw: float = 0.37  # extra weight on the cart
-    M1: float = 0.072
-    M2: float = 0.127
-    Rm: float = 2.6
-    rmp: float = 6.35e-3
-
-
-def default_params() -> DIPParams:
-    return DIPParams()
-
-
-def cart_force(p: DIPParams, xc_dot, V):
+def cart_force(p: "DIP", xc_dot, V):
     return p.Kg * p.Kt * (p.rmp * V - p.Kg * p.Km * xc_dot) / (p.Rm * p.rmp**2)
 
 
-def cart_mass(p: DIPParams):
+def cart_mass(p: "DIP"):
     """Translational mass of the cart with the motor inertia reflected through the pinion and Mw on board."""
     return p.Mc + p.Mw + p.Jm * p.Kg**2 / p.rmp**2
 
@@ -92,7 +58,7 @@ def solve_sym3(m11, m12, m13, m22, m23, m33, b1, b2, b3):
     )
 
 
-def f_printed(p: DIPParams, x, u):
+def f_printed(p: "DIP", x, u):
     """Equations of motion as printed in thesis §3.1.1, with Mw in the cart mass."""
     _xc, a, th, xcd, ad, thd = x[0], x[1], x[2], x[3], x[4], x[5]
     V = jnp.reshape(u, (-1,))[0]
@@ -129,7 +95,7 @@ def f_printed(p: DIPParams, x, u):
 # ---- Lagrangian variant -------------------------------------------------------------------------------
 
 
-def kinetic_energy(p: DIPParams, q, qd):
+def kinetic_energy(p: "DIP", q, qd):
     xc, a, th = q[0], q[1], q[2]
     xcd, ad, thd = qd[0], qd[1], qd[2]
     # Centres of mass: lower link at l1 and hinge mass at L1 along the lower link; upper link at l2 beyond the
@@ -155,16 +121,16 @@ def kinetic_energy(p: DIPParams, q, qd):
     )
 
 
-def potential_energy(p: DIPParams, q):
+def potential_energy(p: "DIP", q):
     a, th = q[1], q[2]
     return p.g * ((p.M1 * p.l1 + p.Mh * p.L1 + p.M2 * p.L1) * jnp.cos(a) + p.M2 * p.l2 * jnp.cos(a + th))
 
 
-def energy(p: DIPParams, x):
+def energy(p: "DIP", x):
     return kinetic_energy(p, x[:3], x[3:]) + potential_energy(p, x[:3])
 
 
-def f_lagrangian(p: DIPParams, x, u):
+def f_lagrangian(p: "DIP", x, u):
     q, qd = x[:3], x[3:]
     V = jnp.reshape(u, (-1,))[0]
     T_qd = jax.grad(kinetic_energy, argnums=2)
@@ -178,53 +144,34 @@ def f_lagrangian(p: DIPParams, x, u):
     return jnp.concatenate([qd, qdd])
 
 
-def make(variant: str = "printed") -> Plant:
-    if variant == "printed":
-        f = f_printed
-    elif variant == "lagrangian":
-        f = f_lagrangian
-    else:
-        raise ValueError(f"unknown DIP variant {variant!r}; choose 'printed' or 'lagrangian'")
-    return Plant(
-        name=f"dip-{variant}",
-        state_names=STATE_NAMES,
-        input_names=("V",),
-        default_params=default_params,
-        f=f,
-        energy=energy if variant == "lagrangian" else None,
-    )
+# ---- the plant ----------------------------------------------------------------------------------------------
 
 
-# ---- the engine's plant --------------------------------------------------------------------------------------
+class DIP(Plant):
+    """The DIP: the Table 3.3 parameters of the thesis (SI units) are its array fields, the variant
+    (``"printed"``, the default, or ``"lagrangian"``, module doc) is static."""
 
-_D = DIPParams._field_defaults
-
-
-class DIP(EnginePlant):
-    """The DIP as an engine plant: the Table 3.3 parameters (``DIPParams``, SI units) are its array fields, the
-    variant (``"printed"``, the default, or ``"lagrangian"``) is static. Same equations as ``make(variant)``."""
-
-    Bc: jax.Array = param(_D["Bc"])
-    B1: jax.Array = param(_D["B1"])
-    B2: jax.Array = param(_D["B2"])
-    g: jax.Array = param(_D["g"])
-    I1: jax.Array = param(_D["I1"])
-    I2: jax.Array = param(_D["I2"])
-    Jm: jax.Array = param(_D["Jm"])
-    Kg: jax.Array = param(_D["Kg"])
-    Km: jax.Array = param(_D["Km"])
-    Kt: jax.Array = param(_D["Kt"])
-    l1: jax.Array = param(_D["l1"])
-    l2: jax.Array = param(_D["l2"])
-    L1: jax.Array = param(_D["L1"])
-    L2: jax.Array = param(_D["L2"])
-    Mc: jax.Array = param(_D["Mc"])
-    Mh: jax.Array = param(_D["Mh"])
-    Mw: jax.Array = param(_D["Mw"])
-    M1: jax.Array = param(_D["M1"])
-    M2: jax.Array = param(_D["M2"])
-    Rm: jax.Array = param(_D["Rm"])
-    rmp: jax.Array = param(_D["rmp"])
+    Bc: jax.Array = param(5.4)  # viscous damping at the motor pinion
+    B1: jax.Array = param(0.0024)  # viscous damping at the lower pendulum axis
+    B2: jax.Array = param(0.0024)  # viscous damping at the upper pendulum axis
+    g: jax.Array = param(9.81)
+    I1: jax.Array = param(2.6347e-4)  # lower link inertia about its centre of gravity
+    I2: jax.Array = param(1.1987e-3)  # upper link inertia about its centre of gravity
+    Jm: jax.Array = param(3.9e-7)  # motor rotor inertia
+    Kg: jax.Array = param(3.71)  # gearbox ratio
+    Km: jax.Array = param(0.00767)  # back-EMF constant
+    Kt: jax.Array = param(0.00767)  # torque constant
+    l1: jax.Array = param(0.1143)  # pivot to lower link's centre of gravity
+    l2: jax.Array = param(0.1778)  # hinge to upper link's centre of gravity
+    L1: jax.Array = param(0.2096)  # total length of the lower link
+    L2: jax.Array = param(0.3365)  # total length of the upper link (not in the dynamics)
+    Mc: jax.Array = param(0.57)
+    Mh: jax.Array = param(0.170)  # hinge mass, at distance L1 from the pivot
+    Mw: jax.Array = param(0.37)  # extra weight on the cart
+    M1: jax.Array = param(0.072)
+    M2: jax.Array = param(0.127)
+    Rm: jax.Array = param(2.6)
+    rmp: jax.Array = param(6.35e-3)
     variant: str = eqx.field(default="printed", static=True)
 
     state_names = STATE_NAMES
@@ -235,7 +182,6 @@ class DIP(EnginePlant):
             raise ValueError(f"unknown DIP variant {self.variant!r}; choose 'printed' or 'lagrangian'")
 
     def vector_field(self, x, u):
-        # the module has DIPParams' field names, so the equations take it in place of a DIPParams
         return (f_printed if self.variant == "printed" else f_lagrangian)(self, x, u)
 
     def energy(self, x):

@@ -5,83 +5,55 @@
 * §2.7.2, nonlinear, of the form (2.7): x_{k+1} = f(x_k) + g(x_k) u_k with
   f(x) = [2.2 sin(.5 x1) + .1 x2,  .1 x1^2 + 1.8 x2],  g(x) = [0, 2 + .1 cos(x2)].
 
-Both are discrete plants: they provide ``step(params, x, u)`` and leave ``f`` as None. Their parameters are
-pytrees; the defaults are read-only NumPy float64 arrays / Python floats, so importing this module does not
-start a JAX backend, and the leaves are converted on use (jit, grad and vmap over params all work).
+Both are discrete plants (``step(x, u)``); their numbers are array fields.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
+import jax
 import jax.numpy as jnp
-import numpy as np
 
-from jaxdip.plants.base import Plant
+from jaxdip.engine.roles import DiscretePlant, param
 
 STATE_NAMES = ("x1", "x2")
 
 
-def _frozen(a) -> np.ndarray:
-    a = np.array(a, dtype=np.float64)
-    a.setflags(write=False)
-    return a
+class Linear(DiscretePlant):
+    """§2.7.1: x_{k+1} = A x_k + B u_k, B a 2x1 column."""
+
+    A: jax.Array = param(((0.9974, 0.0539), (-0.1078, 1.1591)))
+    B: jax.Array = param(((0.0013,), (0.0539,)))
+
+    state_names = STATE_NAMES
+    input_names = ("u",)
+
+    def step(self, x, u):
+        return self.A @ x + self.B @ jnp.reshape(u, (-1,))
 
 
-class LinearParams(NamedTuple):
-    """§2.7.1. B is stored as a 2x1 column."""
+class Nonlinear(DiscretePlant):
+    """§2.7.2: x_{k+1} = f(x) + g(x) u with f(x) = [a sin(w x1) + c x2, d x1^2 + e x2], g(x) = [0, g0 + g1 cos(x2)]."""
 
-    A: np.ndarray = _frozen([[0.9974, 0.0539], [-0.1078, 1.1591]])
-    B: np.ndarray = _frozen([[0.0013], [0.0539]])
+    a: jax.Array = param(2.2)
+    w: jax.Array = param(0.5)
+    c: jax.Array = param(0.1)
+    d: jax.Array = param(0.1)
+    e: jax.Array = param(1.8)
+    g0: jax.Array = param(2.0)
+    g1: jax.Array = param(0.1)
 
+    state_names = STATE_NAMES
+    input_names = ("u",)
 
-class NonlinearParams(NamedTuple):
-    """§2.7.2: f(x) = [a sin(w x1) + c x2, d x1^2 + e x2], g(x) = [0, g0 + g1 cos(x2)]."""
+    def drift(self, x):
+        """f(x) of §2.7.2."""
+        x1, x2 = x[0], x[1]
+        return jnp.stack([self.a * jnp.sin(self.w * x1) + self.c * x2, self.d * x1**2 + self.e * x2])
 
-    a: float = 2.2
-    w: float = 0.5
-    c: float = 0.1
-    d: float = 0.1
-    e: float = 1.8
-    g0: float = 2.0
-    g1: float = 0.1
+    def input_gain(self, x):
+        """g(x) of §2.7.2 (a column, returned as a length-2 vector)."""
+        x2 = x[1]
+        return jnp.stack([jnp.zeros_like(x2), self.g0 + self.g1 * jnp.cos(x2)])
 
-
-def linear_step(p: LinearParams, x, u):
-    return jnp.asarray(p.A) @ x + jnp.asarray(p.B) @ jnp.reshape(u, (-1,))
-
-
-def drift(p: NonlinearParams, x):
-    """f(x) of §2.7.2."""
-    x1, x2 = x[0], x[1]
-    return jnp.stack([p.a * jnp.sin(p.w * x1) + p.c * x2, p.d * x1**2 + p.e * x2])
-
-
-def input_gain(p: NonlinearParams, x):
-    """g(x) of §2.7.2 (a column, returned as a length-2 vector)."""
-    x2 = x[1]
-    return jnp.stack([jnp.zeros_like(x2), p.g0 + p.g1 * jnp.cos(x2)])
-
-
-def nonlinear_step(p: NonlinearParams, x, u):
-    return drift(p, x) + input_gain(p, x) * jnp.reshape(u, (-1,))[0]
-
-
-def linear() -> Plant:
-    return Plant(
-        name="example2d-linear",
-        state_names=STATE_NAMES,
-        input_names=("u",),
-        default_params=LinearParams,
-        step=linear_step,
-    )
-
-
-def nonlinear() -> Plant:
-    return Plant(
-        name="example2d-nonlinear",
-        state_names=STATE_NAMES,
-        input_names=("u",),
-        default_params=NonlinearParams,
-        step=nonlinear_step,
-    )
+    def step(self, x, u):
+        return self.drift(x) + self.input_gain(x) * jnp.reshape(u, (-1,))[0]

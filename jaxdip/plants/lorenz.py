@@ -13,29 +13,15 @@ plants, it declares one input, ``u_unused``, which ``f`` accepts and ignores (pa
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import jax
 import jax.numpy as jnp
 
-from jaxdip.engine.roles import Plant as EnginePlant
-from jaxdip.engine.roles import param
-from jaxdip.plants.base import Plant
+from jaxdip.engine.roles import Plant, param
 
 STATE_NAMES = ("xL", "yL", "zL")
 
 
-class LorenzParams(NamedTuple):
-    sigma: float = 10.0
-    beta: float = 8.0 / 3.0
-    rho: float = 28.0
-
-
-def default_params() -> LorenzParams:
-    return LorenzParams()
-
-
-def f(p: LorenzParams, x, u=None):
+def f(p: "Lorenz", x, u=None):
     """Eq. (1.28). ``u`` is ignored (the Lorenz system has no input)."""
     del u
     xl, yl, zl = x[0], x[1], x[2]
@@ -47,37 +33,22 @@ def output_matrix():
     return jnp.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
 
 
-def equilibria(p: LorenzParams):
+def equilibria(p: "Lorenz"):
     """The three fixed points, one a row: the origin and (+-sqrt(beta (rho - 1)), same, rho - 1)."""
     c = jnp.sqrt(p.beta * (p.rho - 1.0))
     z = p.rho - 1.0
     return jnp.stack([jnp.zeros(3), jnp.stack([c, c, z]), jnp.stack([-c, -c, z])])
 
 
-def make() -> Plant:
-    return Plant(
-        name="lorenz",
-        state_names=STATE_NAMES,
-        input_names=("u_unused",),
-        default_params=default_params,
-        f=f,
-    )
+class Lorenz(Plant):
+    """The Lorenz system, (sigma, beta, rho) as array fields; one unused input ``u_unused`` (module doc)."""
 
-
-_D = LorenzParams()._asdict()
-
-
-class Lorenz(EnginePlant):
-    """The Lorenz system as an engine plant: ``LorenzParams``' fields as array fields, same equations as ``f``.
-    One unused input ``u_unused`` (see the module docstring)."""
-
-    sigma: jax.Array = param(_D["sigma"])
-    beta: jax.Array = param(_D["beta"])
-    rho: jax.Array = param(_D["rho"])
+    sigma: jax.Array = param(10.0)
+    beta: jax.Array = param(8.0 / 3.0)
+    rho: jax.Array = param(28.0)
 
     state_names = STATE_NAMES
     input_names = ("u_unused",)
 
     def vector_field(self, x, u):
-        # the module has LorenzParams' field names, so it stands in for a LorenzParams
         return f(self, x, u)

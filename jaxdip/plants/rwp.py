@@ -21,14 +21,10 @@ tests show both). ``reduced_linear_model`` takes the column from (2)-(3).
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import jax
 import jax.numpy as jnp
 
-from jaxdip.engine.roles import Plant as EnginePlant
-from jaxdip.engine.roles import param
-from jaxdip.plants.base import Plant
+from jaxdip.engine.roles import Plant, param
 
 STATE_NAMES = ("theta", "theta_dot", "theta_r", "theta_r_dot")
 REDUCED_STATE_NAMES = ("theta", "theta_dot", "theta_r_dot")
@@ -43,34 +39,17 @@ DT = 1.0 / SAMPLING_HZ  # s
 K_TABLE2 = (-582.0, -83.0, -1.2)
 
 
-class RWPParams(NamedTuple):
-    """Table 1 of the paper (SI units). g is not in the table; 9.81 is assumed."""
-
-    mp: float = 0.58  # pendulum mass, kg
-    lp: float = 0.10  # pivot to the pendulum's centre of mass, m
-    Jp: float = 3.8e-3  # pendulum inertia about its centre of mass, kg m^2
-    mr: float = 0.35  # reaction wheel mass, kg
-    lr: float = 0.22  # pivot to the wheel axis, m
-    Jr: float = 12.48e-4  # wheel inertia, kg m^2
-    k: float = 3.69e-2  # current-to-torque gain, N m/A
-    g: float = 9.81
-
-
-def default_params() -> RWPParams:
-    return RWPParams()
-
-
-def inertia(p: RWPParams):
+def inertia(p: "RWP"):
     """J = Jp + mp lp^2 + mr lr^2: the pendulum with the wheel as a point mass, about the pivot."""
     return p.Jp + p.mp * p.lp**2 + p.mr * p.lr**2
 
 
-def mass_moment(p: RWPParams):
+def mass_moment(p: "RWP"):
     """ml = mp lp + mr lr."""
     return p.mp * p.lp + p.mr * p.lr
 
 
-def f(p: RWPParams, x, u):
+def f(p: "RWP", x, u):
     """Continuous dynamics (2)-(3) on ``[theta, theta_dot, theta_r, theta_r_dot]``."""
     th, thd, thrd = x[0], x[1], x[3]
     I = jnp.reshape(u, (-1,))[0]
@@ -81,13 +60,13 @@ def f(p: RWPParams, x, u):
     return jnp.stack([thd, thdd, thrd, thrdd])
 
 
-def energy(p: RWPParams, x):
+def energy(p: "RWP", x):
     """E = 1/2 J theta'^2 + 1/2 Jr (theta_r' + theta')^2 + ml g cos(theta); conserved when I = 0."""
     th, thd, thrd = x[0], x[1], x[3]
     return 0.5 * inertia(p) * thd**2 + 0.5 * p.Jr * (thrd + thd) ** 2 + mass_moment(p) * p.g * jnp.cos(th)
 
 
-def reduced_linear_model(p: RWPParams):
+def reduced_linear_model(p: "RWP"):
     """(A, B) of (4) on x = [theta, theta_dot, theta_r_dot], with B = [0, -k/J, k/J + k/Jr] from (2)-(3)."""
     J = inertia(p)
     a = mass_moment(p) * p.g / J
@@ -108,38 +87,23 @@ def reduce_state(x):
     return jnp.stack([x[..., 0], x[..., 1], x[..., 3]], axis=-1)
 
 
-def make() -> Plant:
-    return Plant(
-        name="rwp",
-        state_names=STATE_NAMES,
-        input_names=("I",),
-        default_params=default_params,
-        f=f,
-        energy=energy,
-    )
+class RWP(Plant):
+    """The reaction-wheel pendulum: Table 1 of the paper (SI units; g is not in the table, 9.81 is assumed) as
+    array fields; input the motor current I."""
 
-
-_D = RWPParams()._asdict()
-
-
-class RWP(EnginePlant):
-    """The reaction-wheel pendulum as an engine plant: Table 1 (``RWPParams``' fields) as array fields, same
-    equations as ``f``; input the motor current I."""
-
-    mp: jax.Array = param(_D["mp"])
-    lp: jax.Array = param(_D["lp"])
-    Jp: jax.Array = param(_D["Jp"])
-    mr: jax.Array = param(_D["mr"])
-    lr: jax.Array = param(_D["lr"])
-    Jr: jax.Array = param(_D["Jr"])
-    k: jax.Array = param(_D["k"])
-    g: jax.Array = param(_D["g"])
+    mp: jax.Array = param(0.58)  # pendulum mass, kg
+    lp: jax.Array = param(0.10)  # pivot to the pendulum's centre of mass, m
+    Jp: jax.Array = param(3.8e-3)  # pendulum inertia about its centre of mass, kg m^2
+    mr: jax.Array = param(0.35)  # reaction wheel mass, kg
+    lr: jax.Array = param(0.22)  # pivot to the wheel axis, m
+    Jr: jax.Array = param(12.48e-4)  # wheel inertia, kg m^2
+    k: jax.Array = param(3.69e-2)  # current-to-torque gain, N m/A
+    g: jax.Array = param(9.81)
 
     state_names = STATE_NAMES
     input_names = ("I",)
 
     def vector_field(self, x, u):
-        # the module has RWPParams' field names, so it stands in for an RWPParams
         return f(self, x, u)
 
     def energy(self, x):

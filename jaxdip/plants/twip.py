@@ -22,54 +22,31 @@ The model has no conserved energy: the motor's back-EMF acts as viscous damping 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-from jaxdip.engine.roles import Plant as EnginePlant
-from jaxdip.engine.roles import param
-from jaxdip.plants.base import Plant
+from jaxdip.engine.roles import Plant, param
 
 STATE_NAMES = ("x", "x_dot", "phi", "phi_dot")
+# Table 8.1 is the field defaults of ``TWIP``; Table 8.2 differs in Iw, ke, km, Mp, Mw and R
+TABLES = {
+    "8.1": {},
+    "8.2": dict(Ip=0.025, Iw=1.774e-4, ke=0.0034, km=0.2885, l=0.075, Mp=1.5752, Mw=0.1752, r=0.045, R=3.0),
+}
 
 
-class TWIPParams(NamedTuple):
-    """Table 8.1 of the thesis (SI units). g is not in the table; 9.81 is assumed."""
-
-    Ip: float = 0.025  # pendulum body inertia about its centre of gravity, kg m^2
-    Iw: float = 1.183e-4  # wheel inertia, kg m^2
-    ke: float = 0.00361  # back-EMF constant, V s/rad
-    km: float = 0.11541  # torque constant, N m/A
-    l: float = 0.075  # wheel axle to the body's centre of gravity, m
-    Mp: float = 1.432  # pendulum body mass, kg
-    Mw: float = 0.1168  # mass of one wheel, kg
-    r: float = 0.045  # wheel radius, m
-    R: float = 2.5  # motor winding resistance, ohm
-    g: float = 9.81
-
-
-def default_params() -> TWIPParams:
-    """Table 8.1: the parameters the estimators and the LQR design use."""
-    return TWIPParams()
-
-
-def perturbed_params() -> TWIPParams:
-    """Table 8.2: the 'true' plant of the parameter-uncertainty studies (§8.1.2 on)."""
-    return TWIPParams(Ip=0.025, Iw=1.774e-4, ke=0.0034, km=0.2885, l=0.075, Mp=1.5752, Mw=0.1752, r=0.045, R=3.0)
-
-
-def beta(p: TWIPParams):
+def beta(p: "TWIP"):
     """Eq. (80): beta = 2 Mw + 2 Iw / r^2 + Mp."""
     return 2 * p.Mw + 2 * p.Iw / p.r**2 + p.Mp
 
 
-def alpha(p: TWIPParams):
+def alpha(p: "TWIP"):
     """Eq. (81): alpha = Ip beta + 2 Mp l^2 (Mw + Iw / r^2)."""
     return p.Ip * beta(p) + 2 * p.Mp * p.l**2 * (p.Mw + p.Iw / p.r**2)
 
 
-def accelerations(p: TWIPParams, s_th, c_th, xd, thd, V):
+def accelerations(p: "TWIP", s_th, c_th, xd, thd, V):
     """(x'', theta'') from (72)-(73), given sin(theta), cos(theta), x', theta' and V.
 
     Rows of the 2x2 system M [x'', theta'']^T = b:
@@ -87,7 +64,7 @@ def accelerations(p: TWIPParams, s_th, c_th, xd, thd, V):
     return xdd, thdd
 
 
-def f(p: TWIPParams, x, u):
+def f(p: "TWIP", x, u):
     """Continuous dynamics in the tilt coordinates ``[x, x_dot, phi, phi_dot]``, theta = pi + phi."""
     xd, phi, phid = x[1], x[2], x[3]
     V = jnp.reshape(u, (-1,))[0]
@@ -96,7 +73,7 @@ def f(p: TWIPParams, x, u):
     return jnp.stack([xd, xdd, phid, phidd])
 
 
-def linear_model_closed_form(p: TWIPParams):
+def linear_model_closed_form(p: "TWIP"):
     """(A, B) of eq. (79), exactly as printed, with beta (80) and alpha (81). State ``[x, x_dot, phi, phi_dot]``."""
     be = beta(p)
     al = alpha(p)
@@ -121,48 +98,31 @@ def linear_model_closed_form(p: TWIPParams):
     return A, B
 
 
-def make() -> Plant:
-    return Plant(
-        name="twip",
-        state_names=STATE_NAMES,
-        input_names=("V",),
-        default_params=default_params,
-        f=f,
-    )
+class TWIP(Plant):
+    """The TWIP: Table 8.1 of the thesis (SI units; g is not in the table, 9.81 is assumed) as array fields.
+    ``TWIP.table("8.2")`` is the perturbed truth of §8.1.2 on."""
 
-
-_D = TWIPParams._field_defaults
-
-
-class TWIP(EnginePlant):
-    """The TWIP as an engine plant: ``TWIPParams``' fields (Table 8.1 by default) are its array fields; same
-    equations as ``f``. ``TWIP.table("8.2")`` is the perturbed truth of §8.1.2 on."""
-
-    Ip: jax.Array = param(_D["Ip"])
-    Iw: jax.Array = param(_D["Iw"])
-    ke: jax.Array = param(_D["ke"])
-    km: jax.Array = param(_D["km"])
-    l: jax.Array = param(_D["l"])  # noqa: E741
-    Mp: jax.Array = param(_D["Mp"])
-    Mw: jax.Array = param(_D["Mw"])
-    r: jax.Array = param(_D["r"])
-    R: jax.Array = param(_D["R"])
-    g: jax.Array = param(_D["g"])
+    Ip: jax.Array = param(0.025)  # pendulum body inertia about its centre of gravity, kg m^2
+    Iw: jax.Array = param(1.183e-4)  # wheel inertia, kg m^2
+    ke: jax.Array = param(0.00361)  # back-EMF constant, V s/rad
+    km: jax.Array = param(0.11541)  # torque constant, N m/A
+    l: jax.Array = param(0.075)  # wheel axle to the body's centre of gravity, m
+    Mp: jax.Array = param(1.432)  # pendulum body mass, kg
+    Mw: jax.Array = param(0.1168)  # mass of one wheel, kg
+    r: jax.Array = param(0.045)  # wheel radius, m
+    R: jax.Array = param(2.5)  # motor winding resistance, ohm
+    g: jax.Array = param(9.81)
 
     state_names = STATE_NAMES
     input_names = ("V",)
 
     @classmethod
-    def of(cls, p: TWIPParams, **kw):
-        return cls(**p._asdict(), **kw)
-
-    @classmethod
-    def table(cls, which: str, **kw):
-        """Table "8.1" (nominal) or "8.2" (perturbed) of the thesis."""
-        tables = {"8.1": default_params, "8.2": perturbed_params}
-        if which not in tables:
-            raise ValueError(f"TWIP table must be one of {sorted(tables)}, got {which!r}")
-        return cls.of(tables[which](), **kw)
+    def table(cls, which: str, **kw) -> "TWIP":
+        """Table "8.1" (nominal: the parameters the estimators and the LQR design use) or "8.2" (perturbed: the
+        'true' plant of the parameter-uncertainty studies, §8.1.2 on) of the thesis; ``kw`` sets other fields."""
+        if which not in TABLES:
+            raise ValueError(f"TWIP table must be one of {sorted(TABLES)}, got {which!r}")
+        return cls(**TABLES[which], **kw)
 
     def vector_field(self, x, u):
         return f(self, x, u)

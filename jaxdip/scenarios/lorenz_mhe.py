@@ -40,7 +40,7 @@ from jaxdip.estimators.wrappers import Delayed, InitialError
 from jaxdip.engine.roles import FanOut
 from jaxdip.plants import lorenz
 from jaxdip.plants.lorenz import Lorenz
-from jaxdip.sim.sensors import LinearSensor, sensor_params
+from jaxdip.sim.sensors import LinearSensor
 
 METHODS = ("cpx", "scpx", "ekf", "ekf2")
 PREDICTORS = ("cpx", "scpx")  # compared through their delayed prediction; their current estimate is aux
@@ -156,7 +156,7 @@ def build(*, h: float = 0.001, steps: int, substeps: int = 1, sigma_eps: float =
     estimators = FanOut({"cpx": cpx(cpx_gamma, None), "scpx": cpx(scpx_gamma, scpx_p),
                          "ekf": ekf(ekf_sigma_eta, ekf_sigma_eps), "ekf2": ekf(ekf2_sigma_eta, ekf2_sigma_eps)},
                         drive="ekf")
-    loop = Loop(plant, LinearSensor.of(sensor_params(Cm, white_std=sigma_eps), h), estimators,
+    loop = Loop(plant, LinearSensor(Cm, h, white_std=sigma_eps), estimators,
                 ConstantInput(jnp.zeros(1)), dt=h, substeps=substeps, process_noise_std=sigma_eta, keys=MHEKeys())
     current = () if alignment == "filtered" else PREDICTORS
     metrics = {"errors": TrackingErrors(METHODS, current, extrema_threshold, divergence_bound)}

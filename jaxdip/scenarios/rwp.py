@@ -28,7 +28,7 @@ from jaxdip.engine.metrics import Sum
 from jaxdip.plants import rwp
 from jaxdip.plants.rwp import RWP
 from jaxdip.sim.actuators import Saturation
-from jaxdip.sim.sensors import LinearSensor, sensor_params
+from jaxdip.sim.sensors import LinearSensor
 
 INF = float("inf")
 REC = {name: i for i, name in enumerate(["theta", "theta_dot", "thetar_dot", "y", "theta_hat", "xp2", "xr2", "I"])}
@@ -64,8 +64,7 @@ def sensor(dt: float, d: float = 0.0, measured_velocities: bool = False, quantiz
         Cm = jnp.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
         bias = jnp.array([d, 0.0])
         q = [rwp.PENDULUM_ANGLE_RESOLUTION, rwp.WHEEL_ANGLE_RESOLUTION]
-    return LinearSensor.of(sensor_params(Cm, const_bias=bias, quantum=q if quantize else 0.0), dt,
-                           straight_through=straight_through)
+    return LinearSensor(Cm, dt, const_bias=bias, quantum=q if quantize else 0.0, straight_through=straight_through)
 
 
 def loop(estimator: Any, *, dt: float = rwp.DT, substeps: int = 10, K: Sequence[float] = rwp.K_TABLE2,

@@ -40,7 +40,7 @@ KF_OUTPUT = {"kf": "prior", "kf_posterior": "posterior", "kf_printed": "delayed"
 
 
 def design(dt: float, lqr_Q=(10.0, 10.0, 1e-5, 1e-4), lqr_R=1000.0) -> TwipDesign:
-    return twip_dlqr(twip.default_params(), lqr_Q, lqr_R, dt)
+    return twip_dlqr(twip.TWIP(), lqr_Q, lqr_R, dt)
 
 
 def _diag(v):

@@ -41,7 +41,7 @@ def controller(*, dt=0.01, lqr_Q=(1.0, 1.0, 0.1, 0.1), lqr_R=1.0, v_d=0.1, k1=2.
                feedforward=True, tau_d=0.05, virtual="flat", virtual_sign=1.0, extra=1.0) -> ExtraControl:
     """The LQR (180)-(181) on the nominal model (79), Table 8.1, plus the extra control (module doc of
     ``jaxdip.control.extra_control``); ``gamma``, ``sigma``: [11, 12, 21, 22] of (111)-(114)."""
-    d = twip_dlqr(twip.default_params(), Q=tuple(lqr_Q), R=lqr_R, dt=dt)
+    d = twip_dlqr(twip.TWIP(), Q=tuple(lqr_Q), R=lqr_R, dt=dt)
     c = ExtraControl.design(d.K, d.A, d.B, dt=dt, v_d=v_d, k1=k1, k2=k2, n_hidden=n_hidden, b=b, gamma=0.0,
                             sigma=0.0, u_max=u_max, extra=extra, v_scale=v_scale, ff=1.0 if feedforward else 0.0,
                             tau_d=tau_d, virtual=virtual, virtual_sign=virtual_sign)

@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from jaxdip.engine.keys import split_lanes
 from jaxdip.engine.roles import Actuator, Sensor, param
-from jaxdip.sim.component import Component, stateless
 
 
 def saturate(u, u_min, u_max):
@@ -44,15 +41,6 @@ def backlash(psi, u_prev, u, m, d_minus, d_plus, law: str = "standard"):
     return jnp.where(rising, up, jnp.where(falling, down, psi))
 
 
-class SaturationParams(NamedTuple):
-    u_min: jnp.ndarray
-    u_max: jnp.ndarray
-
-
-def saturation() -> Component:
-    return stateless(lambda p, u, key, k: saturate(u, p.u_min, p.u_max))
-
-
 class Saturation(Actuator):
     """(157) as an engine actuator: u clipped to [u_min, u_max] (per input; +-inf: no limit)."""
 
@@ -61,36 +49,6 @@ class Saturation(Actuator):
 
     def step(self, state, u, key, k):
         return state, saturate(u, self.u_min, self.u_max), None
-
-
-class DeadzoneParams(NamedTuple):
-    d_minus: jnp.ndarray
-    d_plus: jnp.ndarray
-
-
-def deadzone_component() -> Component:
-    return stateless(lambda p, u, key, k: deadzone(u, p.d_minus, p.d_plus))
-
-
-class BacklashParams(NamedTuple):
-    m: jnp.ndarray
-    d_minus: jnp.ndarray
-    d_plus: jnp.ndarray
-
-
-def backlash_component(size: int = 1) -> Component:
-    """Stateful backlash on a signal of ``size`` entries, starting engaged at zero."""
-
-    def init(p, key, x0):
-        z = jnp.zeros(size)
-        return (z, z)
-
-    def step(p, state, u, key, k):
-        psi, u_prev = state
-        psi = backlash(psi, u_prev, u, p.m, p.d_minus, p.d_plus)
-        return (psi, u), psi
-
-    return Component(init, step)
 
 
 class Deadzone(Actuator):

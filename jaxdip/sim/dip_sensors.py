@@ -40,29 +40,15 @@ def output_matrix(state_names: Sequence[str], measured: Sequence[str] = MEASURED
     return jnp.asarray(C, dtype=jnp.float64)
 
 
-def encoder_params(state_names: Sequence[str], quanta=DEFAULT_QUANTA, noise_counts=0.5,
-                   measured: Sequence[str] = MEASURED) -> sensors.SensorParams:
-    """``sensors.SensorParams`` of quantised encoders with white noise of ``noise_counts`` counts (std) each.
+def encoders(dt: float, state_names: Sequence[str], quanta=DEFAULT_QUANTA, noise_counts=0.5,
+             measured: Sequence[str] = MEASURED, straight_through: bool = False) -> sensors.LinearSensor:
+    """The encoders as a ``sensors.LinearSensor``: quantised, with white noise of ``noise_counts`` counts (std).
 
     ``quanta`` (one per measured state, 0 disables quantisation of that channel) and ``noise_counts`` (scalar
-    or one per channel) are arrays in the params pytree, so they can be vmapped or differentiated.
+    or one per channel) end up as the sensor's array fields, so they can be vmapped or differentiated; no walking
+    bias.
     """
     q = jnp.broadcast_to(jnp.asarray(quanta, dtype=jnp.float64), (len(measured),))
     white = jnp.asarray(noise_counts, dtype=jnp.float64) * q
-    return sensors.sensor_params(output_matrix(state_names, measured), white_std=white, quantum=q)
-
-
-def encoder_sensor(dt: float):
-    """The sensor component (``sensors.linear_sensor``; no walking bias unless its params ask for one)."""
-    return sensors.linear_sensor(dt)
-
-
-# the encoders are the general linear sensor with encoder numbers (``encoders`` below); the name stays for readers
-Encoders = sensors.LinearSensor
-
-
-def encoders(dt: float, state_names: Sequence[str], quanta=DEFAULT_QUANTA, noise_counts=0.5,
-             measured: Sequence[str] = MEASURED, straight_through: bool = False) -> Encoders:
-    """``Encoders`` with the numbers of ``encoder_params`` (quantised, white noise of ``noise_counts`` counts)."""
-    return Encoders(*encoder_params(state_names, quanta, noise_counts, measured), dt=dt,
-                    straight_through=straight_through)
+    return sensors.LinearSensor(output_matrix(state_names, measured), dt, white_std=white, quantum=q,
+                                straight_through=straight_through)

@@ -1,28 +1,13 @@
-"""Linearisation by autodiff and exact zero-order-hold discretisation."""
+"""Exact zero-order-hold discretisation of a linear(ised) model (linearise a plant with ``jaxdip.linearize``)."""
 
 from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
 from jaxdip.engine import effort
-
-
-@effort.jit(static_argnums=0)
-def linearize(f, params, x0, u0):
-    """(A, B) = (df/dx, df/du) at (x0, u0), by forward-mode autodiff.
-
-    Jitted (with ``f`` static): op-by-op nested autodiff of the Lagrangian DIP takes seconds, compiled it
-    takes milliseconds after the first call.
-    """
-    x0 = jnp.asarray(x0, dtype=jnp.float64)
-    u0 = jnp.atleast_1d(jnp.asarray(u0, dtype=jnp.float64))
-    A = jax.jacfwd(f, argnums=1)(params, x0, u0)
-    B = jax.jacfwd(f, argnums=2)(params, x0, u0)
-    return A, B.reshape(x0.shape[0], u0.shape[0])
 
 
 class Discrete(NamedTuple):
@@ -46,8 +31,3 @@ def zoh(A, B, h) -> Discrete:
     E = jsl.expm(M * h)
     Phi_inv = jsl.expm(-A * h)
     return Discrete(Phi=E[:n, :n], Phi_inv=Phi_inv, W=E[:n, n:])
-
-
-def linearize_discrete(f, params, x0, u0, h) -> Discrete:
-    A, B = linearize(f, params, x0, u0)
-    return zoh(A, B, h)

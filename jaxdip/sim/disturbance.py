@@ -10,50 +10,25 @@ jitter. Both are in input units (volts for the DIP).
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import jax
 import jax.numpy as jnp
 
 from jaxdip.engine.roles import Actuator, param
-from jaxdip.sim.component import Component
-
-
-class InputDisturbanceParams(NamedTuple):
-    offset_std: jnp.ndarray  # (m,) std of the per-trial constant offset
-    white_std: jnp.ndarray  # (m,) std of the per-period white disturbance
-
-
-def input_disturbance_params(offset_std=0.0, white_std=0.0, m: int = 1) -> InputDisturbanceParams:
-    vec = lambda v: jnp.broadcast_to(jnp.asarray(v, dtype=jnp.float64), (m,))
-    return InputDisturbanceParams(vec(offset_std), vec(white_std))
-
-
-def input_disturbance() -> Component:
-    def init(p: InputDisturbanceParams, key, x0):
-        return p.offset_std * jax.random.normal(key, p.offset_std.shape)
-
-    def step(p: InputDisturbanceParams, offset, u, key, k):
-        return offset, u + offset + p.white_std * jax.random.normal(key, p.white_std.shape)
-
-    return Component(init, step)
 
 
 class InputDisturbance(Actuator):
-    """The input disturbance as an engine actuator: ``InputDisturbanceParams``' fields, one entry per input.
+    """The input disturbance as an actuator: ``offset_std`` and ``white_std``, one entry per input (a scalar is
+    broadcast to ``m`` inputs). The state is the per-trial offset d, drawn at ``init``; ``aux`` is d as well."""
 
-    The state is the per-trial offset d, drawn at ``init``; ``aux`` is d as well."""
-
-    offset_std: jax.Array = param()
-    white_std: jax.Array = param()
+    offset_std: jax.Array = param()  # (m,) std of the per-trial constant offset
+    white_std: jax.Array = param()  # (m,) std of the per-period white disturbance
 
     def __init__(self, offset_std=0.0, white_std=0.0, m: int = 1):
-        p = input_disturbance_params(offset_std, white_std, m)
-        self.offset_std, self.white_std = p.offset_std, p.white_std
+        vec = lambda v: jnp.broadcast_to(jnp.asarray(v, dtype=jnp.float64), (m,))
+        self.offset_std, self.white_std = vec(offset_std), vec(white_std)
 
     def init(self, key, x0):
-        return input_disturbance().init(self, key, x0)
+        return self.offset_std * jax.random.normal(key, self.offset_std.shape)
 
     def step(self, state, u, key, k):
-        offset, out = input_disturbance().step(self, state, u, key, k)
-        return offset, out, offset
+        return state, u + state + self.white_std * jax.random.normal(key, self.white_std.shape), state

@@ -8,9 +8,8 @@ Outputs one measurement per state of ``[x, x_dot, phi, phi_dot]`` (full state, d
 * accelerometer tilt theta_a (36), simulated directly (as the thesis does) as phi + white noise + walking bias;
 * gyroscope: phi_dot + white noise + walking bias;
 * the tilt rate is the gyro reading itself. On the robot the tilt handed to the observer is the complementary
-  filter (37) of the gyro rate and theta_a; that filter is an estimator
-  (``jaxdip.estimators.complementary.tilt_prefilter``) chained after this sensor with
-  ``jaxdip.sim.component.chain``, so this module outputs theta_a in the tilt channel.
+  filter (37) of the gyro rate and theta_a (``complementary_update``; ``jaxdip.estimators.complementary`` is the
+  same filter as an estimator), and ``TwipSensors`` outputs that filtered tilt (``cf_alpha`` = 0: theta_a).
 
 Both inertial errors follow (154)-(155): m = m_true + c + b + w with the constant bias c removed at start-up
 (§4.3: the robot averages its first 100 readings at rest), w white of variance sigma^2 per sample, and b the
@@ -31,15 +30,9 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine.roles import Sensor, param
-from jaxdip.estimators.complementary import complementary_update
 from jaxdip.sim import sensors
-from jaxdip.sim.component import Component
 
 DEG = math.pi / 180.0
-
-
-class TwipSensorParams(NamedTuple):
-    raw: sensors.SensorParams  # 4 channels [p, unused, theta_a, gyro]: noise, walking bias, quantisation
 
 
 class TwipSensorState(NamedTuple):
@@ -74,25 +67,19 @@ def table_7_1():
     }
 
 
-def twip_sensor_params(tilt_white_std, tilt_gm_sigma, tilt_gm_tau, gyro_white_std, gyro_gm_sigma,
-                       gyro_gm_tau, encoder_quantum, gyro_quantum=0.0) -> TwipSensorParams:
-    z = 0.0
-    raw = sensors.sensor_params(
-        jnp.eye(4),
-        white_std=jnp.array([z, z, tilt_white_std, gyro_white_std]),
-        gm_sigma=jnp.array([z, z, tilt_gm_sigma, gyro_gm_sigma]),
-        gm_tau=jnp.array([1.0, 1.0, tilt_gm_tau, gyro_gm_tau]),
-        quantum=jnp.array([encoder_quantum, z, z, gyro_quantum]),
-    )
-    return TwipSensorParams(raw=raw)
+def complementary_update(theta, rate, angle, alpha, dt):
+    """The complementary filter (37), one step from theta_{k-1} with the gyro rate and the accelerometer angle
+    of sample k: theta_k = alpha (theta_{k-1} + rate dt) + (1 - alpha) angle (elementwise)."""
+    return alpha * (theta + rate * dt) + (1.0 - alpha) * angle
 
 
-def table_7_1_params() -> TwipSensorParams:
-    return twip_sensor_params(**table_7_1())
-
-
-def twip_sensor(dt: float, stationary_start: bool = False, straight_through: bool = False) -> Component:
-    """The sensors above as one loop component; input the true state, output [p, v, theta_a, gyro]_k.
+class TwipSensors(Sensor):
+    """The §7.4 sensors followed by the robot's complementary filter (37) on the tilt, as one engine sensor:
+    the output is [p, v, theta_cf, gyro]_k. ``ideal`` = 1 hands out the true state instead (y = x, the noiseless
+    studies), so noiseless and noisy loops share one structure. Fields: those of ``sensors.LinearSensor`` for the
+    raw channels [p, unused, theta_a, gyro] (noise, walking bias, quantisation), the filter weight
+    ``cf_alpha``; static: the period and the variants (walking biases from stationarity, straight-through
+    encoder gradient, filter started at the first accelerometer angle).
 
     ``straight_through``: the encoder's value is quantised as always, but its derivative with respect to the
     true position is taken as 1 instead of the quantiser's almost-everywhere 0. The a.e. derivative is the
@@ -100,33 +87,7 @@ def twip_sensor(dt: float, stationary_start: bool = False, straight_through: boo
     mean over seeds does feel (the twip-dmso gradient check measures a factor of about 2 on the DMSO's RMS
     error). With the straight-through rule the pathwise gradient is that of a quantiser whose error is
     uniform and independent of the position, which is what the quantisation error looks like once the wheel
-    has crossed many counts.
-    """
-    raw = sensors.linear_sensor(dt, stationary_start=stationary_start)
-
-    def init(params: TwipSensorParams, key, x0):
-        b = raw.init(params.raw, key, x0)
-        return TwipSensorState(b, jnp.zeros((), jnp.float64))
-
-    def step(params: TwipSensorParams, st: TwipSensorState, x, key, k):
-        bias, m = raw.step(params.raw, st.bias, x, key, k)
-        p = m[0]
-        if straight_through:
-            p = x[0] + jax.lax.stop_gradient(p - x[0])
-        v = jnp.where(k == 0, 0.0, (p - st.p_prev) / dt)
-        y = jnp.stack([p, v, m[2], m[3]])
-        return TwipSensorState(bias, p), y
-
-    return Component(init, step)
-
-
-class TwipSensors(Sensor):
-    """The §7.4 sensors followed by the robot's complementary filter (37) on the tilt, as one engine sensor:
-    the output is [p, v, theta_cf, gyro]_k (``twip_sensor`` chained with ``tilt_prefilter``, same keys and
-    numbers). ``ideal`` = 1 hands out the true state instead (y = x, the noiseless studies), so noiseless and
-    noisy loops share one structure. Fields: ``SensorParams``' of the raw channels, the filter weight
-    ``cf_alpha``; static: the period and the variants (walking biases from stationarity, straight-through
-    encoder gradient, filter started at the first accelerometer angle)."""
+    has crossed many counts."""
 
     C: jax.Array = param()
     white_std: jax.Array = param()
@@ -145,8 +106,15 @@ class TwipSensors(Sensor):
     def table_7_1(cls, dt: float, **kw) -> "TwipSensors":
         """Table 7.1 (``table_7_1``); ``kw`` overrides any of its entries or sets a field of this class."""
         t = {**table_7_1(), **{k: kw.pop(k) for k in list(kw) if k in table_7_1()}}
-        raw = twip_sensor_params(**t).raw
-        return cls(**raw._asdict(), dt=dt, **kw)
+        z = 0.0
+        raw = sensors.LinearSensor(
+            jnp.eye(4), dt,
+            white_std=jnp.array([z, z, t["tilt_white_std"], t["gyro_white_std"]]),
+            gm_sigma=jnp.array([z, z, t["tilt_gm_sigma"], t["gyro_gm_sigma"]]),
+            gm_tau=jnp.array([1.0, 1.0, t["tilt_gm_tau"], t["gyro_gm_tau"]]),
+            quantum=jnp.array([t["encoder_quantum"], z, z, z]),
+        )
+        return cls(raw.C, raw.white_std, raw.const_bias, raw.gm_sigma, raw.gm_tau, raw.quantum, dt=dt, **kw)
 
     def init(self, key, x0):
         k_raw, _ = jax.random.split(key, 2)

@@ -55,7 +55,7 @@ def _rk4(f, x, h):
 
 
 def lorenz_map(h: float):
-    p = lorenz.default_params()
+    p = lorenz.Lorenz()
     return lambda x: _rk4(lambda z: lorenz.f(p, z), x, h)
 
 

@@ -51,7 +51,7 @@ from jaxdip.plants import dip
 PUBLISHED_V = [[0.0758, -0.2888, -0.9414, 0.0699, -0.1077, -0.0904],
                [0.4917, 0.5334, -0.2177, -0.5440, 0.3085, 0.1877]]
 PUBLISHED_S = [9.99e5, 3.37e4]
-MW_ON = dip.DIPParams().Mw
+MW_ON = next(f.default for f in fields(dip.DIP) if f.name == "Mw")  # Table 3.3, as a Python float
 
 CHOICES = {
     "variant": ("printed", "lagrangian"),

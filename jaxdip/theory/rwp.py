@@ -80,11 +80,11 @@ def _k(K):
     return K[0], K[1], K[2]
 
 
-def a1(p: rwp.RWPParams):
+def a1(p: rwp.RWP):
     return rwp.mass_moment(p) * p.g / rwp.inertia(p)
 
 
-def closed_loop_matrix(p: rwp.RWPParams, K):
+def closed_loop_matrix(p: rwp.RWP, K):
     A, B = rwp.reduced_linear_model(p)
     K = jnp.reshape(jnp.asarray(K, dtype=jnp.float64), (1, 3))
     return A - B @ K
@@ -93,12 +93,12 @@ def closed_loop_matrix(p: rwp.RWPParams, K):
 # ---- equilibria (7), (15), (16) ---------------------------------------------------------------------------
 
 
-def equilibrium_biased_feedback(p: rwp.RWPParams, K, d):
+def equilibrium_biased_feedback(p: rwp.RWP, K, d):
     """(7) solved numerically: (A - BK)^-1 B K [d, 0, 0]."""
     return equilibrium_with_offsets(p, K, jnp.zeros(3).at[0].set(d))
 
 
-def equilibrium_with_offsets(p: rwp.RWPParams, K, delta):
+def equilibrium_with_offsets(p: rwp.RWP, K, delta):
     """x with (A - BK) x = B K delta: the equilibrium of u = -K (x + delta) on (4)."""
     A, B = rwp.reduced_linear_model(p)
     Kr = jnp.reshape(jnp.asarray(K, dtype=jnp.float64), (1, 3))
@@ -133,7 +133,7 @@ def thetar_dot_biased_homd(K, d, ep2, er2=None):
 # ---- Proposition 2 ------------------------------------------------------------------------------------------
 
 
-def char_coeffs(p: rwp.RWPParams, K):
+def char_coeffs(p: rwp.RWP, K):
     """(m1, m2, m3) of det(sI - (A - BK)) = s^3 + m1 s^2 + m2 s + m3, as printed in the proof of Prop. 2."""
     k1, k2, k3 = _k(K)
     J = rwp.inertia(p)
@@ -144,7 +144,7 @@ def char_coeffs(p: rwp.RWPParams, K):
     return m1, m2, m3
 
 
-def lowpass_F(p: rwp.RWPParams, K, gamma_d):
+def lowpass_F(p: rwp.RWP, K, gamma_d):
     """F of Proposition 2 with the -γ_d on its diagonal (state [x, d~])."""
     A, B = rwp.reduced_linear_model(p)
     k1, _, _ = _k(K)
@@ -154,7 +154,7 @@ def lowpass_F(p: rwp.RWPParams, K, gamma_d):
     return jnp.concatenate([top, bottom[None, :]], axis=0)
 
 
-def lowpass_char_coeffs(p: rwp.RWPParams, K, gamma_d):
+def lowpass_char_coeffs(p: rwp.RWP, K, gamma_d):
     """(b1, b2, b3, b4) of det(sI - F), as printed."""
     k1, _, _ = _k(K)
     m1, m2, m3 = char_coeffs(p, K)
@@ -166,7 +166,7 @@ def lowpass_char_coeffs(p: rwp.RWPParams, K, gamma_d):
     return b1, b2, b3, b4
 
 
-def routh_cubic(p: rwp.RWPParams, K):
+def routh_cubic(p: rwp.RWP, K):
     """Coefficients (ascending powers of γ_d) of (b1 b2 - b3) b3 - b1^2 b4, a cubic in γ_d."""
     k1, _, _ = _k(K)
     m1, m2, m3 = (float(v) for v in char_coeffs(p, K))
@@ -182,7 +182,7 @@ class GammaBar(NamedTuple):
     gamma_bar_2: float  # smallest positive real root of the Routh cubic
 
 
-def gamma_bar_routh(p: rwp.RWPParams, K) -> GammaBar:
+def gamma_bar_routh(p: rwp.RWP, K) -> GammaBar:
     """γ̄_d of Proposition 2 by the Routh route (the proof's construction)."""
     k1, k2, k3 = _k(K)
     m1, m2, m3 = (float(v) for v in char_coeffs(p, K))
@@ -195,11 +195,11 @@ def gamma_bar_routh(p: rwp.RWPParams, K) -> GammaBar:
     return GammaBar(min(g1, g2), g1, g2)
 
 
-def max_real_eig_F(p: rwp.RWPParams, K, gamma_d) -> float:
+def max_real_eig_F(p: rwp.RWP, K, gamma_d) -> float:
     return float(np.max(np.linalg.eigvals(np.asarray(lowpass_F(p, K, gamma_d))).real))
 
 
-def gamma_bar_eig(p: rwp.RWPParams, K, gamma_max: float = 1e3, grid: int = 2000, tol: float = 1e-12) -> float:
+def gamma_bar_eig(p: rwp.RWP, K, gamma_max: float = 1e3, grid: int = 2000, tol: float = 1e-12) -> float:
     """γ̄_d as the smallest γ_d > 0 where F stops being Hurwitz: a log grid to bracket, then bisection."""
     F0 = np.asarray(lowpass_F(p, K, 0.0))
     e1 = np.zeros(4)
@@ -341,7 +341,7 @@ def mu_max(L0, gamma, kp1, kp2, alpha, a1_value, c0, lo: float = -5.0, hi: float
 # ---- the low-pass observer with the differentiators in the loop (linear, α = 1) ------------------------------
 
 
-def lowpass_homd_linear_matrix(p: rwp.RWPParams, K, kp, kr, gamma_d):
+def lowpass_homd_linear_matrix(p: rwp.RWP, K, kp, kr, gamma_d):
     """Closed-loop matrix of (4) + (10) + (12) + (17) + law (23) for α_p = α_r = 1 (where the loop is linear).
 
     This is the loop of the low-pass experiment (Fig. 5), not Proposition 2's (which has exact velocities).
@@ -386,7 +386,7 @@ def lowpass_homd_linear_matrix(p: rwp.RWPParams, K, kp, kr, gamma_d):
     return R[:, :n], R[:, n]
 
 
-def gamma_bar_lowpass_homd_linear(p: rwp.RWPParams, K, kp, kr, gamma_max: float = 100.0, grid: int = 400,
+def gamma_bar_lowpass_homd_linear(p: rwp.RWP, K, kp, kr, gamma_max: float = 100.0, grid: int = 400,
                                   tol: float = 1e-12) -> float:
     """Smallest γ_d > 0 at which ``lowpass_homd_linear_matrix`` stops being Hurwitz (log grid + bisection)."""
     def unstable(gm):

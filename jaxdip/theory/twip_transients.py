@@ -16,14 +16,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxdip.plants import twip
-from jaxdip.sim.integrate import rk4_zoh
+from jaxdip.engine.integrate import rk4_zoh
 
 
 def swing(theta0_deg: float = 10.0, duration: float = 20.0, dt: float = 0.01, substeps: int = 10,
-          params: twip.TWIPParams | None = None):
+          params: twip.TWIP | None = None):
     """(t, x) of the unforced TWIP from [0, 0, theta0 - pi, 0]; x = [x, x_dot, phi, phi_dot] per sample,
     phi = theta - pi (so theta = phi + pi, hanging at theta = 0)."""
-    p = twip.default_params() if params is None else params
+    p = twip.TWIP() if params is None else params
     x0 = jnp.array([0.0, 0.0, math.radians(theta0_deg) - math.pi, 0.0])
     n = int(round(duration / dt))
     u = jnp.zeros(1)

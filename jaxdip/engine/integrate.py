@@ -9,10 +9,10 @@ solver in the tests.
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 
 
 def rk4_step(f, params, x, u, h):
+    """One classical RK4 step of xdot = f(params, x, u) with u held."""
     k1 = f(params, x, u)
     k2 = f(params, x + 0.5 * h * k1, u)
     k3 = f(params, x + 0.5 * h * k2, u)
@@ -26,10 +26,3 @@ def rk4_zoh(f, params, x, u, dt, substeps: int = 10):
     if substeps == 1:
         return rk4_step(f, params, x, u, h)
     return jax.lax.fori_loop(0, substeps, lambda _, xi: rk4_step(f, params, xi, u, h), x)
-
-
-def make_period_map(plant, dt, substeps: int = 10):
-    """x_{k+1} = phi(params, x_k, u_k): RK4 under ZOH for continuous plants, the map itself for discrete ones."""
-    if plant.continuous:
-        return lambda params, x, u: rk4_zoh(plant.f, params, x, u, dt, substeps)
-    return lambda params, x, u: plant.step(params, x, jnp.asarray(u))
