@@ -3,7 +3,7 @@
     python experiments/lorenz_mhe.py [--quick] [--seeds N] [--out DIR] [--set key=value ...]
 
 The same as ``jaxdip run lorenz-mhe``; the defaults are in configs/lorenz-mhe.toml. The library pieces:
-``jaxdip.estimators.cpx_linearized`` / ``scpx_linearized`` / ``ekf`` and ``jaxdip.experiments.lorenz_mhe``.
+``jaxdip.estimators.LinearizedCPX`` (CPX, SCPX) / ``ExtendedKalmanFilter`` and ``jaxdip.experiments.lorenz_mhe``.
 """
 
 import argparse
