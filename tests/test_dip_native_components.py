@@ -1,4 +1,4 @@
-"""The DIP's encoders, the input disturbance, the LDF, the power-series and relaxed-projection controllers as
+"""The DIP's encoders, the input disturbance, the power-series and relaxed-projection controllers as
 engine Modules give the numbers of their init/step versions with the same parameters, bit for bit."""
 
 import jax
@@ -10,7 +10,6 @@ import jaxdip as jd
 from jaxdip.control.power_series import power_series_controller, ps_params
 from jaxdip.control.projection import relaxed_projection_controller, rp_params
 from jaxdip.control.spd import P_v
-from jaxdip.estimators.ldf import LDF, dip_ldf_params, ldf
 from jaxdip.plants import dip
 from jaxdip.sim import dip_sensors
 from jaxdip.sim.disturbance import InputDisturbance, input_disturbance, input_disturbance_params
@@ -60,14 +59,6 @@ def test_input_disturbance_equals_its_component():
     us = jnp.asarray(RNG.normal(size=(T, 1)))
     ref = jax.jit(run_old, static_argnums=0)(input_disturbance(), p, us, XS[0])
     got = jax.jit(run_new)(InputDisturbance(0.3, 2.0), us, XS[0])
-    np.testing.assert_array_equal(np.asarray(got), np.asarray(ref))
-
-
-def test_ldf_equals_its_component():
-    ys = XS[:, :3]
-    us = jnp.zeros((T, 1))
-    ref = jax.jit(run_old, static_argnums=0)(ldf(3, 1e-3), dip_ldf_params(300.0, 50.0, 0.8), (ys, us), XS[0])
-    got = jax.jit(run_new, static_argnums=3)(LDF.dip(1e-3, 300.0, 50.0, 0.8), (ys, us), XS[0], True)
     np.testing.assert_array_equal(np.asarray(got), np.asarray(ref))
 
 
