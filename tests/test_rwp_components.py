@@ -1,7 +1,9 @@
-"""Native reaction-wheel pendulum components (plant, observers, saturation, straight-through sensor) and the
+"""Native reaction-wheel pendulum components (plant, saturation, straight-through sensor) and the
 rwp scenario loop against the init/step functions and the loop they replace: same numbers."""
 
 import jaxdip  # noqa: F401  (float64)
+
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -11,7 +13,6 @@ import jaxdip as jd
 from jaxdip.control import feedback_params, state_feedback
 from jaxdip.estimators import bias_observers as bo
 from jaxdip.estimators import homd
-from jaxdip.estimators import luenberger as lu
 from jaxdip.plants import rwp
 from jaxdip.plants.rwp import RWP
 from jaxdip.scenarios import rwp as scenario
@@ -25,59 +26,10 @@ from jaxdip.tune import straight_through_sensor
 DT = rwp.DT
 
 
-def _inputs(n_y, n=40):
-    t = jnp.arange(n) * DT
-    base = jnp.stack([0.05 * jnp.cos(3 * t), 0.3 * t, 0.2 * jnp.sin(5 * t), 2.0 * t][:n_y], axis=1)
-    return base - 0.02, 0.5 * jnp.sin(7 * t)[:, None]
-
-
-def _old(comp, params, ys, us):
-    def run(params):
-        st = comp.init(params, jax.random.PRNGKey(0), jnp.zeros(4))
-
-        def step(st, a):
-            k, y, u = a
-            return comp.step(params, st, (y, u), jax.random.PRNGKey(1), k)
-
-        return jax.lax.scan(step, st, (jnp.arange(ys.shape[0]), ys, us))[1]
-
-    return jax.jit(run)(params)
-
-
-@jax.jit
-def _new(est, ys, us):
-    st = est.init(jax.random.PRNGKey(0), jnp.zeros(4))
-
-    def step(st, a):
-        k, y, u = a
-        st, o, _ = est.step(st, y, u, jax.random.PRNGKey(1), k)
-        return st, o
-
-    return jax.lax.scan(step, st, (jnp.arange(ys.shape[0]), ys, us))[1]
-
-
 def test_rwp_plant_equals_pure_function():
     x, u = jnp.array([0.1, -0.3, 2.0, 5.0]), jnp.array([0.7])
     np.testing.assert_array_equal(RWP().vector_field(x, u), rwp.f(rwp.default_params(), x, u))
     np.testing.assert_array_equal(RWP().energy(x), rwp.energy(rwp.default_params(), x))
-
-
-def test_observers_equal_old_components():
-    hp = homd.homd_params(pend=(5.0, 12.0, 0.8), wheel=(4.0, 10.0, 0.95))
-    lp, _, _ = lu.matched_gain(hp.model, hp.pend, hp.wheel, 1.0, 10.0)
-    cases = [
-        (homd.rwp_homd, hp, homd.HOMDObserver, 2),
-        (lu.rwp_luenberger, lu.luenberger_params(lp), lu.LuenbergerObserver, 2),
-        (bo.rwp_lowpass_homd, bo.lowpass_params(hp, 0.5), bo.LowpassHOMD, 2),
-        (bo.rwp_lowpass_measured, bo.lowpass_measured_params(0.3), bo.LowpassMeasured, 4),
-        (bo.rwp_joint, bo.joint_params(hp, 0.02), bo.JointObserver, 2),
-    ]
-    for make, params, cls, n_y in cases:
-        ys, us = _inputs(n_y)
-        for hold in ("foh", "zoh"):
-            old = _old(make(DT, 4, hold), params, ys, us)
-            new = _new(cls.of(params, DT, substeps=4, hold=hold), ys, us)
-            np.testing.assert_array_equal(new, old, err_msg=f"{cls.__name__} {hold}")
 
 
 def test_saturation_and_straight_through_sensor():
@@ -99,6 +51,23 @@ def test_saturation_and_straight_through_sensor():
     np.testing.assert_array_equal(jax.jacfwd(y_new)(x), jnp.eye(4)[:2])  # the quantiser passes gradients
 
 
+def _as_init_step():
+    """An engine estimator, passed as the params, in the reference loop's init/step protocol."""
+
+    def init(est, key, x0):
+        return est.init(key, x0)
+
+    def step(est, st, inp, key, k):
+        return est.step(st, *inp, key, k)[:2]
+
+    return _InitStep(init, step)
+
+
+class _InitStep(NamedTuple):
+    init: Callable
+    step: Callable
+
+
 def _rec_fn(r):
     return jnp.stack([r.x[0], r.x[1], r.x[3], r.y[0], r.xhat[0], r.xhat[1], r.xhat[3], r.u[0]])
 
@@ -107,9 +76,9 @@ def test_scenario_loop_equals_old_loop():
     """The rwp-bias loop with the joint observer (d = -0.08, quantised encoders): the engine loop of
     ``jaxdip.scenarios.rwp`` against the original loop (``tests/reference_loop.py``), every recorded period, bit for bit."""
     K, n, d = rwp.K_TABLE2, 400, -0.08
-    jp = bo.joint_params(homd.homd_params(), 0.01)
+    jp = bo.JointObserver.build(homd.HOMDObserver.build(DT), 0.01)
     plant = rwp.make()
-    loop = Loop(plant=plant, dt=DT, sensor=sensors.linear_sensor(DT), estimator=bo.rwp_joint(DT),
+    loop = Loop(plant=plant, dt=DT, sensor=sensors.linear_sensor(DT), estimator=_as_init_step(),
                 controller=state_feedback(), actuator=actuators.saturation(), substeps=10, tail_steps=n)
     sp = sensors.sensor_params(jnp.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]]), const_bias=jnp.array([d, 0.0]),
                                quantum=[rwp.PENDULUM_ANGLE_RESOLUTION, rwp.WHEEL_ANGLE_RESOLUTION])
@@ -120,7 +89,7 @@ def test_scenario_loop_equals_old_loop():
     x0 = jnp.array([0.1, 0.01, 0.02, -0.1])
     key = jax.random.fold_in(jax.random.PRNGKey(0), 3)
     c, rec = jax.jit(lambda p: old_rollout(loop, p, x0, key, n, record_every=5, record_fn=_rec_fn))(params)
-    new = scenario.loop(bo.JointObserver.of(jp, DT), dt=DT, K=K, d=d)
+    new = scenario.loop(jp, dt=DT, K=K, d=d)
     sol = jax.jit(lambda lp: jd.simulate(lp, x0, key, n, save=scenario.record, save_every=5,
                                          metrics={"x2": jd.metrics.Sum(scenario.x_squared)}))(new)
     np.testing.assert_array_equal(np.asarray(sol.saved), np.asarray(rec))
@@ -143,8 +112,8 @@ def test_case_sweep_compiles_once():
             if "Finished XLA compilation" in msg and "_batch" in msg:
                 compiled.append(msg)
 
-    hp = homd.homd_params()
-    base = scenario.rollout(bo.LowpassHOMD.of(bo.lowpass_params(hp, 0.05), DT, substeps=2), steps=20, d=-0.08,
+    hp = homd.HOMDObserver.build(DT, substeps=2)
+    base = scenario.rollout(bo.LowpassHOMD.build(hp, 0.05), steps=20, d=-0.08,
                             save_every=5, substeps=2)
 
     def where(r):
