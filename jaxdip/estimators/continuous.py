@@ -10,10 +10,10 @@ received on [t_{k-1}, t_k) (zero-order hold), so the observer integrates that in
 * ``hold="zoh"``: y_{k-1} held over the interval, i.e. the integration a real-time implementation does at
   t_{k-1} before y_k arrives (prediction form).
 
-On the first sample (k = 0) there is no previous sample: the observer is initialised from y_0 by ``init_fn``
+On the first sample (k = 0) there is no previous sample: the observer is initialised from y_0 by ``init_xi``
 instead (positions from the measurement, velocities zero, bias estimates at their initial values).
 
-The observer's output is what the controller reads (``out_fn(params, xi, y_k)``); for the reaction-wheel
+The observer's output is what the controller reads (``out(obs, xi, y_k)``); for the reaction-wheel
 observers it is a 4-vector shaped like the plant state, so the loop's estimation-error statistics apply.
 """
 

@@ -16,7 +16,7 @@ The backward input term is derived, not copied: the documents print it as C W^{-
 for a column W; from x_k = Phi x_{k-1} + W u_{k-1} follows C x_{k-1} = C Phi^{-1} x_k - C Phi^{-1} W u_{k-1}
 (docs/models.md).
 
-Timing in the init/step interface: at sample j the component receives y_j and u_{j-1}; the window is
+Timing: at sample j the estimator receives y_j and u_{j-1}; the window is
 (y_{j-2}, y_{j-1}, y_j) and its centre is x_{j-1}. One step is
 
     p_{j-1}  = Prox_{gamma phi}(xhat_{j-1})

@@ -21,7 +21,7 @@ Observer, network and weight update, as decided from the (partly mangled) text:
   W_{k+1} by (6). Carrying y_k (rather than phi(y_k)) lets phi be recomputed once per sample with the current
   basis parameters.
 
-In the loop's init/step interface sample k brings (y_k, u_{k-1}) and the estimator hands the controller
+In the loop sample k brings (y_k, u_{k-1}) and the estimator hands the controller
 xhat_k. For k >= 1 that is (3) advanced from k - 1 with u_{k-1}: the DMSO is a one-step *predictor*; its
 estimate of x_k uses y_0 .. y_{k-1}, not y_k. At k = 0 it returns xhat_0 (the thesis starts it at zero) and
 W_0 (zeros). The KF compared with it in the thesis, (169)-(170) with y_k in the update of x_{k+1}, is a

@@ -37,7 +37,9 @@ from jaxdip.sim.twip_sensors import DEG, TwipSensors
 
 ESTIMATORS = ("dmso", "kf", "kf_posterior", "kf_printed")
 UNCERTAIN_ROWS = (1, 3)  # B_MSO (173): the x_dot and phi_dot rows
-KF_OUTPUT = {"kf": "prior", "kf_posterior": "posterior", "kf_printed": "delayed"}
+# how each KF reading is taken from the one filter: its prior (the DMSO's information), its posterior, or (170) as
+# printed, the update fed the previous sample's y (C xhat0 = 0 before the first)
+KF_READING = {"kf": Prior, "kf_posterior": lambda kf: kf, "kf_printed": lambda kf: DelayedMeasurement(kf, jnp.zeros(4))}
 
 
 def design(dt: float, lqr_Q=(10.0, 10.0, 1e-5, 1e-4), lqr_R=1000.0) -> TwipDesign:
@@ -57,14 +59,10 @@ def estimator(name: str, d: TwipDesign, *, dmso_K=(1.0, 1.0, 1.0, 1.0), dmso_gam
     if name == "dmso":
         return DMSO.thesis(d.F, d.G, selection_matrix(4, UNCERTAIN_ROWS), K=_diag(dmso_K), Gamma=dmso_gamma,
                            basis_scale=basis_scale)
-    if name not in KF_OUTPUT:
+    if name not in KF_READING:
         raise ValueError(f"unknown estimator {name!r}; choose one of {ESTIMATORS}")
-    kf = KalmanFilter(d.F, d.G, jnp.eye(4), jnp.asarray(_diag(kf_Q)), jnp.asarray(_diag(kf_R)),
-                      kf_P0 * jnp.eye(4), jnp.zeros(4))
-    if KF_OUTPUT[name] == "prior":
-        return Prior(kf)
-    # "delayed": (170) as printed, the update uses the previous sample's y; before the first, C xhat0 = 0
-    return DelayedMeasurement(kf, jnp.zeros(4)) if KF_OUTPUT[name] == "delayed" else kf
+    return KF_READING[name](KalmanFilter(d.F, d.G, jnp.eye(4), jnp.asarray(_diag(kf_Q)), jnp.asarray(_diag(kf_R)),
+                                         kf_P0 * jnp.eye(4), jnp.zeros(4)))
 
 
 def sensors(dt: float, noisy: bool, *, tilt_var=4.0397e-6, tilt_bias_var=1.8929e-7, tilt_tau=2160.0,
