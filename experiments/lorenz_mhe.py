@@ -6,8 +6,8 @@ after every sample the state is perturbed by eta_k ~ N(0, 0.1^2 I) (the thesis's
 
 Estimators, all relinearising the dynamics at their current estimate every sample with Phi, Phi^{-1} by the
 matrix exponential over h (``jaxdip.estimators.linearized``):
-  cpx  centred proximal MHE, gamma = 0.5                     (``cpx_linearized``)
-  scpx subspace centred proximal MHE, gamma = 50, p = 2      (``scpx_linearized``)
+  cpx  centred proximal MHE, gamma = 0.5                     (``LinearizedCPX``)
+  scpx subspace centred proximal MHE, gamma = 50, p = 2      (``LinearizedCPX``, keep=p)
   ekf  EKF with the true noise levels (0.1, 5)
   ekf2 EKF with sigma_eta = 0.005, sigma_eps = 10 (the thesis's tuned values)
 They run on the same data in one loop (``jd.FanOut``; the wiring is ``jaxdip.scenarios.lorenz_mhe``). The truth and all four estimators start from the same draws:

@@ -65,7 +65,7 @@ def compute(cfg: RwpRemark3Config) -> dict:
     from jaxdip.scenarios import rwp as S
 
     steps = int(round(cfg.duration / P.DT))
-    est = homd.HOMDObserver.of(homd.homd_params(), dt=P.DT, substeps=10)
+    est = homd.HOMDObserver.build(P.DT, substeps=10)
     base = S.rollout(est, steps=steps, theta0=cfg.theta0, save_every=1)
     idx = int(round((cfg.duration - cfg.tail) / P.DT))
 

@@ -14,9 +14,9 @@ import scipy.linalg as sla
 
 import jaxdip as jd
 from jaxdip import config as C
-from jaxdip.estimators.cpx import CPXParams, cpx_qr
-from jaxdip.estimators.ldf import LDFParams, ldf
-from jaxdip.estimators.run import filter_sequence
+from jaxdip.estimators.cpx import CPX
+from jaxdip.estimators.ldf import LDF
+from jaxdip.estimators.recorded import run
 from jaxdip.plants import dip
 from jaxdip.scenarios import dip_cpx_ldf as S
 from jaxdip.sim import dip_sensors
@@ -55,8 +55,7 @@ def test_ldf_frequency_response_matches_analytic(w):
     T = 4000
     t = np.arange(T) * dt
     ys = np.repeat(np.sin(w * t)[:, None], 3, axis=1)
-    params = LDFParams(jnp.asarray(wc), jnp.asarray(zeta))
-    _, out = filter_sequence(ldf(3, dt), params, ys, np.zeros((T, 1)), jnp.zeros(6))
+    _, out, _ = run(LDF(jnp.asarray(wc), jnp.asarray(zeta), n_pos=3, dt=dt), ys, np.zeros((T, 1)), jnp.zeros(6))
     v = np.asarray(out)[:, 3:]
     keep = t >= 1.0  # transients decay at zeta * wc >= 31 /s
     M = np.stack([np.sin(w * t[keep]), np.cos(w * t[keep])], axis=1)
@@ -173,12 +172,12 @@ def test_gamma_sweep_compiles_once_and_equals_separate_runs():
 
 def _record(s):
     est = s.aux.estimator
-    return s.x, s.y, s.u, est.xhat["ldf"], est.aux["cpx"], est.xhat["cpx_crit"]
+    return s.x, s.y, s.u, est.xhat["ldf"], est.aux["cpx"].xhat, est.xhat["cpx_crit"]
 
 
 def test_fanout_beside_cpx_changes_nothing_and_equals_offline_filtering():
     """LDF and a second CPX beside the driving CPX: the trajectory is the one of CPX alone, and each estimate
-    equals filtering the recorded readings offline (``filter_sequence``) with the init/step versions.
+    equals filtering the recorded readings offline (``recorded.run``) with the same estimators.
 
     To rounding, not bit for bit: the two loops are two programs, and XLA may fuse and order their shared sums
     differently (at -O0 they differ by ~1e-15 relative)."""
@@ -193,9 +192,9 @@ def test_fanout_beside_cpx_changes_nothing_and_equals_offline_filtering():
         np.testing.assert_allclose(a, np.asarray(b)[0], rtol=1e-13, atol=1e-16)
     u_prev = np.concatenate([np.zeros((1, 1)), u[:-1]])
     model, Cm = TINY.model()
-    ref_ldf = filter_sequence(ldf(3, TINY.dt), TINY.ldf(), y, u_prev, x[0])[1]
-    ref_cpx = filter_sequence(cpx_qr("current"), CPXParams(150.0, model, Cm, jnp.zeros(6)), y, u_prev, x[0])[1]
-    ref_crit = filter_sequence(cpx_qr("current"), CPXParams(2.4e4, model, Cm, jnp.zeros(6)), y, u_prev, x[0])[1]
+    ref_ldf = run(TINY.ldf(), y, u_prev, x[0])[1]
+    ref_cpx = run(CPX(150.0, model, Cm, jnp.zeros(6)), y, u_prev, x[0])[1]
+    ref_crit = run(CPX(2.4e4, model, Cm, jnp.zeros(6)), y, u_prev, x[0])[1]
     for got, ref in ((est_ldf, ref_ldf), (est_cpx, ref_cpx), (est_crit, ref_crit)):
         np.testing.assert_allclose(got, np.asarray(ref), rtol=1e-12, atol=1e-12)
     assert np.abs(est_cpx - est_crit).max() > 1e-6  # the two gammas give different estimates

@@ -1,6 +1,5 @@
-"""The DIP's encoders, the input disturbance, the LDF, the power-series and relaxed-projection controllers as
-engine Modules against their models written out by hand (keys, quantiser, the laws in NumPy) and the LDF's
-init/step version."""
+"""The DIP's encoders, the input disturbance, the power-series and relaxed-projection controllers as
+engine Modules against their models written out by hand (keys, quantiser, the laws in NumPy)."""
 
 import jax
 import jax.numpy as jnp
@@ -10,7 +9,6 @@ import pytest
 import jaxdip as jd
 from jaxdip.control.power_series import third_order_term
 from jaxdip.control.spd import P_v
-from jaxdip.estimators.ldf import LDF, dip_ldf_params, ldf
 from jaxdip.plants import dip
 from jaxdip.sim import dip_sensors
 from jaxdip.sim.disturbance import InputDisturbance
@@ -19,15 +17,6 @@ T = 200
 RNG = np.random.default_rng(3)
 XS = jnp.asarray(0.05 * RNG.normal(size=(T, 6)))
 KEYS = jax.random.split(jax.random.PRNGKey(4), T)
-
-
-def run_old(comp, params, inputs, x0):
-    def body(s, inp):
-        k, key, v = inp
-        s, out = comp.step(params, s, v, key, k)
-        return s, out
-
-    return jax.lax.scan(body, comp.init(params, jax.random.PRNGKey(5), x0), (jnp.arange(T), KEYS, inputs))[1]
 
 
 def run_new(mod, inputs, x0, estimator=False):
@@ -64,14 +53,6 @@ def test_input_disturbance_is_offset_plus_white_noise():
     w = np.asarray(jax.vmap(lambda k: jax.random.normal(k, (1,)))(KEYS))
     got = jax.jit(run_new)(InputDisturbance(0.3, 2.0), us, XS[0])
     np.testing.assert_allclose(np.asarray(got), np.asarray(us) + d + 2.0 * w, rtol=1e-15, atol=1e-15)
-
-
-def test_ldf_equals_its_component():
-    ys = XS[:, :3]
-    us = jnp.zeros((T, 1))
-    ref = jax.jit(run_old, static_argnums=0)(ldf(3, 1e-3), dip_ldf_params(300.0, 50.0, 0.8), (ys, us), XS[0])
-    got = jax.jit(run_new, static_argnums=3)(LDF.dip(1e-3, 300.0, 50.0, 0.8), (ys, us), XS[0], True)
-    np.testing.assert_array_equal(np.asarray(got), np.asarray(ref))
 
 
 def test_power_series_is_law_3_5():

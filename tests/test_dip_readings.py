@@ -72,7 +72,7 @@ def test_printed_37_is_least_squares_with_I_over_gamma():
     I/gamma as printed (NumPy lstsq of the stacked system), not the one with I/sqrt(gamma)."""
     gamma = 150.0
     sc = S.DipCpxLdf(cpx_weight="printed", cpx_gamma=gamma)
-    est = sc.cpx()
+    est = sc.cpx(output="current")  # the CPX itself (by default it is wrapped in Ahead)
     model, Cm = sc.model()
     G = np.vstack([Cm @ np.asarray(model.Phi_inv), Cm, Cm @ np.asarray(model.Phi)])
     rng = np.random.default_rng(2)
@@ -85,7 +85,7 @@ def test_printed_37_is_least_squares_with_I_over_gamma():
     # the default reading is the I/sqrt(gamma) system
     H2 = np.vstack([np.eye(6) / np.sqrt(gamma), G])
     want2 = np.linalg.lstsq(H2, np.concatenate([xhat / np.sqrt(gamma), q]), rcond=None)[0]
-    g2 = S.DipCpxLdf(cpx_gamma=gamma).cpx().gamma
+    g2 = S.DipCpxLdf(cpx_gamma=gamma).cpx(output="current").gamma
     QT, R = qr_factor(jnp.asarray(G), g2)
     np.testing.assert_allclose(np.asarray(prox_from_qr(QT, R, jnp.asarray(q), jnp.asarray(xhat), g2)), want2,
                                rtol=1e-7, atol=1e-9)

@@ -9,9 +9,17 @@ import pytest
 import scipy.linalg
 
 from jaxdip.control.twip_lqr import Q_THESIS, R_THESIS, twip_discrete, twip_dlqr
-from jaxdip.estimators import filter_sequence
-from jaxdip.estimators.dmso import dmso, dmso_params, dmso_sequence, selection_matrix
+from jaxdip.estimators.dmso import DMSO, selection_matrix
+from jaxdip.estimators.recorded import run
 from jaxdip.plants import twip
+
+
+def replay(est, ys, us):
+    """The DMSO over recorded y_0..y_{T-1} and u_0..u_{T-1} (``us[k]`` applied after sample k): xhat_k, fhat_k for
+    k = 0..T-2 (fhat_k needs y_{k+1}: the aux of sample k + 1) and W_k."""
+    us_prev = np.concatenate([np.zeros((1, 1)), np.asarray(us)[:-1]])
+    _, xs, aux = run(est, ys, us_prev, np.zeros(4))
+    return xs, aux.fhat[1:], aux.W
 
 
 def numpy_dmso(F, G, B, K, Gamma, s, c, ys, us):
@@ -57,14 +65,12 @@ def test_dmso_equals_numpy_reference_over_1000_steps(data):
     assert np.array_equal(B, np.array([[0, 1, 0, 0], [0, 0, 0, 1]]).T)  # (173)
     Gamma = 0.1
     ref_x, ref_f, ref_W = numpy_dmso(F, G, B, K, Gamma, s, c, ys, us)
-    p = dmso_params(F, G, B, K=K, Gamma=Gamma, basis_scale=s, basis_offset=c)
-    us_prev = np.concatenate([np.zeros((1, 1)), us[:-1]])
-    _, xs = filter_sequence(dmso(), p, ys, us_prev, np.zeros(4))  # the loop component, sample by sample
-    tr = dmso_sequence(p, ys, us)  # the replay used by the experiment
+    est = DMSO.thesis(F, G, B, K=K, Gamma=Gamma, basis_scale=s, basis_offset=c)
+    xs, fhat, W = replay(est, ys, us)  # the loop estimator, sample by sample
     scale = np.abs(ref_x).max()
     assert 0.1 < scale < 100 and np.abs(ref_W).max() > 1e-2  # the comparison is not of zeros or of a blow-up
-    err = max(np.abs(np.asarray(xs) - ref_x).max(), np.abs(np.asarray(tr.xhat) - ref_x).max(),
-              np.abs(np.asarray(tr.fhat) - ref_f).max(), np.abs(np.asarray(tr.W) - ref_W).max())
+    err = max(np.abs(np.asarray(xs) - ref_x).max(), np.abs(np.asarray(fhat) - ref_f[:-1]).max(),
+              np.abs(np.asarray(W) - ref_W).max())
     print(f"max |JAX - NumPy| over 1000 steps: {err:.3g} (largest |xhat| {scale:.3g})")
     assert err < 1e-12
 
@@ -72,9 +78,9 @@ def test_dmso_equals_numpy_reference_over_1000_steps(data):
 def test_matrix_gamma_equals_scalar_gamma(data):
     F, G, K, s, c, ys, us = data
     B = selection_matrix(4, (1, 3))
-    a = dmso_sequence(dmso_params(F, G, B, K=K, Gamma=0.3), ys[:200], us[:200])
-    b = dmso_sequence(dmso_params(F, G, B, K=K, Gamma=0.3 * jnp.eye(5)), ys[:200], us[:200])
-    np.testing.assert_allclose(np.asarray(a.xhat), np.asarray(b.xhat), rtol=0, atol=1e-14)
+    a = replay(DMSO.thesis(F, G, B, K=K, Gamma=0.3), ys[:200], us[:200])[0]
+    b = replay(DMSO.thesis(F, G, B, K=K, Gamma=0.3 * jnp.eye(5)), ys[:200], us[:200])[0]
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=1e-14)
 
 
 def _linear_run(F, G, K, x0, T, rng):
@@ -88,9 +94,8 @@ def _linear_run(F, G, K, x0, T, rng):
         xs.append(F @ xs[-1] + G @ us[-1])
     xs, us = np.array(xs[:T]), np.array(us)
     assert np.abs(xs).max() < 10
-    p = dmso_params(F, G, selection_matrix(4, (1, 3)), K=K, Gamma=0.0)
-    tr = dmso_sequence(p, xs, us)
-    return xs, np.asarray(tr.xhat), np.asarray(tr.W)
+    xh, _, W = replay(DMSO.thesis(F, G, selection_matrix(4, (1, 3)), K=K, Gamma=0.0), xs, us)
+    return xs, np.asarray(xh), np.asarray(W)
 
 
 def test_gamma_zero_is_a_luenberger_observer_decaying_at_eig_F_minus_K():
@@ -182,7 +187,7 @@ def _noise_loop(est_name="dmso", duration=1.0, **sensor_kw):
 
 
 def test_in_loop_fhat_equals_the_replay_on_recorded_data():
-    """The DMSO's aux (fhat_{k-1}, W_k) recorded in the loop equals ``dmso_sequence`` replayed on the recorded
+    """The DMSO's aux (fhat_{k-1}, W_k) recorded in the loop equals the DMSO replayed on the recorded
     (y, u): the network's estimate comes out of the loop, no replay needed."""
     import jaxdip as jd
     from jaxdip.scenarios.twip_initial import thesis_x0
@@ -191,44 +196,35 @@ def test_in_loop_fhat_equals_the_replay_on_recorded_data():
     save = lambda s: (s.y, s.u, s.xhat, s.aux.estimator.fhat, s.aux.estimator.W)  # noqa: E731
     sol = jd.monte_carlo(jd.Rollout(lp, thesis_x0(), n, save=save), jax.random.PRNGKey(0), 1)
     ys, us, xh, fh, W = sol.saved
-    est = lp.estimator
-    p = dmso_params(est.F, est.G, est.B, est.K, est.Gamma, est.basis_scale, est.basis_offset, est.W0, est.xhat0)
-    tr = dmso_sequence(p, ys[0], us[0])
-    np.testing.assert_array_equal(np.asarray(tr.xhat), np.asarray(xh[0]))
-    np.testing.assert_allclose(np.asarray(fh[0, 1:]), np.asarray(tr.fhat[:-1]), rtol=0, atol=1e-15)
-    np.testing.assert_allclose(np.asarray(W[0]), np.asarray(tr.W), rtol=0, atol=1e-15)
-    assert np.abs(np.asarray(tr.fhat)).max() > 1e-3  # the network did learn something
+    tr_x, tr_f, tr_W = replay(lp.estimator, ys[0], us[0])
+    np.testing.assert_array_equal(np.asarray(tr_x), np.asarray(xh[0]))
+    np.testing.assert_allclose(np.asarray(fh[0, 1:]), np.asarray(tr_f), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(np.asarray(W[0]), np.asarray(tr_W), rtol=0, atol=1e-15)
+    assert np.abs(np.asarray(tr_f)).max() > 1e-3  # the network did learn something
 
 
-def test_native_dmso_and_kf_readings_equal_the_components():
-    """``DMSO`` = ``dmso()``; ``KalmanFilter(output=...)``: posterior = ``kalman()``, prior = F x+ + G u (x0 at
-    k = 0) before the update, delayed = ``kalman()`` fed y_{k-1} (C xhat0 at k = 0); bit for bit."""
-    from jaxdip.estimators.dmso import DMSO
-    from jaxdip.estimators.kalman import KFParams, kalman
+def test_kf_timing_wrappers_are_the_readings():
+    """``Prior(kf)`` hands out F x+ + G u (x0 at k = 0) made before the update, ``DelayedMeasurement(kf, C xhat0)``
+    is the filter fed y_{k-1} (C xhat0 at k = 0), the bare filter its posterior; bit for bit against the bare
+    filter's own steps."""
     from jaxdip.estimators.kf import KalmanFilter
+    from jaxdip.estimators.wrappers import DelayedMeasurement, Prior
 
     d = twip_dlqr(twip.TWIP(), Q_THESIS, R_THESIS, 0.01)
-    p = dmso_params(d.F, d.G, selection_matrix(4, (1, 3)), K=0.5 * jnp.eye(4), Gamma=0.2)
-    kp = KFParams(d.F, d.G, jnp.eye(4), 1e-3 * jnp.eye(4), 1e-4 * jnp.eye(4), 0.01 * jnp.eye(4), jnp.zeros(4))
+    kf = KalmanFilter(d.F, d.G, jnp.eye(4), 1e-3 * jnp.eye(4), 1e-4 * jnp.eye(4), 0.01 * jnp.eye(4), jnp.zeros(4))
     key = jax.random.PRNGKey(2)
     ys = jnp.cumsum(0.01 * jax.random.normal(key, (60, 4)), axis=0)
     us = jax.random.normal(jax.random.fold_in(key, 1), (60, 1))
-    old_d, new_d = dmso(), DMSO.of(p)
-    old_k = kalman()
-    kfs = {o: KalmanFilter(*kp[:6], kp.xhat0, output=o) for o in ("posterior", "prior", "delayed")}
-    so_d, sn_d = old_d.init(p, key, ys[0]), new_d.init(key, ys[0])
-    so_k = old_k.init(kp, key, ys[0])
-    so_kd = old_k.init(kp, key, ys[0])
+    kfs = {"posterior": kf, "prior": Prior(kf), "delayed": DelayedMeasurement(kf, kf.C @ kf.xhat0)}
+    so_k = kf.init(key, ys[0])
+    so_kd = kf.init(key, ys[0])
     sn = {o: f.init(key, ys[0]) for o, f in kfs.items()}
-    y_prev = kp.C @ kp.xhat0
+    y_prev = kf.C @ kf.xhat0
     for k in range(ys.shape[0]):
         u_prev = us[k - 1] if k else jnp.zeros(1)
-        so_d, xo = old_d.step(p, so_d, (ys[k], u_prev), key, k)
-        sn_d, xn, _ = new_d.step(sn_d, ys[k], u_prev, key, k)
-        np.testing.assert_array_equal(np.asarray(xn), np.asarray(xo))
-        prior = so_k.x if k == 0 else kp.Phi @ so_k.x + kp.W @ u_prev
-        so_k, post = old_k.step(kp, so_k, (ys[k], u_prev), key, k)
-        so_kd, delayed = old_k.step(kp, so_kd, (y_prev, u_prev), key, k)
+        prior = so_k.x if k == 0 else kf.Phi @ so_k.x + kf.W @ u_prev
+        so_k, post, _ = kf.step(so_k, ys[k], u_prev, key, k)
+        so_kd, delayed, _ = kf.step(so_kd, y_prev, u_prev, key, k)
         y_prev = ys[k]
         for o, ref in (("posterior", post), ("prior", prior), ("delayed", delayed)):
             sn[o], x, _ = kfs[o].step(sn[o], ys[k], u_prev, key, k)

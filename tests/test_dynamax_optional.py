@@ -8,7 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxdip.estimators import lgssm
+from jaxdip.estimators.kf import KalmanFilter
+from jaxdip.estimators.recorded import kalman_filter, rts_smoother
 
 dinf = pytest.importorskip("dynamax.linear_gaussian_ssm.inference")
 
@@ -29,8 +30,9 @@ def test_filter_smoother_likelihood_equal_dynamax(monkeypatch):
     P0 = np.eye(d)
     us = rng.standard_normal((T, m))
     ys = rng.standard_normal((T, p))
-    ours_f = lgssm.kalman_filter(ys, jnp.zeros(d), P0, Q, R, Phi=Phi, C=C, W=W, us=us)
-    ours_s = lgssm.rts_smoother(ys, jnp.zeros(d), P0, Q, R, Phi=Phi, C=C, W=W, us=us)
+    kf = KalmanFilter(Phi, W, C, Q, R, P0, jnp.zeros(d))
+    ours_f = kalman_filter(kf, ys, us)
+    ours_s = rts_smoother(kf, ys, us)
     params = dinf.make_lgssm_params(jnp.zeros(d), jnp.asarray(P0), jnp.asarray(Phi), jnp.asarray(Q), jnp.asarray(C),
                                     jnp.asarray(R), dynamics_input_weights=jnp.asarray(W))
     # jaxdip's us[k] drives x_k -> x_{k+1}; dynamax's input at index k drives x_{k-1} -> x_k

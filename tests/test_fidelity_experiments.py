@@ -158,7 +158,7 @@ def test_rwp_remark3_paired_difference_seed_by_seed(tmp_path):
     r, report, _ = _run("rwp-remark3", tmp_path)
     assert "(contrast)" in report and len(r["wheel"]) == 1
     steps, idx = int(round(1.0 / P.DT)), int(round(0.5 / P.DT))
-    est = homd.HOMDObserver.of(homd.homd_params(), dt=P.DT, substeps=10)
+    est = homd.HOMDObserver.build(P.DT, substeps=10)
     base = S.rollout(est, steps=steps, theta0=0.1, save_every=1)
 
     def tail_errors(d_r):

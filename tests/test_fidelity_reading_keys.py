@@ -43,7 +43,7 @@ def test_luenberger_omega_sets_the_error_dynamics():
 
 
 def _currents(observer_current, limit=3.0, steps=200):
-    est = homd.HOMDObserver.of(homd.homd_params(), dt=0.002, substeps=2)
+    est = homd.HOMDObserver.build(0.002, substeps=2)
     lp = S.loop(est, dt=0.002, substeps=2, current_limit=limit, observer_current=observer_current)
     sol = jd.simulate(lp, jnp.array([0.1, 0.0, 0.0, 0.0]), jax.random.PRNGKey(0), steps,
                       save=lambda s: jnp.stack([s.u[0], s.u_applied[0], s.xhat[1]]))

@@ -7,10 +7,30 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.linalg as sla
 
-from jaxdip.estimators import filter_sequence
-from jaxdip.estimators.kalman import EKFParams, KFParams, ekf, kalman, kf_update
+from jaxdip.engine.roles import Plant, param
+from jaxdip.estimators.kalman import update
+from jaxdip.estimators.kf import ExtendedKalmanFilter, KalmanFilter
+from jaxdip.estimators.recorded import run
 from jaxdip.plants import lorenz
 from jaxdip.engine.integrate import rk4_zoh
+
+
+class LinearPlant(Plant):
+    """xdot = A x + B u, for the EKF-on-a-linear-model checks."""
+
+    A: jax.Array = param()
+    B: jax.Array = param()
+    state_names = ("x1", "x2", "x3", "x4")
+    input_names = ("u1", "u2")
+
+    def vector_field(self, x, u):
+        return self.A @ x + self.B @ u
+
+
+def filter_run(est, ys, us_prev, x0):
+    """(final state, outputs) of ``est`` over recorded data."""
+    st, out, _ = run(est, ys, us_prev, x0)
+    return st, out
 
 
 def rel(a, b):
@@ -65,8 +85,8 @@ def test_kf_matches_numpy():
     R = np.array([[0.25, 0.05], [0.05, 0.3]])
     P0 = 2.0 * np.eye(4)
     x0 = np.array([1.0, -1.0, 0.0, 0.5])
-    params = KFParams(*map(jnp.asarray, (F, G, H, Q, R, P0, x0)))
-    st, out = jax.jit(lambda prm: filter_sequence(kalman(), prm, ys, us_prev, jnp.zeros(4)))(params)
+    kf = KalmanFilter(*map(jnp.asarray, (F, G, H, Q, R, P0, x0)))
+    st, out = jax.jit(lambda e: filter_run(e, ys, us_prev, jnp.zeros(4)))(kf)
     ref, covs = np_kf(F, G, H, Q, R, P0, x0, ys, us_prev)
     print(f"\nKF vs NumPy: state rel {rel(out, ref):.1e}, final covariance rel {rel(st.P, covs[-1]):.1e}")
     assert rel(out, ref) < 1e-9
@@ -79,10 +99,9 @@ def test_ekf_on_linear_plant_is_kf():
     ys, us_prev = _data(rng, F, G, H, 200, 0.05, 0.3)
     Q, R, P0 = 0.0025 * np.eye(4), 0.09 * np.eye(2), np.eye(4)
     x0 = np.zeros(4)
-    f = lambda prm, x, u: prm[0] @ x + prm[1] @ u  # noqa: E731
-    _, out_e = filter_sequence(ekf(f, 0.05, 2), EKFParams((jnp.asarray(A), jnp.asarray(B)),
-                                                          *map(jnp.asarray, (H, Q, R, P0, x0))), ys, us_prev, x0)
-    _, out_k = filter_sequence(kalman(), KFParams(*map(jnp.asarray, (F, G, H, Q, R, P0, x0))), ys, us_prev, x0)
+    ekf = ExtendedKalmanFilter(Q, R, P0, x0, model=LinearPlant(A, B), dt=0.05, C=H)
+    _, out_e = filter_run(ekf, ys, us_prev, x0)
+    _, out_k = filter_run(KalmanFilter(*map(jnp.asarray, (F, G, H, Q, R, P0, x0))), ys, us_prev, x0)
     assert rel(out_e, out_k) < 1e-10
 
 
@@ -128,8 +147,8 @@ def test_ekf_lorenz_matches_numpy():
     ys = np.array(ys)
     Q, R, P0 = 0.01 * np.eye(3), 25.0 * np.eye(2), np.eye(3)
     x0 = np.array([-7.0, 6.0, 28.0])
-    params = EKFParams(p, *map(jnp.asarray, (C, Q, R, P0, x0)))
-    _, out = jax.jit(lambda prm: filter_sequence(ekf(lorenz.f, h, 1), prm, ys, np.zeros((T, 1)), x0))(params)
+    ekf = ExtendedKalmanFilter(Q, R, P0, x0, model=lorenz.Lorenz(*p), dt=h, C=C)
+    _, out = jax.jit(lambda e: filter_run(e, ys, np.zeros((T, 1)), x0))(ekf)
     ref = np_ekf_lorenz(p, C, Q, R, P0, x0, ys, h)
     print(f"\nEKF (Lorenz) vs NumPy: rel {rel(out, ref):.1e}")
     assert rel(out, ref) < 1e-9
@@ -148,7 +167,7 @@ def test_kf_update_singular_s_matches_pseudo_inverse():
     x, y = rng.standard_normal(5), rng.standard_normal(3)
     S = C @ P @ C.T
     assert np.linalg.matrix_rank(S) == 2
-    x_new, P_new = jax.jit(kf_update)(x, P, y, C, R)
+    x_new, P_new, _ = jax.jit(lambda *a: update(*a, a[3] @ a[0], R))(x, P, y, C)
     K = P @ C.T @ np.linalg.pinv(S, rcond=1e-10, hermitian=True)
     IKC = np.eye(5) - K @ C
     x_ref, P_ref = x + K @ (y - C @ x), IKC @ P @ IKC.T
@@ -179,17 +198,16 @@ def _duplicated_sensor_case(T=200):
 
 def test_kf_duplicated_exact_sensor_is_finite_and_matches_single_sensor():
     A, B, F, G, C1, C2, ys1, ys2, us_prev, Q, R1, R2, P0, x0 = _duplicated_sensor_case()
-    params = KFParams(*map(jnp.asarray, (F, G, C2, Q, R2, P0, x0)))
-    st, out = jax.jit(lambda prm: filter_sequence(kalman(), prm, ys2, us_prev, jnp.zeros(4)))(params)
+    kf = KalmanFilter(*map(jnp.asarray, (F, G, C2, Q, R2, P0, x0)))
+    st, out = jax.jit(lambda e: filter_run(e, ys2, us_prev, jnp.zeros(4)))(kf)
     ref, covs = np_kf(F, G, C1, Q, R1, P0, x0, ys1, us_prev)
     print(f"\nduplicated exact sensor vs single: state rel {rel(out, ref):.1e}, covariance rel {rel(st.P, covs[-1]):.1e}")
     assert np.all(np.isfinite(out))
     assert rel(out, ref) < 1e-6
     assert rel(st.P, covs[-1]) < 1e-6
     # the EKF shares the guarded update
-    f = lambda prm, x, u: prm[0] @ x + prm[1] @ u  # noqa: E731
-    eparams = EKFParams((jnp.asarray(A), jnp.asarray(B)), *map(jnp.asarray, (C2, Q, R2, P0, x0)))
-    _, out_e = filter_sequence(ekf(f, 0.1, 2), eparams, ys2, us_prev, x0)
+    ekf = ExtendedKalmanFilter(Q, R2, P0, x0, model=LinearPlant(A, B), dt=0.1, C=C2)
+    _, out_e = filter_run(ekf, ys2, us_prev, x0)
     assert rel(out_e, ref) < 1e-6
 
 
@@ -197,8 +215,8 @@ def test_kf_singular_s_gradient_is_finite_and_matches_finite_differences():
     _, _, F, G, _, C2, _, ys2, us_prev, Q, _, R2, P0, x0 = _duplicated_sensor_case(T=50)
 
     def loss(q):
-        params = KFParams(*map(jnp.asarray, (F, G, C2, q * Q, R2, P0, x0)))
-        return jnp.sum(filter_sequence(kalman(), params, ys2, us_prev, jnp.zeros(4))[1] ** 2)
+        kf = KalmanFilter(*map(jnp.asarray, (F, G, C2, q * Q, R2, P0, x0)))
+        return jnp.sum(filter_run(kf, ys2, us_prev, jnp.zeros(4))[1] ** 2)
 
     g = jax.jit(jax.grad(loss))(1.0)
     h = 1e-5
@@ -229,8 +247,8 @@ def test_kf_jitter_matches_numpy():
     ys, us_prev = _data(rng, F, G, H, 400, 0.1, 0.5)
     Q, R, P0 = 0.01 * np.eye(4), np.array([[0.25, 0.05], [0.05, 0.3]]), 2.0 * np.eye(4)
     x0 = np.array([1.0, -1.0, 0.0, 0.5])
-    params = KFParams(*map(jnp.asarray, (F, G, H, Q, R, P0, x0)))
-    st, out = jax.jit(lambda prm: filter_sequence(kalman(jitter=0.05), prm, ys, us_prev, jnp.zeros(4)))(params)
+    kf = KalmanFilter(*map(jnp.asarray, (F, G, H, Q, R, P0, x0)), jitter=0.05)
+    st, out = jax.jit(lambda e: filter_run(e, ys, us_prev, jnp.zeros(4)))(kf)
     ref, P_ref = np_kf_jitter(F, G, H, Q, R, P0, x0, ys, us_prev, 0.05)
     plain, _ = np_kf_jitter(F, G, H, Q, R, P0, x0, ys, us_prev, 0.0)
     assert rel(out, ref) < 1e-9

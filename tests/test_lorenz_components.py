@@ -1,6 +1,5 @@
-"""Native Lorenz plant and linear sensor against their equations written by hand, linearised CPX/SCPX, EKF and
-the estimator wrappers against the init/step functions they replace (same numbers), and the one-loop
-comparison's wiring."""
+"""Native Lorenz plant and linear sensor against their equations written by hand, the linearised CPX/SCPX and
+EKF with the estimator wrappers, and the one-loop comparison's wiring."""
 
 import jaxdip  # noqa: F401  (float64)
 
@@ -9,9 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxdip as jd
-from jaxdip.estimators import Delayed, ExtendedKalmanFilter, InitialError, LinearizedCPX
-from jaxdip.estimators.cpx import CPXParams, cpx_linearized
-from jaxdip.estimators.kalman import EKFParams, ekf
+from jaxdip.estimators import Ahead, Delayed, ExtendedKalmanFilter, FromTruth, InitialError, LinearizedCPX
 from jaxdip.plants import lorenz
 from jaxdip.plants.lorenz import Lorenz
 from jaxdip.scenarios import lorenz_mhe as S
@@ -37,19 +34,6 @@ def _data(seed=0):
     return xs, ys
 
 
-def _run_old(comp, params, x0, ys):
-    def run(params, x0, ys):
-        st = comp.init(params, jax.random.PRNGKey(0), x0)
-
-        def step(st, ky):
-            k, y = ky
-            return comp.step(params, st, (y, jnp.zeros(1)), jax.random.PRNGKey(1), k)
-
-        return jax.lax.scan(step, st, (jnp.arange(ys.shape[0]), ys))[1]
-
-    return jax.jit(run)(params, x0, ys)
-
-
 @jax.jit
 def _run_new(est, x0, ys):
     st = est.init(jax.random.PRNGKey(0), x0)
@@ -72,28 +56,28 @@ def test_lorenz_plant_is_eq_1_28():
     np.testing.assert_allclose(A, [[-s, s, 0.0], [r - 20.0, -1.0, -1.0], [-2.0, 1.0, -b]], rtol=1e-15)
 
 
-def test_linearized_cpx_and_scpx_equal_old_components():
+def test_linearized_cpx_prediction_is_one_model_step_ahead():
     xs, ys = _data()
-    Cm, z3, p = lorenz.output_matrix(), jnp.zeros(3), Lorenz()
+    Cm, z3 = lorenz.output_matrix(), jnp.zeros(3)
     for gamma, keep in ((0.5, None), (50.0, 2)):
-        old = _run_old(cpx_linearized(lorenz.f, H, 1, keep=keep, from_truth=True, expm_squarings=3),
-                       CPXParams(jnp.asarray(gamma), p, Cm, z3), xs[0], ys)
-        new, aux = _run_new(LinearizedCPX(gamma, Lorenz(), Cm, z3, h=H, keep=keep, from_truth=True,
-                                          expm_squarings=3), xs[0], ys)
-        np.testing.assert_allclose(new, old, rtol=1e-12, atol=1e-12)
-        # the output is the prediction: one model step of the current estimate (aux) ahead
-        assert float(jnp.max(jnp.abs(new[-1] - aux[-1]))) < 0.1
+        cur = FromTruth(LinearizedCPX(gamma, Lorenz(), Cm, z3, h=H, keep=keep, expm_squarings=3))
+        new, aux = _run_new(Ahead(cur), xs[0], ys)
+        current, _ = _run_new(cur, xs[0], ys)
+        np.testing.assert_array_equal(aux.xhat, current)  # the wrapper changes the output only
+        np.testing.assert_array_equal(new, aux.ahead)
+        # the output is the prediction: one model step of the current estimate ahead
+        assert float(jnp.max(jnp.abs(new[-1] - aux.xhat[-1]))) < 0.1
+        assert float(jnp.max(jnp.abs(new[-1] - aux.xhat[-1]))) > 0
 
 
-def test_ekf_equals_old_component():
+def test_ekf_from_truth_covariance_stays_positive():
     xs, ys = _data()
-    Cm, z3, p = lorenz.output_matrix(), jnp.zeros(3), Lorenz()
+    Cm, z3 = lorenz.output_matrix(), jnp.zeros(3)
     Q, R, P0 = 0.01 * jnp.eye(3), 25.0 * jnp.eye(2), jnp.eye(3)
-    old = _run_old(ekf(lorenz.f, H, 1, from_truth=True, expm_squarings=3), EKFParams(p, Cm, Q, R, P0, z3), xs[0], ys)
-    new, P = _run_new(ExtendedKalmanFilter(Lorenz(), Cm, Q, R, P0, z3, h=H, from_truth=True, expm_squarings=3),
-                      xs[0], ys)
-    np.testing.assert_allclose(new, old, rtol=1e-12, atol=1e-12)
-    assert np.all(np.linalg.eigvalsh(np.asarray(P[-1])) > 0)
+    new, aux = _run_new(FromTruth(ExtendedKalmanFilter(Q, R, P0, z3, model=Lorenz(), dt=H, C=Cm, expm_squarings=3)),
+                        xs[0], ys)
+    assert np.all(np.linalg.eigvalsh(np.asarray(aux.cov[-1])) > 0)
+    assert np.abs(np.asarray(new[0]) - np.asarray(xs[0])).max() < 15  # started at the truth, updated once
 
 
 def test_linear_sensor_is_its_model_by_hand():
@@ -120,13 +104,13 @@ def test_linear_sensor_is_its_model_by_hand():
 
 def test_wrappers_initial_error_and_delay():
     xs, ys = _data()
-    inner = LinearizedCPX(0.5, Lorenz(), lorenz.output_matrix(), jnp.zeros(3), h=H, from_truth=True)
+    inner = LinearizedCPX(0.5, Lorenz(), lorenz.output_matrix(), jnp.zeros(3), h=H)
     key = jax.random.PRNGKey(7)
     est = InitialError(Delayed(inner), 0.3)
     st = est.init(key, xs[0])
     xhat0 = xs[0] + 0.3 * jax.random.normal(key, (3,))
     np.testing.assert_array_equal(st[1], xhat0)
-    plain, _ = _run_new(inner, xhat0, ys)
+    plain, _ = _run_new(FromTruth(inner), xhat0, ys)
     outs = []
     for k, y in enumerate(ys[:5]):
         st, o, _ = est.step(st, y, jnp.zeros(1), key, k)

@@ -13,6 +13,7 @@ import scipy.linalg
 import jaxdip as jd
 from jaxdip import config as C
 from jaxdip.estimators.kf import ExtendedKalmanFilter
+from jaxdip.estimators.wrappers import Prior
 import experiments.lorenz_mhe as L
 from jaxdip.plants import lorenz
 from jaxdip.plants.lorenz import Lorenz
@@ -36,13 +37,13 @@ def _numpy_prediction(xbar):
 
 
 def test_ekf_prior_is_the_one_step_model_prediction():
-    """output="prior" hands out the propagation of the previous posterior (checked against scipy), and the
-    filter itself is the same as with output="posterior"."""
+    """``Prior`` hands out the propagation of the previous posterior (checked against scipy), and the filter
+    itself is the same as without it."""
     Cm = lorenz.output_matrix()
-    kw = dict(Q=0.01 * jnp.eye(3), R=25.0 * jnp.eye(2), P0=jnp.eye(3), xhat0=jnp.asarray([-8.0, 7.0, 27.0]), h=H,
+    kw = dict(Q=0.01 * jnp.eye(3), R=25.0 * jnp.eye(2), P0=jnp.eye(3), xhat0=jnp.asarray([-8.0, 7.0, 27.0]), dt=H,
               expm_squarings=3)
-    post = ExtendedKalmanFilter(Lorenz(), Cm, **kw)
-    prior = ExtendedKalmanFilter(Lorenz(), Cm, **kw, output="prior")
+    post = ExtendedKalmanFilter(model=Lorenz(), C=Cm, **kw)
+    prior = Prior(post)
     rng = np.random.default_rng(0)
     ys = jnp.asarray(np.array([7.0, 27.0]) + 5.0 * rng.standard_normal((30, 2)))
     step_post = jax.jit(lambda s, y, k: post.step(s, y, jnp.zeros(1), None, k))

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 
 from jaxdip.estimators import bias_observers as bo
 from jaxdip.estimators import homd
-from jaxdip.estimators.homd import homd_params
+from jaxdip.estimators.homd import HOMDObserver
 from jaxdip.plants import rwp
 from jaxdip.theory import rwp as T
 
@@ -168,7 +168,7 @@ def test_prop_3_closed_loop_on_the_plant():
     With (20) exact the limit would be d (the proposition's zhat -> z)."""
     d = -0.08
     K = np.asarray(rwp.K_TABLE2)
-    jp = bo.joint_params(homd_params(), L0)
+    jp = bo.JointObserver.build(HOMDObserver.build(rwp.DT), L0)
 
     @jax.jit
     def rhs(w):

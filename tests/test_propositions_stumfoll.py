@@ -17,11 +17,11 @@ import numpy as np
 import jax.numpy as jnp
 
 import jaxdip  # noqa: F401  (float64)
-from jaxdip.estimators.dmso import dmso_params, tanh_basis
+from jaxdip.estimators.dmso import DMSO, tanh_basis
 
 
 def _phis(x):
-    prm = dmso_params(np.eye(4), np.zeros((4, 1)), np.eye(4)[:, [1, 3]])
+    prm = DMSO.thesis(np.eye(4), np.zeros((4, 1)), np.eye(4)[:, [1, 3]])
     ph = np.stack([np.asarray(tanh_basis(prm, jnp.asarray(xi))) for xi in x])
     np.testing.assert_allclose(ph, np.concatenate([np.ones((len(x), 1)), np.tanh(x)], axis=1), atol=1e-15)
     return ph

@@ -2,8 +2,7 @@
 
 import jaxdip  # noqa: F401  (float64)
 
-import functools
-
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,12 +10,13 @@ import pytest
 import scipy.linalg as sla
 
 from jaxdip.estimators import cpx as cpxmod
-from jaxdip.estimators import filter_sequence
-from jaxdip.estimators.cpx import CPXParams, cpx_linearized, cpx_qr
+from jaxdip.engine.roles import Plant, param
+from jaxdip.estimators.cpx import CPX, LinearizedCPX
 from jaxdip.estimators.linearized import local_model
-from jaxdip.estimators.proximal import (LSMHEParams, horizon_stack, ls_mhe, ls_mhe_filter, prox_ls,
+from jaxdip.estimators.proximal import (LeastSquaresMHE, horizon_stack, ls_mhe_filter, prox_ls,
                                         prox_ls_svd)
-from jaxdip.estimators.scpx import scpx_linearized, scpx_lti
+from jaxdip.estimators.recorded import run
+from jaxdip.estimators.wrappers import Ahead
 from jaxdip.plants import dip, lorenz
 from jaxdip.engine.integrate import rk4_zoh
 from jaxdip.engine.roles import linearize
@@ -184,33 +184,45 @@ def lti_data():
     return dict(A=A, B=B, C=C, Phi=Phi, Phi_inv=Phi_inv, W=W, xs=xs, ys=ys, us=us, us_prev=us_prev)
 
 
-_LIN = lambda prm, x, u: prm[0] @ x + prm[1] @ u  # noqa: E731  (a linear plant for the linearised forms)
+class LinearPlant(Plant):
+    """xdot = A x + B u: a linear plant for the linearised forms."""
+
+    A: jax.Array = param()
+    B: jax.Array = param()
+    state_names = ("x1", "x2", "x3", "x4")
+
+    def vector_field(self, x, u):
+        return self.A @ x + self.B @ u
 
 
-@functools.lru_cache(maxsize=None)
-def _runner(kind, output="prediction", keep=None):
-    """One compiled run per estimator structure; gamma, the model and the data are arguments."""
-    comp = {"cpx_qr": lambda: cpx_qr(output=output),
-            "cpx_lin": lambda: (cpx_linearized(_LIN, 0.05, 1, output=output) if keep is None
-                                else scpx_linearized(_LIN, 0.05, 1, keep, output=output)),
-            "scpx_lti": lambda: scpx_lti(keep, output=output)}[kind]()
-    return jax.jit(lambda prm, ys, us_prev: filter_sequence(comp, prm, ys, us_prev, jnp.zeros(4))[1])
+# one compiled run per estimator structure: gamma, the model and the data are arguments
+_outputs = jax.jit(lambda est, ys, us_prev: run(est, ys, us_prev, jnp.zeros(4))[1])
 
 
-def _run(kind, params, D, **kw):
-    return np.asarray(_runner(kind, **kw)(params, D["ys"], D["us_prev"]))
+def _run(est, D):
+    return np.asarray(_outputs(est, D["ys"], D["us_prev"]))
+
+
+def _cpx(gamma, D, x0, keep=None, ahead=True):
+    """CPX on the LTI model (SCPX with ``keep``), handing out its prediction unless ``ahead=False``."""
+    e = CPX(gamma, Discrete(*map(jnp.asarray, (D["Phi"], D["Phi_inv"], D["W"]))), jnp.asarray(D["C"]),
+            jnp.asarray(x0), keep=keep)
+    return Ahead(e) if ahead else e
+
+
+def _lin(gamma, D, x0, keep=None):
+    return Ahead(LinearizedCPX(gamma, LinearPlant(D["A"], D["B"]), jnp.asarray(D["C"]), jnp.asarray(x0), h=0.05,
+                               keep=keep))
 
 
 @pytest.mark.parametrize("gamma", [50.0, 150.0, 1e5])
 def test_cpx_qr_matches_numpy(lti_data, gamma):
     D = lti_data
     x0 = np.array([1.0, -2.0, 0.5, 0.0])
-    params = CPXParams(gamma, Discrete(*map(jnp.asarray, (D["Phi"], D["Phi_inv"], D["W"]))), jnp.asarray(D["C"]),
-                       jnp.asarray(x0))
-    out = _run("cpx_qr", params, D)
+    out = _run(_cpx(gamma, D, x0), D)
     ref, ref_cur = np_cpx(D["Phi"], D["Phi_inv"], D["W"], D["C"], gamma, D["ys"], D["us_prev"], x0)
     assert rel(out, ref) < 1e-10
-    cur = _run("cpx_qr", params, D, output="current")
+    cur = _run(_cpx(gamma, D, x0, ahead=False), D)
     assert rel(cur, ref_cur) < 1e-10
     # the estimate does track the state (a test that a wrong sign in the input terms would fail)
     err = np.linalg.norm(cur[50:] - D["xs"][50:], axis=1).mean()
@@ -220,12 +232,10 @@ def test_cpx_qr_matches_numpy(lti_data, gamma):
 def test_cpx_linearized_equals_qr_on_linear_plant(lti_data):
     """The linearised SVD form on a linear plant must reproduce the offline-QR form (same minimiser)."""
     D = lti_data
-    A, B = jnp.asarray(D["A"]), jnp.asarray(D["B"])
     x0 = jnp.array([1.0, -2.0, 0.5, 0.0])
     for gamma in (50.0, 1e4):
-        lin = _run("cpx_lin", CPXParams(gamma, (A, B), jnp.asarray(D["C"]), x0), D)
-        qr = _run("cpx_qr", CPXParams(gamma, Discrete(*map(jnp.asarray, (D["Phi"], D["Phi_inv"], D["W"]))),
-                                      jnp.asarray(D["C"]), x0), D)
+        lin = _run(_lin(gamma, D, x0), D)
+        qr = _run(_cpx(gamma, D, x0), D)
         assert rel(lin, qr) < 1e-9
 
 
@@ -234,21 +244,18 @@ def test_scpx_matches_projector_bruteforce(lti_data, keep):
     D = lti_data
     x0 = np.array([0.5, 0.5, -1.0, 2.0])
     gamma = 50.0
-    params = CPXParams(gamma, Discrete(*map(jnp.asarray, (D["Phi"], D["Phi_inv"], D["W"]))), jnp.asarray(D["C"]),
-                       jnp.asarray(x0))
-    out = _run("scpx_lti", params, D, keep=keep)
+    out = _run(_cpx(gamma, D, x0, keep=keep), D)
     ref, _ = np_cpx(D["Phi"], D["Phi_inv"], D["W"], D["C"], gamma, D["ys"], D["us_prev"], x0, keep=keep)
     assert rel(out, ref) < 1e-9
-    lin = _run("cpx_lin", CPXParams(gamma, (jnp.asarray(D["A"]), jnp.asarray(D["B"])), jnp.asarray(D["C"]),
-                                    jnp.asarray(x0)), D, keep=keep)
+    lin = _run(_lin(gamma, D, x0, keep=keep), D)
     assert rel(lin, ref) < 1e-9
     if keep == 4:  # all directions kept: SCPX is CPX
-        full = _run("cpx_qr", params, D)
+        full = _run(_cpx(gamma, D, x0), D)
         assert rel(out, full) < 1e-10
 
 
 def test_ls_mhe_filter_and_component(lti_data):
-    """Sequence form (LTV code path with constant matrices) vs online component, QR vs SVD, horizon 1..4."""
+    """Sequence form (LTV code path with constant matrices) vs the online estimator, QR vs SVD, horizon 1..4."""
     D = lti_data
     T = 120
     Phi, W, C = (jnp.asarray(D[k]) for k in ("Phi", "W", "C"))
@@ -262,11 +269,10 @@ def test_ls_mhe_filter_and_component(lti_data):
         tr_qr = ls_mhe_filter(2.0, Phis, Ws, us, Cs, ys, x0, N=N)
         tr_svd = ls_mhe_filter(2.0, Phis, Ws, us, Cs, ys, x0, N=N, method="svd")
         assert rel(tr_qr.xhat, tr_svd.xhat) < 1e-10
-        # the online component at sample j >= N outputs the current estimate xhat_j: the window starting at
+        # the online estimator at sample j >= N outputs the current estimate xhat_j: the window starting at
         # x_{j-N} gives xhat_{j-N+1}, propagated N - 1 steps with the known inputs
-        comp = ls_mhe(N)
-        _, out = filter_sequence(comp, LSMHEParams(2.0, Phi, W, C, x0), ys, jnp.asarray(D["us_prev"][: T + 1]),
-                                 x0)
+        est = LeastSquaresMHE(2.0, Phi, W, C, x0, N=N)
+        _, out, _ = run(est, ys, jnp.asarray(D["us_prev"][: T + 1]), x0)
         out = np.asarray(out)
         xh = np.asarray(tr_qr.xhat)
         for j in range(N, T + 1):
@@ -302,13 +308,11 @@ def test_local_model_linear_and_lorenz():
 
 def test_cpx_gradient_wrt_gamma(lti_data):
     D = lti_data
-    base = CPXParams(1.0, Discrete(*map(jnp.asarray, (D["Phi"], D["Phi_inv"], D["W"]))), jnp.asarray(D["C"]),
-                     jnp.zeros(4))
+    base = _cpx(1.0, D, np.zeros(4), ahead=False)
     xs = jnp.asarray(D["xs"])
 
     def loss(g):
-        _, out = filter_sequence(cpx_qr(output="current"), base._replace(gamma=g), D["ys"], D["us_prev"],
-                                 jnp.zeros(4))
+        _, out, _ = run(eqx.tree_at(lambda e: e.gamma, base, g), D["ys"], D["us_prev"], jnp.zeros(4))
         return jnp.mean(jnp.linalg.norm(out - xs, axis=1))
 
     g0, dg = 60.0, 1e-3

@@ -1,4 +1,4 @@
-"""Native reaction-wheel pendulum components (plant, observers, saturation, straight-through sensor) and the
+"""Native reaction-wheel pendulum components (plant, saturation, straight-through sensor) and the
 rwp scenario loop against the init/step functions and the loop they replace: same numbers."""
 
 import jaxdip  # noqa: F401  (float64)
@@ -12,7 +12,6 @@ import jaxdip as jd
 from jaxdip.control import StateFeedback
 from jaxdip.estimators import bias_observers as bo
 from jaxdip.estimators import homd
-from jaxdip.estimators import luenberger as lu
 from jaxdip.plants import rwp
 from jaxdip.plants.rwp import RWP
 from jaxdip.scenarios import rwp as scenario
@@ -25,37 +24,6 @@ from jaxdip.sim.sensors import LinearSensor
 DT = rwp.DT
 
 
-def _inputs(n_y, n=40):
-    t = jnp.arange(n) * DT
-    base = jnp.stack([0.05 * jnp.cos(3 * t), 0.3 * t, 0.2 * jnp.sin(5 * t), 2.0 * t][:n_y], axis=1)
-    return base - 0.02, 0.5 * jnp.sin(7 * t)[:, None]
-
-
-def _old(comp, params, ys, us):
-    def run(params):
-        st = comp.init(params, jax.random.PRNGKey(0), jnp.zeros(4))
-
-        def step(st, a):
-            k, y, u = a
-            return comp.step(params, st, (y, u), jax.random.PRNGKey(1), k)
-
-        return jax.lax.scan(step, st, (jnp.arange(ys.shape[0]), ys, us))[1]
-
-    return jax.jit(run)(params)
-
-
-@jax.jit
-def _new(est, ys, us):
-    st = est.init(jax.random.PRNGKey(0), jnp.zeros(4))
-
-    def step(st, a):
-        k, y, u = a
-        st, o, _ = est.step(st, y, u, jax.random.PRNGKey(1), k)
-        return st, o
-
-    return jax.lax.scan(step, st, (jnp.arange(ys.shape[0]), ys, us))[1]
-
-
 def test_rwp_plant_equals_pure_function():
     x, u = jnp.array([0.1, -0.3, 2.0, 5.0]), jnp.array([0.7])
     # (2)-(3) and the energy written out in NumPy with the Table 1 numbers
@@ -66,24 +34,6 @@ def test_rwp_plant_equals_pure_function():
     np.testing.assert_allclose(RWP().vector_field(x, u), ref, rtol=1e-14)
     E = 0.5 * J * thd**2 + 0.5 * Jr * (thrd + thd) ** 2 + ml * g * np.cos(th)
     np.testing.assert_allclose(RWP().energy(x), E, rtol=1e-14)
-
-
-def test_observers_equal_old_components():
-    hp = homd.homd_params(pend=(5.0, 12.0, 0.8), wheel=(4.0, 10.0, 0.95))
-    lp, _, _ = lu.matched_gain(hp.model, hp.pend, hp.wheel, 1.0, 10.0)
-    cases = [
-        (homd.rwp_homd, hp, homd.HOMDObserver, 2),
-        (lu.rwp_luenberger, lu.luenberger_params(lp), lu.LuenbergerObserver, 2),
-        (bo.rwp_lowpass_homd, bo.lowpass_params(hp, 0.5), bo.LowpassHOMD, 2),
-        (bo.rwp_lowpass_measured, bo.lowpass_measured_params(0.3), bo.LowpassMeasured, 4),
-        (bo.rwp_joint, bo.joint_params(hp, 0.02), bo.JointObserver, 2),
-    ]
-    for make, params, cls, n_y in cases:
-        ys, us = _inputs(n_y)
-        for hold in ("foh", "zoh"):
-            old = _old(make(DT, 4, hold), params, ys, us)
-            new = _new(cls.of(params, DT, substeps=4, hold=hold), ys, us)
-            np.testing.assert_array_equal(new, old, err_msg=f"{cls.__name__} {hold}")
 
 
 def test_saturation_and_straight_through_sensor():
@@ -117,10 +67,10 @@ def test_scenario_loop_equals_old_loop():
     """The rwp-bias loop with the joint observer (d = -0.08, quantised encoders): the engine loop of
     ``jaxdip.scenarios.rwp`` against the original loop (``tests/reference_loop.py``), every recorded period, bit for bit."""
     K, n, d = rwp.K_TABLE2, 400, -0.08
-    jp = bo.joint_params(homd.homd_params(), 0.01)
+    jp = bo.JointObserver.build(homd.HOMDObserver.build(DT), 0.01)
     sens = LinearSensor(jnp.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]]), DT, const_bias=jnp.array([d, 0.0]),
                         quantum=[rwp.PENDULUM_ANGLE_RESOLUTION, rwp.WHEEL_ANGLE_RESOLUTION])
-    loop = Loop(plant=RWP(), dt=DT, sensor=sens, estimator=bo.JointObserver.of(jp, DT),
+    loop = Loop(plant=RWP(), dt=DT, sensor=sens, estimator=jp,
                 controller=StateFeedback(jnp.array([[K[0], K[1], 0.0, K[2]]])),
                 actuator=Saturation(jnp.array([-jnp.inf]), jnp.array([jnp.inf])), substeps=10, tail_steps=n)
     params = LoopParams(state_bound=jnp.array([np.pi / 2, np.inf, np.inf, np.inf]))
@@ -128,7 +78,7 @@ def test_scenario_loop_equals_old_loop():
     key = jax.random.fold_in(jax.random.PRNGKey(0), 3)
     c, rec = eqx.filter_jit(lambda lp, p: old_rollout(lp, p, x0, key, n, record_every=5, record_fn=_rec_fn))(loop,
                                                                                                            params)
-    new = scenario.loop(bo.JointObserver.of(jp, DT), dt=DT, K=K, d=d)
+    new = scenario.loop(jp, dt=DT, K=K, d=d)
     sol = jax.jit(lambda lp: jd.simulate(lp, x0, key, n, save=scenario.record, save_every=5,
                                          metrics={"x2": jd.metrics.Sum(scenario.x_squared)}))(new)
     np.testing.assert_array_equal(np.asarray(sol.saved), np.asarray(rec))
@@ -149,8 +99,8 @@ def test_case_sweep_compiles_once():
             if "Finished XLA compilation" in msg and "_batch" in msg:
                 compiled.append(msg)
 
-    hp = homd.homd_params()
-    base = scenario.rollout(bo.LowpassHOMD.of(bo.lowpass_params(hp, 0.05), DT, substeps=2), steps=20, d=-0.08,
+    hp = homd.HOMDObserver.build(DT, substeps=2)
+    base = scenario.rollout(bo.LowpassHOMD.build(hp, 0.05), steps=20, d=-0.08,
                             save_every=5, substeps=2)
 
     def where(r):

@@ -1,6 +1,7 @@
 """Observers of the reaction-wheel pendulum (Aranovskiy et al.): HOMD (10)-(13), Luenberger (9), bias observers
 (17), (21), (24), against independent references (NumPy, scipy's solve_ivp, closed forms)."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,7 +12,7 @@ from scipy.linalg import expm
 from jaxdip.estimators import bias_observers as bo
 from jaxdip.estimators import homd
 from jaxdip.estimators import luenberger as lu
-from jaxdip.estimators.run import filter_sequence
+from jaxdip.estimators.recorded import run
 from jaxdip.plants import rwp
 
 P = rwp.RWP()
@@ -141,13 +142,12 @@ def plant_data():
 
 
 def test_rwp_homd_matches_continuous_observer_on_noiseless_data(plant_data):
-    """The sampled component (FOH, RK4 sub-steps) against (10)+(12) integrated by solve_ivp with the exact
+    """The sampled observer (FOH, RK4 sub-steps) against (10)+(12) integrated by solve_ivp with the exact
     continuous theta(t), theta_r(t); and the velocity estimates converge to the true velocities."""
     xs, us, sols = plant_data
     ys = xs[:, [0, 2]]
     us_prev = np.concatenate([[0.0], us[:-1]])[:, None]
-    hp = homd.homd_params()
-    _, out = filter_sequence(homd.rwp_homd(DT, substeps=20), hp, ys, us_prev, jnp.zeros(4))
+    _, out, _ = run(homd.HOMDObserver.build(DT, substeps=20), ys, us_prev, jnp.zeros(4))
     out = np.asarray(out)
 
     # independent NumPy reference: start at y_0 with zero velocities, integrate period by period
@@ -229,8 +229,7 @@ def test_lowpass_observer_is_a_first_order_filter():
     y = -0.08
     n = 500
     ys = np.tile([y, 0.0, 0.0, 0.0], (n, 1))
-    _, out = filter_sequence(bo.rwp_lowpass_measured(DT), bo.lowpass_measured_params(0.5), ys, np.zeros((n, 1)),
-                             jnp.zeros(4))
+    _, out, _ = run(bo.LowpassMeasured.build(DT, 0.5), ys, np.zeros((n, 1)), jnp.zeros(4))
     dhat = ys[:, 0] - np.asarray(out)[:, 0]
     t = np.arange(n) * DT
     np.testing.assert_allclose(dhat, y * (1 - np.exp(-0.5 * t)), atol=1e-12)
@@ -242,8 +241,7 @@ def test_reduced_order_observer_rate_22():
     d, L0 = -0.08, 0.05
     n = 1000
     ys = np.tile([d, 0.0, 0.0, 0.0], (n, 1))
-    prm = bo.reduced_params(P, L0)
-    _, out = filter_sequence(bo.rwp_reduced_order_measured(DT), prm, ys, np.zeros((n, 1)), jnp.zeros(4))
+    _, out, _ = run(bo.ReducedOrderMeasured.build(DT, P, L0), ys, np.zeros((n, 1)), jnp.zeros(4))
     z3 = ys[:, 0] - np.asarray(out)[:, 0]
     t = np.arange(n) * DT
     rate = L0 * A1 * np.cos(d)
@@ -253,8 +251,8 @@ def test_reduced_order_observer_rate_22():
 def test_joint_observer_error_dynamics_25():
     """(24) minus the true dynamics equals (25) plus the linearisation remainder a1 (sin y - cos(y) d - sin θ)."""
     L0 = 0.01
-    hp = homd.homd_params()
-    prm = bo.joint_params(hp, L0)
+    hp = homd.HOMDObserver.build(DT)
+    prm = bo.JointObserver.build(hp, L0)
     rng = np.random.default_rng(0)
     for _ in range(20):
         th, thd, d = rng.normal(0, [0.2, 1.0, 0.1])
@@ -284,8 +282,9 @@ def test_gradients_reach_observer_hyperparameters():
 
     def loss(theta):
         L0, alpha, k1 = theta
-        hp = homd.homd_params()._replace(pend=homd.HOMDGains(k1, jnp.asarray(12.0), alpha))
-        _, out = filter_sequence(bo.rwp_joint(DT, substeps=4), bo.joint_params(hp, L0), ys, us_prev, jnp.zeros(4))
+        hp = homd.HOMDObserver.build(DT, substeps=4)
+        hp = eqx.tree_at(lambda h: h.pend, hp, homd.HOMDGains(k1, jnp.asarray(12.0), alpha))
+        _, out, _ = run(bo.JointObserver.build(hp, L0), ys, us_prev, jnp.zeros(4))
         return jnp.mean((ys[:, 0] - out[:, 0] - d) ** 2)
 
     theta = jnp.array([0.05, 0.9, 5.0])

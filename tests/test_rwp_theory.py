@@ -65,7 +65,7 @@ def test_equilibrium_7_and_16_against_numpy():
 def biased_homd_run():
     """Closed loop (2)-(3) + (10) + (12) + law (8) at 500 Hz with the Table 1 quantisation and d = -0.08."""
     dt = rwp.DT
-    loop = scenario.loop(homd.HOMDObserver.of(homd.homd_params(), dt), dt=dt, K=K, d=-0.08)
+    loop = scenario.loop(homd.HOMDObserver.build(dt), dt=dt, K=K, d=-0.08)
     n = int(8.0 / dt)
     sol = jax.jit(lambda lp: jd.simulate(lp, jnp.array([0.05, 0.0, 0.0, 0.0]), jax.random.PRNGKey(0), n,
                                          save=_x_and_xhat))(loop)
@@ -156,7 +156,7 @@ def test_simulations_around_gamma_bar_sampled_loop():
     """The jaxdip loop at 500 Hz with the low-pass observer on measured velocities, law (18)."""
     gb = T.gamma_bar_routh(P, K).gamma_bar
     dt = rwp.DT
-    loop = scenario.loop(bo.LowpassMeasured.of(bo.lowpass_measured_params(gb), dt), dt=dt, K=K, d=-0.01,
+    loop = scenario.loop(bo.LowpassMeasured.build(dt, gb), dt=dt, K=K, d=-0.01,
                          measured_velocities=True, quantize=False)
     loop = eqx.tree_at(lambda lp: lp.state_bound, loop, jnp.inf)  # measure the growth, do not stop at pi/2
     n = int(100.0 / dt)
@@ -173,9 +173,9 @@ def test_simulations_around_gamma_bar_sampled_loop():
 
 def test_lowpass_with_differentiators_linear_matrix_against_autodiff():
     """The hand-built α = 1 matrix against jacfwd of the loop's own components (plant + (17) + (10) + (12))."""
-    hp = homd.homd_params(pend=(5.0, 12.0, 1.0), wheel=(5.0, 12.0, 1.0))
+    hp = homd.HOMDObserver.build(rwp.DT, pend=(5.0, 12.0, 1.0), wheel=(5.0, 12.0, 1.0))
     for g in (0.05, 0.5):
-        lp = bo.lowpass_params(hp, g)
+        lp = bo.LowpassHOMD.build(hp, g)
 
         def f(z):
             X, xi = z[:4], z[4:]

@@ -263,7 +263,7 @@ def test_vmap_over_a_leaf_equals_separate_runs():
 def test_fan_out_drives_with_one_and_compares_all_on_the_same_data():
     loop = make_loop()
     model = jd.zoh(*jd.linearize(loop.plant), DT)
-    cpx = jd.estimators.CPX(gamma=50.0, model=model, C=np.eye(2), xhat0=np.zeros(2), output="current")
+    cpx = jd.estimators.CPX(gamma=50.0, model=model, C=np.eye(2), xhat0=np.zeros(2))
     fan = jd.FanOut({"kf": loop.estimator, "cpx": cpx}, drive="kf")
     x0, key = jnp.array([0.15, -0.3]), jax.random.PRNGKey(8)
     save = lambda s: s  # noqa: E731
@@ -305,40 +305,6 @@ def test_engine_reproduces_the_original_loop():
     for a, b in zip(sol.saved, (rec.x, rec.xhat, rec.u, rec.y)):
         # 300 closed-loop periods carry last-bit differences of two separately compiled programs
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-13)
-
-
-def test_native_estimators_equal_their_init_step_versions():
-    """KalmanFilter and CPX as Modules give the numbers of kalman() and cpx_qr() with the same parameters."""
-    from jaxdip.estimators import CPXParams, KFParams, cpx_qr, filter_sequence, kalman_filter
-
-    model = jd.zoh(*jd.linearize(Pendulum()), DT)
-    rng = np.random.default_rng(0)
-    T = 50
-    ys, us = jnp.asarray(rng.normal(size=(T, 2))), jnp.asarray(rng.normal(size=(T, 1)))
-    us_prev = jnp.concatenate([jnp.zeros((1, 1)), us[:-1]])
-    x0 = jnp.array([0.3, -0.1])
-
-    def run(est):
-        def body(s, inp):
-            k, y, u = inp
-            s, out, aux = est.step(s, y, u, None, k)
-            return s, (out, aux)
-
-        return jax.lax.scan(body, est.init(None, x0), (jnp.arange(T), ys, us_prev))[1]
-
-    kf = jd.estimators.KalmanFilter(model.Phi, model.W, np.eye(2), 1e-4 * np.eye(2), 0.1 * np.eye(2), np.eye(2),
-                                    xhat0=np.array([0.1, 0.0]))
-    ref = filter_sequence(kalman_filter(), KFParams(kf.Phi, kf.W, kf.C, kf.Q, kf.R, kf.P0, kf.xhat0), ys, us_prev, x0)
-    out, P = jax.jit(run)(kf)
-    np.testing.assert_array_equal(out, ref[1])
-    assert P.shape == (T, 2, 2) and np.all(np.linalg.eigvalsh(np.asarray(P)) > 0)
-    for output in ("prediction", "current"):
-        cpx = jd.estimators.CPX(gamma=20.0, model=model, C=np.eye(2), xhat0=np.zeros(2), output=output)
-        ref = filter_sequence(cpx_qr(output), CPXParams(cpx.gamma, cpx.model, cpx.C, cpx.xhat0), ys, us_prev, x0)
-        out, current = jax.jit(run)(cpx)
-        np.testing.assert_array_equal(out, ref[1])
-        if output == "current":
-            np.testing.assert_array_equal(current, out)
 
 
 class TwoStreams(jd.KeySchedule):

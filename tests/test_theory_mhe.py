@@ -7,11 +7,10 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.linalg as sla
 
-from jaxdip.estimators import filter_sequence
-from jaxdip.estimators.cpx import CPXParams, centered_matrix, cpx_qr
+from jaxdip.estimators.cpx import CPX, centered_matrix
 from jaxdip.estimators.linearized import lti_step
 from jaxdip.estimators.proximal import horizon_stack, ls_mhe_filter
-from jaxdip.estimators.scpx import scpx_lti
+from jaxdip.estimators.recorded import run
 from jaxdip.plants import dip
 from jaxdip.engine.roles import linearize
 from jaxdip.sim import Discrete
@@ -119,8 +118,7 @@ def _cpx_trial(key, T=200, keep=None):
     ys = xs @ C.T + epss
     us_prev = jnp.concatenate([jnp.zeros((1, 1)), us[:-1]])
     xhat0 = x0 + 2.0 * jax.random.normal(ks[6], (d,))
-    comp = cpx_qr(output="current") if keep is None else scpx_lti(keep, output="current")
-    _, xh = filter_sequence(comp, CPXParams(gamma, model, C, xhat0), ys, us_prev, x0)
+    _, xh, _ = run(CPX(gamma, model, C, xhat0, keep=keep), ys, us_prev, x0)
     # centres k = 1 .. T-2 (sample j = k + 1 holds the prior of centre k); zeta_k from (1.30)
     k = jnp.arange(1, T - 1)
     v = jax.vmap(lambda i: mhe.centered_noise(model.Phi_inv, C, etas[i - 1], epss[i - 1], epss[i], etas[i],

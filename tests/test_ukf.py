@@ -1,12 +1,17 @@
-"""Unscented Kalman filter: the Kalman filter on a linear model, a plain NumPy UKF on a nonlinear one, and the
-engine estimator equal to the batch form over a recorded sequence."""
+"""Unscented Kalman filter: the Kalman filter on a linear model, a plain NumPy UKF on a nonlinear one, and a
+plain scan of its step equal to the offline filter (``recorded.kalman_filter``: u_k shifted to sample k + 1)."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdip.estimators import lgssm
-from jaxdip.estimators.ukf import NonlinearUKF, unscented_filter
+from jaxdip.estimators.kf import ExtendedKalmanFilter, KalmanFilter
+from jaxdip.estimators.recorded import kalman_filter
+from jaxdip.estimators.ukf import UnscentedKalmanFilter
+
+
+def unscented_filter(ys, m0, P0, Q, R, f, h, us, **kw):
+    return kalman_filter(UnscentedKalmanFilter(f, h, Q, R, P0, m0, **kw), ys, us)
 
 H_PEND = 0.05
 
@@ -75,7 +80,7 @@ def test_ukf_equals_a_plain_numpy_ukf():
     np.testing.assert_allclose(res.cov, ref_P, rtol=0, atol=1e-10 * np.max(np.abs(ref_P)))
     np.testing.assert_allclose(float(res.log_likelihood), ref_ll, rtol=1e-10)
     # and the nonlinearity matters here: the EKF gives other numbers
-    ekf = lgssm.kalman_filter(ys, m0, P0, Q, R, f=f_pend, h=h_pend, us=us)
+    ekf = kalman_filter(ExtendedKalmanFilter(Q, R, P0, m0, f=f_pend, h=h_pend), ys, us)
     assert np.max(np.abs(np.asarray(ekf.mean) - ref_m)) > 1e-4
 
 
@@ -88,7 +93,7 @@ def test_ukf_on_a_linear_model_is_the_kalman_filter():
     us = rng.normal(size=(T, 1))
     ys = rng.normal(size=(T, p))
     m0, P0 = rng.normal(size=d), np.eye(d)
-    kf = lgssm.kalman_filter(ys, m0, P0, Q, R, Phi=Phi, C=C, W=W, us=us)
+    kf = kalman_filter(KalmanFilter(Phi, W, C, Q, R, P0, m0), ys, us)
     for alpha, beta, kappa in ((3.0**0.5, 2.0, 1.0), (0.5, 2.0, 0.0)):
         uk = unscented_filter(ys, m0, P0, Q, R, lambda x, u: Phi @ x + W @ u, lambda x: C @ x, us,
                               alpha=alpha, beta=beta, kappa=kappa)
@@ -108,18 +113,13 @@ def _run_engine(est, ys, us_prev, x0):
     return jax.lax.scan(body, est.init(key, x0), (jnp.arange(ys.shape[0]), ys, us_prev))[1]
 
 
-def test_engine_ukf_equals_the_batch_form():
+def test_scan_of_the_step_equals_the_offline_filter():
     ys, us, Q, R = pendulum_data(T=40, seed=1)
     m0, P0 = np.array([0.5, 0.1]), np.diag([0.05, 0.1])
     us_prev = np.concatenate([np.zeros((1, 1)), us[:-1]])  # sample j brings u_{j-1}
-    est = NonlinearUKF(h_pend, Q, R, P0, jnp.asarray(m0), f=f_pend)
-    xs, Ps = jax.jit(lambda a, b: _run_engine(est, a, b, jnp.zeros(2)))(jnp.asarray(ys), jnp.asarray(us_prev))
+    est = UnscentedKalmanFilter(f_pend, h_pend, Q, R, P0, jnp.asarray(m0))
+    xs, aux = jax.jit(lambda a, b: _run_engine(est, a, b, jnp.zeros(2)))(jnp.asarray(ys), jnp.asarray(us_prev))
+    Ps = aux.cov
     ref = unscented_filter(ys, m0, P0, Q, R, f_pend, h_pend, us)
     np.testing.assert_allclose(xs, ref.mean, rtol=0, atol=1e-12 * np.max(np.abs(np.asarray(ref.mean))))
     np.testing.assert_allclose(Ps, ref.cov, rtol=0, atol=1e-12 * np.max(np.abs(np.asarray(ref.cov))))
-    # linear dynamics given as matrices, with the nonlinear output: the same as f(x, u) = Phi x + W u
-    Phi, W = np.array([[1.0, H_PEND], [-0.2, 0.98]]), np.array([[0.0], [H_PEND]])
-    lin = NonlinearUKF(h_pend, Q, R, P0, jnp.asarray(m0), Phi=Phi, W=W)
-    xs_l, _ = _run_engine(lin, jnp.asarray(ys), jnp.asarray(us_prev), jnp.zeros(2))
-    ref_l = unscented_filter(ys, m0, P0, Q, R, lambda x, u: Phi @ x + W @ u, h_pend, us)
-    np.testing.assert_allclose(xs_l, ref_l.mean, rtol=0, atol=1e-10 * np.max(np.abs(np.asarray(ref_l.mean))))

@@ -31,9 +31,9 @@ def test_identity_weights_give_cpx():
     x0 = jnp.array([0.01, 0.02, -0.01, 0, 0, 0])
     kf = jd.estimators.KalmanFilter(model.Phi, model.W, C3, PROC_STD**2 * np.eye(6), np.diag(SENSOR_STD**2),
                                     1e-4 * np.eye(6))
-    for output in ("prediction", "current"):
-        cpx = jd.estimators.CPX(150.0, model, C3, jnp.zeros(6), output=output)
-        mhe = WeightedMHE(model, C3, np.eye(3), np.eye(6), 150.0, N=2, anchor=1, output=output)
+    for timing in (jd.estimators.Ahead, lambda e: e):  # the prediction, then the current estimate
+        cpx = timing(jd.estimators.CPX(150.0, model, C3, jnp.zeros(6)))
+        mhe = timing(WeightedMHE(model, C3, np.eye(3), np.eye(6), 150.0, N=2, anchor=1))
         loop = dip_loop(jd.FanOut({"kf": kf, "cpx": cpx, "mhe": mhe}, drive="kf"), model, K)
         sol = eqx.filter_jit(jd.simulate)(loop, x0, jax.random.PRNGKey(3), 300,
                                           save=lambda s: s.aux.estimator.xhat)
@@ -349,12 +349,10 @@ def test_output_map_as_a_function_equals_the_matrix():
 
 
 def test_curved_output_map_matches_the_ekf():
-    from jaxdip.estimators.ekf_online import NonlinearEKF
-
     model, K = dip_setup()
     Q, R = PROC_STD**2 * np.eye(6), np.diag(SENSOR_STD**2)
     P0 = X0_RADIUS**2 / 8 * np.eye(6)
-    ekf = NonlinearEKF(h_curved, Q, R, P0, Phi=model.Phi, W=model.W)
+    ekf = jd.estimators.ExtendedKalmanFilter(Q, R, P0, f=lambda x, u: model.Phi @ x + model.W @ u, h=h_curved)
     mhe = WeightedMHE.from_noise(model, C3, Q, R, N=10, h=h_curved)
     loop = jd.Loop(plant=LinearPlant(model.Phi, model.W), sensor=CurvedSensor(SENSOR_STD),
                    estimator=jd.FanOut({"kf": ekf, "mhe": mhe}, drive="kf"), controller=jd.control.StateFeedback(K),
@@ -367,24 +365,11 @@ def test_curved_output_map_matches_the_ekf():
 
 
 def test_projector_window_weight_gives_scpx():
-    from jaxdip.estimators.cpx import CPXParams
-    from jaxdip.estimators.scpx import scpx_lti
-
     model, K = dip_setup()
     kf = jd.estimators.KalmanFilter(model.Phi, model.W, C3, PROC_STD**2 * np.eye(6), np.diag(SENSOR_STD**2),
                                     1e-4 * np.eye(6))
     keep = 4
-    class SCPXLTI(jd.Estimator):  # the init/step SCPX as an estimator (W1's SCPX module replaces it)
-        params: CPXParams
-
-        def init(self, key, x0):
-            return scpx_lti(keep).init(self.params, key, x0)
-
-        def step(self, state, y, u_prev, key, k):
-            state, out = scpx_lti(keep).step(self.params, state, (y, u_prev), key, k)
-            return state, out, None
-
-    ref = SCPXLTI(CPXParams(jnp.asarray(150.0), model, jnp.asarray(C3), jnp.zeros(6)))
+    ref = jd.estimators.CPX(150.0, model, jnp.asarray(C3), jnp.zeros(6), keep=keep)
     mhe = WeightedMHE.scpx(model, C3, 150.0, keep)
     loop = dip_loop(jd.FanOut({"kf": kf, "scpx": ref, "mhe": mhe}, drive="kf"), model, K)
     sol = eqx.filter_jit(jd.simulate)(loop, jnp.array([0.01, 0.02, -0.01, 0, 0, 0]), jax.random.PRNGKey(3), 300,

@@ -198,7 +198,7 @@ def gamma_sweep(cfg, rollout: jd.Rollout, progress=True) -> dict:
 def velocity_record(s: jd.Sample) -> dict:
     """The truth and the three estimates compared in the figure (current estimates, not predictions)."""
     est = s.aux.estimator
-    return {"x": s.x, "ldf": est.xhat["ldf"], "cpx": est.aux["cpx"], "cpx_crit": est.xhat["cpx_crit"]}
+    return {"x": s.x, "ldf": est.xhat["ldf"], "cpx": est.aux["cpx"].xhat, "cpx_crit": est.xhat["cpx_crit"]}
 
 
 def velocity_trial(cfg, gamma_crit) -> dict:

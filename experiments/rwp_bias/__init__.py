@@ -37,7 +37,7 @@ from jaxdip.scenarios.rwp import REC
 from jaxdip.theory import rwp as T
 
 def homd_parameters(cfg):
-    return homd.homd_params(pend=tuple(cfg.homd_pendulum), wheel=tuple(cfg.homd_wheel))
+    return homd.HOMDObserver.build(pend=tuple(cfg.homd_pendulum), wheel=tuple(cfg.homd_wheel), **_obs(cfg))
 
 
 def luenberger_parameters(cfg):
@@ -45,9 +45,9 @@ def luenberger_parameters(cfg):
     if cfg.luenberger_omega:
         wp, wr = cfg.luenberger_omega
         L = lu.decoupled_gain(hp.model, wp * hp.pend.k1, wp**2 * hp.pend.k2, wr * hp.wheel.k1, wr**2 * hp.wheel.k2)
-        return lu.luenberger_params(L, hp.model), wp, wr
+        return lu.LuenbergerObserver.build(L=L, model=hp.model, **_obs(cfg)), wp, wr
     L, wp, wr = lu.matched_gain(hp.model, hp.pend, hp.wheel, *cfg.luenberger_vref)
-    return lu.luenberger_params(L, hp.model), wp, wr
+    return lu.LuenbergerObserver.build(L=L, model=hp.model, **_obs(cfg)), wp, wr
 
 
 def _obs(cfg):
@@ -121,8 +121,8 @@ def part_a(cfg):
     """No bias: Luenberger (9) against the differentiators (10)+(12) from each theta0."""
     lp, wp, wr = luenberger_parameters(cfg)
     observers = {
-        "luenberger": lu.LuenbergerObserver.of(lp, **_obs(cfg)),
-        "homd": homd.HOMDObserver.of(homd_parameters(cfg), **_obs(cfg)),
+        "luenberger": lp,
+        "homd": homd_parameters(cfg),
     }
     out, curves = {}, {}
     for name, est in observers.items():
@@ -154,7 +154,7 @@ def part_a(cfg):
 def part_b(cfg):
     """Bias d with the differentiators alone: steady-state errors against (15) and (16)."""
     hp = homd_parameters(cfg)
-    divs, recs = simulate(cfg, [(homd.HOMDObserver.of(hp, **_obs(cfg)), cfg.bias, cfg.bias_theta0)],
+    divs, recs = simulate(cfg, [(hp, cfg.bias, cfg.bias_theta0)],
                           cfg.bias_duration, cfg.bias_seeds, "(b) bias, HOMD")
     rec = recs[0]
     ok = ~divs[0]
@@ -218,11 +218,11 @@ def _bias_metrics(cfg, diverged, rec):
 def part_c(cfg):
     hp = homd_parameters(cfg)
     out, curves = {}, {}
-    divs, recs = simulate(cfg, [(bo.LowpassHOMD.of(bo.lowpass_params(hp, g), **_obs(cfg)), cfg.bias, cfg.bias_theta0)
+    divs, recs = simulate(cfg, [(bo.LowpassHOMD.build(hp, g), cfg.bias, cfg.bias_theta0)
                                 for g in cfg.gamma_d], cfg.lowpass_duration, cfg.bias_seeds, "(c) low-pass")
     for i, g in enumerate(cfg.gamma_d):
         out[f"lowpass_{g:g}"], curves[f"lowpass_{g:g}"] = _bias_metrics(cfg, divs[i], recs[i])
-    divs, recs = simulate(cfg, [(bo.JointObserver.of(bo.joint_params(hp, cfg.L0), **_obs(cfg)), cfg.bias,
+    divs, recs = simulate(cfg, [(bo.JointObserver.build(hp, cfg.L0), cfg.bias,
                                  cfg.bias_theta0)], cfg.reduced_duration, cfg.bias_seeds, "(c) reduced-order")
     out["reduced_order"], curves["reduced_order"] = _bias_metrics(cfg, divs[0], recs[0])
     return out, curves
@@ -243,7 +243,7 @@ def part_d(cfg):
     gb = T.gamma_bar_routh(p, cfg.K)
     ge = T.gamma_bar_eig(p, cfg.K)
     gammas = [f * gb.gamma_bar for f in cfg.gamma_check]
-    divs, recs = simulate(cfg, [(bo.LowpassMeasured.of(bo.lowpass_measured_params(g), **_obs(cfg)),
+    divs, recs = simulate(cfg, [(bo.LowpassMeasured.build(gamma_d=g, **_obs(cfg)),
                                  cfg.gamma_check_bias, 0.0) for g in gammas],
                           cfg.gamma_check_duration, 2, "(d) law (18) around gamma_d_bar",
                           measured_velocities=True, quantize=False)

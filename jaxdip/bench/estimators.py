@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxdip as jd
-from jaxdip.estimators import lgssm
+from jaxdip.estimators import recorded
 from jaxdip.estimators.weighted_mhe import WeightedMHE
 from jaxdip.scenarios.dip_linear import C3, DT, SENSOR_STD, X0_RADIUS  # noqa: F401  (peers reads them here)
 from jaxdip.scenarios.dip_linear import loop as dip_loop
@@ -37,7 +37,7 @@ def main() -> None:
     model, K, Q, R, P0 = dip_problem()
     estimators = {
         "kf": jd.estimators.KalmanFilter(model.Phi, model.W, C3, Q, R, P0),
-        "cpx": jd.estimators.CPX(150.0, model, C3, jnp.zeros(6), output="current"),
+        "cpx": jd.estimators.CPX(150.0, model, C3, jnp.zeros(6)),
         "wmhe_n10": WeightedMHE.from_noise(model, C3, Q, R, N=10),
     }
     n_ts = args.seeds * args.steps
@@ -53,8 +53,9 @@ def main() -> None:
               f"velocity RMS {rms:.4g}")
     # the batch filter and smoother over recorded sequences (outputs of the open-loop model, for scale only)
     ys = np.random.default_rng(0).normal(size=(args.seeds, args.steps, 3)) * SENSOR_STD
-    for name, fn in (("lgssm filter", lgssm.kalman_filter), ("lgssm smoother", lgssm.rts_smoother)):
-        f = jax.jit(jax.vmap(lambda y: fn(y, jnp.zeros(6), P0, Q, R, Phi=model.Phi, C=C3)))
+    kf = jd.estimators.KalmanFilter(model.Phi, None, C3, Q, R, P0)
+    for name, fn in (("offline filter", recorded.kalman_filter), ("offline smoother", recorded.rts_smoother)):
+        f = jax.jit(jax.vmap(lambda y: fn(kf, y)))
         jax.block_until_ready(f(ys))
         t = time.perf_counter()
         jax.block_until_ready(f(ys))

@@ -9,7 +9,7 @@ theta, LQR, true noise covariances).
 Data: the closed loop driven by the Kalman filter is recorded (true state x_k, outputs y_k, inputs u_k), and every
 estimator runs open-loop over the same records, so they all see the same noise.
 
-* dynamax: ``lgssm_filter``/``lgssm_smoother`` against ``jaxdip.estimators.lgssm`` (filtered and smoothed means
+* dynamax: ``lgssm_filter``/``lgssm_smoother`` against ``jaxdip.estimators.recorded`` (filtered and smoothed means
   and covariances, log-likelihood). dynamax's transition input is the *next* sample's (z_{t+1} = F z_t + B u_{t+1}),
   ours the current one (x_{k+1} = Phi x_k + W u_k), so dynamax gets the inputs shifted by one. dynamax's
   ``psd_solve`` adds a fixed diagonal 1e-9 to every matrix it solves with (the innovation covariance S and the
@@ -47,7 +47,7 @@ import numpy as np
 import jaxdip as jd
 from jaxdip.bench import estimators as base  # the shared loop
 from jaxdip.control.riccati import dare
-from jaxdip.estimators import lgssm
+from jaxdip.estimators import recorded
 from jaxdip.estimators.weighted_mhe import WeightedMHE
 
 HORIZON = 10
@@ -113,10 +113,9 @@ def compare_dynamax(x, y, u, repeats: int) -> dict:
                                     dynamics_input_weights=jnp.asarray(model.W))
     ys, us, us_dyn = jnp.asarray(y), jnp.asarray(u), jnp.asarray(prev_inputs(u))
 
-    ours_f = jax.jit(jax.vmap(lambda yy, uu: lgssm.kalman_filter(yy, jnp.zeros(6), P0, Q, R, Phi=model.Phi,
-                                                                 C=base.C3, W=model.W, us=uu)))
-    ours_s = jax.jit(jax.vmap(lambda yy, uu: lgssm.rts_smoother(yy, jnp.zeros(6), P0, Q, R, Phi=model.Phi,
-                                                                C=base.C3, W=model.W, us=uu)))
+    kf = jd.estimators.KalmanFilter(model.Phi, model.W, base.C3, Q, R, P0)
+    ours_f = jax.jit(jax.vmap(lambda yy, uu: recorded.kalman_filter(kf, yy, uu)))
+    ours_s = jax.jit(jax.vmap(lambda yy, uu: recorded.rts_smoother(kf, yy, uu)))
     f, t_f = timed(ours_f, ys, us, repeats=repeats)
     s, t_s = timed(ours_s, ys, us, repeats=repeats)
     out = {"records": n, "steps": T,
@@ -209,8 +208,8 @@ def compare_dompc(x, y, u, x_all, y_all, u_all, burn: int, repeats: int) -> dict
     mhe = WeightedMHE.from_noise(model, base.C3, Q, R, N=HORIZON)
     run = jax.jit(lambda yy, uu, xx: run_estimator(mhe, yy, uu, xx))
     ours_short = np.asarray(run(jnp.asarray(y), jnp.asarray(up), jnp.asarray(x[:, 0])))
-    kf = jax.vmap(lambda yy, uu: lgssm.kalman_filter(yy, jnp.zeros(6), P0, Q, R, Phi=model.Phi, C=base.C3,
-                                                     W=model.W, us=uu).mean)
+    kf_est = jd.estimators.KalmanFilter(model.Phi, model.W, base.C3, Q, R, P0)
+    kf = jax.vmap(lambda yy, uu: recorded.kalman_filter(kf_est, yy, uu).mean)
     kf_short = np.asarray(kf(jnp.asarray(y), jnp.asarray(u)))
     na, Ta = y_all.shape[:2]
     burn_all = 500 if Ta > 1000 else burn

@@ -221,7 +221,7 @@ def other_loops(quick: bool) -> dict:
     loops = {
         "twip_dmso_10ms": jd.Rollout(twip_dmso.loop(twip_dmso.estimator("dmso", d), twip_dmso.sensors(0.01, True), d),
                                      jnp.asarray([0.1, 0.0, 0.05, 0.0]), n),
-        "rwp_homd_2ms": rwp.rollout(homd.HOMDObserver.of(homd.homd_params(), dt=RWP_DT, substeps=10, hold="foh"),
+        "rwp_homd_2ms": rwp.rollout(homd.HOMDObserver.build(RWP_DT, substeps=10, hold="foh"),
                                     steps=n),
         "lorenz_cpx_1ms": lorenz_mhe.build(steps=n),
     }

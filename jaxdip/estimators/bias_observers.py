@@ -36,13 +36,11 @@ under Assumption 1). The observer starts at v = ẑ2 = 0, i.e. d̂(0) = 0.
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import jax.numpy as jnp
 
 from jaxdip.estimators import homd
-from jaxdip.estimators.continuous import SampledObserver, sampled_observer
-from jaxdip.estimators.homd import HOMDParams, spow
+from jaxdip.estimators.continuous import SampledObserver
+from jaxdip.estimators.homd import spow
 
 
 def _f(v):
@@ -52,45 +50,21 @@ def _f(v):
 # ---- low-pass (17) ----------------------------------------------------------------------------------------
 
 
-class LowpassParams(NamedTuple):
-    homd: HOMDParams
-    gamma_d: jnp.ndarray  # γ_d of (17)
-    d0: jnp.ndarray  # initial bias estimate
-
-
-def lowpass_params(homd_params: HOMDParams, gamma_d=0.05, d0=0.0) -> LowpassParams:
-    return LowpassParams(homd_params, _f(gamma_d), _f(d0))
-
-
-def lowpass_rhs(params: LowpassParams, xi, y, u):
+def lowpass_rhs(params, xi, y, u):
     """xi = [x̂_p1, x̂_p2, x̂_r1, x̂_r2, d̂]; y = [theta + d, theta_r]."""
     dhat = xi[4]
     yc = jnp.stack([y[0] - dhat, y[1]])
-    dx = homd.rwp_homd_rhs(params.homd, xi[:4], yc, u)
+    dx = homd.rwp_homd_rhs(params, xi[:4], yc, u)
     return jnp.concatenate([dx, (params.gamma_d * (y[0] - dhat))[None]])
 
 
-def _lp_init(params: LowpassParams, y):
+def _lp_init(params, y):
     z = jnp.zeros_like(y[0])
     return jnp.stack([y[0] - params.d0, z, y[1], z, params.d0 + z])
 
 
 def _lp_out(params, xi, y):
     return jnp.stack([y[0] - xi[4], xi[1], xi[2], xi[3]])
-
-
-def rwp_lowpass_homd(dt: float, substeps: int = 10, hold: str = "foh"):
-    """(17) + (10) + (12) on y - d̂; output [y - d̂, θ̂', θ̂_r, θ̂_r'] for law (23)."""
-    return sampled_observer(lowpass_rhs, _lp_init, _lp_out, 5, 2, dt, substeps, hold)
-
-
-class LowpassMeasuredParams(NamedTuple):
-    gamma_d: jnp.ndarray
-    d0: jnp.ndarray
-
-
-def lowpass_measured_params(gamma_d=0.05, d0=0.0) -> LowpassMeasuredParams:
-    return LowpassMeasuredParams(_f(gamma_d), _f(d0))
 
 
 def _lpm_rhs(params, xi, y, u):
@@ -105,13 +79,6 @@ def _measured_out(y, dhat):
     return jnp.stack([y[0] - dhat, y[2], y[1], y[3]])
 
 
-def rwp_lowpass_measured(dt: float, substeps: int = 10, hold: str = "foh"):
-    """(17) with measured velocities, for law (18): input y = [theta + d, theta_r, theta', theta_r'], output
-    [y - d̂, theta', theta_r, theta_r'] (Proposition 2's setting)."""
-    return sampled_observer(_lpm_rhs, _lpm_init, lambda p, xi, y: _measured_out(y, xi[0]), 1, 4, dt, substeps,
-                            hold)
-
-
 # ---- reduced-order (21) and joint (24) ----------------------------------------------------------------------
 
 
@@ -121,16 +88,7 @@ def beta_z(model, I, y, z3hat):
     return homd.pendulum_accel(model, I, y) - a * jnp.cos(y) * z3hat
 
 
-class ReducedParams(NamedTuple):
-    model: object  # the observer's model of the plant (an RWP)
-    L0: jnp.ndarray
-
-
-def reduced_params(model, L0=0.01) -> ReducedParams:
-    return ReducedParams(model, _f(L0))
-
-
-def _ro_rhs(params: ReducedParams, xi, y, u):
+def _ro_rhs(params, xi, y, u):
     z3 = params.L0 * (xi[0] - y[2])
     return beta_z(params.model, u[0], y[0], z3)[None]
 
@@ -140,30 +98,14 @@ def _ro_init(params, y):
     return y[2][None]
 
 
-def rwp_reduced_order_measured(dt: float, substeps: int = 10, hold: str = "foh"):
-    """(21) with the measured velocity z2 = theta': input y = [theta + d, theta_r, theta', theta_r'], output
-    [y - ẑ3, theta', theta_r, theta_r'] (so law (23) with exact velocities)."""
-    return sampled_observer(
-        _ro_rhs, _ro_init, lambda p, xi, y: _measured_out(y, p.L0 * (xi[0] - y[2])), 1, 4, dt, substeps, hold)
-
-
-class JointParams(NamedTuple):
-    homd: HOMDParams
-    L0: jnp.ndarray
-
-
-def joint_params(homd_params: HOMDParams, L0=0.01) -> JointParams:
-    return JointParams(homd_params, _f(L0))
-
-
-def joint_bias(params: JointParams, xi):
+def joint_bias(params, xi):
     """ẑ3 = L0 (v - ẑ2)."""
     return params.L0 * (xi[2] - xi[1])
 
 
-def joint_rhs(params: JointParams, xi, y, u):
+def joint_rhs(params, xi, y, u):
     """xi = [ẑ1, ẑ2, v, x̂_r1, x̂_r2]; y = [theta + d, theta_r]."""
-    g, m = params.homd.pend, params.homd.model
+    g, m = params.pend, params.model
     I = u[0]
     z3 = joint_bias(params, xi)
     beta = beta_z(m, I, y[0], z3)
@@ -172,7 +114,7 @@ def joint_rhs(params: JointParams, xi, y, u):
     dz2 = beta - g.k2 * spow(s1, 2.0 * g.alpha - 1.0)
     a = homd.a1(m)
     acc_r = homd.wheel_current_gain(m) * I - a * (jnp.sin(y[0]) - jnp.cos(y[0]) * z3)
-    dr = homd.differentiator_rhs(params.homd.wheel, xi[3:5], y[1], acc_r)
+    dr = homd.differentiator_rhs(params.wheel, xi[3:5], y[1], acc_r)
     return jnp.concatenate([jnp.stack([dz1, dz2, beta]), dr])
 
 
@@ -183,11 +125,6 @@ def _joint_init(params, y):
 
 def _joint_out(params, xi, y):
     return jnp.stack([y[0] - joint_bias(params, xi), xi[1], xi[3], xi[4]])
-
-
-def rwp_joint(dt: float, substeps: int = 10, hold: str = "foh"):
-    """(24) + (12); output [y - d̂, θ̂', θ̂_r, θ̂_r'] for law (23)."""
-    return sampled_observer(joint_rhs, _joint_init, _joint_out, 5, 2, dt, substeps, hold)
 
 
 def joint_error_rhs(g: homd.HOMDGains, L0, a1_cos, s):
@@ -201,15 +138,23 @@ def joint_error_rhs(g: homd.HOMDGains, L0, a1_cos, s):
     ])
 
 
-# ---- as engine estimators (the functions above with the params' fields as fields) ---------------------------
+# ---- as engine estimators --------------------------------------------------------------------------------
+
+
+def _on_homd(cls, h: homd.HOMDObserver, *extra):
+    # the HOMD's gains, model, period and integration settings, and the observer's own fields
+    return cls(h.dt, h.pend, h.wheel, h.model, *extra, substeps=h.substeps, hold=h.hold)
 
 
 class LowpassHOMD(SampledObserver):
-    """``rwp_lowpass_homd``; build with ``LowpassHOMD.of(lowpass_params(...), dt, ...)``."""
+    """(17) + (10) + (12) on y - d̂; output [y - d̂, θ̂', θ̂_r, θ̂_r'] for law (23). Build with
+    ``LowpassHOMD.build(homd_observer, gamma_d, d0)`` (the HOMD's gains, model and period)."""
 
-    homd: HOMDParams = None
-    gamma_d: jnp.ndarray = None
-    d0: jnp.ndarray = None
+    pend: homd.HOMDGains = None
+    wheel: homd.HOMDGains = None
+    model: object = None
+    gamma_d: jnp.ndarray = None  # γ_d of (17)
+    d0: jnp.ndarray = None  # initial bias estimate
 
     rhs = staticmethod(lowpass_rhs)
     init_xi = staticmethod(_lp_init)
@@ -217,8 +162,8 @@ class LowpassHOMD(SampledObserver):
     n_xi, n_y = 5, 2
 
     @classmethod
-    def of(cls, params: LowpassParams, dt: float, **kw) -> "LowpassHOMD":
-        return cls(dt, *params, **kw)
+    def build(cls, h: homd.HOMDObserver, gamma_d=0.05, d0=0.0) -> "LowpassHOMD":
+        return _on_homd(cls, h, _f(gamma_d), _f(d0))
 
 
 def _lpm_out(p, xi, y):
@@ -226,7 +171,8 @@ def _lpm_out(p, xi, y):
 
 
 class LowpassMeasured(SampledObserver):
-    """``rwp_lowpass_measured``; build with ``LowpassMeasured.of(lowpass_measured_params(...), dt, ...)``."""
+    """(17) with measured velocities, for law (18): input y = [theta + d, theta_r, theta', theta_r'], output
+    [y - d̂, theta', theta_r, theta_r'] (Proposition 2's setting). ``LowpassMeasured.build(dt, gamma_d, d0)``."""
 
     gamma_d: jnp.ndarray = None
     d0: jnp.ndarray = None
@@ -237,14 +183,39 @@ class LowpassMeasured(SampledObserver):
     n_xi, n_y = 1, 4
 
     @classmethod
-    def of(cls, params: LowpassMeasuredParams, dt: float, **kw) -> "LowpassMeasured":
-        return cls(dt, *params, **kw)
+    def build(cls, dt: float, gamma_d=0.05, d0=0.0, **kw) -> "LowpassMeasured":
+        return cls(dt, _f(gamma_d), _f(d0), **kw)
+
+
+def _ro_out(p, xi, y):
+    return _measured_out(y, p.L0 * (xi[0] - y[2]))
+
+
+class ReducedOrderMeasured(SampledObserver):
+    """(21) with the measured velocity z2 = theta': input y = [theta + d, theta_r, theta', theta_r'], output
+    [y - ẑ3, theta', theta_r, theta_r'] (so law (23) with exact velocities).
+    ``ReducedOrderMeasured.build(dt, model, L0)``."""
+
+    model: object = None
+    L0: jnp.ndarray = None
+
+    rhs = staticmethod(_ro_rhs)
+    init_xi = staticmethod(_ro_init)
+    out = staticmethod(_ro_out)
+    n_xi, n_y = 1, 4
+
+    @classmethod
+    def build(cls, dt: float, model, L0=0.01, **kw) -> "ReducedOrderMeasured":
+        return cls(dt, homd.observer_model(model), _f(L0), **kw)
 
 
 class JointObserver(SampledObserver):
-    """``rwp_joint``; build with ``JointObserver.of(joint_params(...), dt, ...)``."""
+    """(24) + (12); output [y - d̂, θ̂', θ̂_r, θ̂_r'] for law (23). Build with ``JointObserver.build(homd_observer,
+    L0)`` (the HOMD's gains, model and period)."""
 
-    homd: HOMDParams = None
+    pend: homd.HOMDGains = None
+    wheel: homd.HOMDGains = None
+    model: object = None
     L0: jnp.ndarray = None
 
     rhs = staticmethod(joint_rhs)
@@ -253,5 +224,5 @@ class JointObserver(SampledObserver):
     n_xi, n_y = 5, 2
 
     @classmethod
-    def of(cls, params: JointParams, dt: float, **kw) -> "JointObserver":
-        return cls(dt, *params, **kw)
+    def build(cls, h: homd.HOMDObserver, L0=0.01) -> "JointObserver":
+        return _on_homd(cls, h, _f(L0))

@@ -10,10 +10,10 @@ received on [t_{k-1}, t_k) (zero-order hold), so the observer integrates that in
 * ``hold="zoh"``: y_{k-1} held over the interval, i.e. the integration a real-time implementation does at
   t_{k-1} before y_k arrives (prediction form).
 
-On the first sample (k = 0) there is no previous sample: the observer is initialised from y_0 by ``init_fn``
+On the first sample (k = 0) there is no previous sample: the observer is initialised from y_0 by ``init_xi``
 instead (positions from the measurement, velocities zero, bias estimates at their initial values).
 
-The observer's output is what the controller reads (``out_fn(params, xi, y_k)``); for the reaction-wheel
+The observer's output is what the controller reads (``out(obs, xi, y_k)``); for the reaction-wheel
 observers it is a 4-vector shaped like the plant state, so the loop's estimation-error statistics apply.
 """
 
@@ -26,7 +26,6 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine.roles import Estimator
-from jaxdip.sim.component import Component
 
 HOLDS = ("foh", "zoh")
 
@@ -55,41 +54,14 @@ def integrate_interval(rhs: Callable, params, xi, y0, y1, u, dt: float, substeps
     return jax.lax.fori_loop(0, substeps, rk4, xi)
 
 
-def sampled_observer(rhs: Callable, init_fn: Callable, out_fn: Callable, n_xi: int, n_y: int, dt: float,
-                     substeps: int = 10, hold: str = "foh") -> Component:
-    """Wrap a continuous observer as a loop estimator (state ``(xi, y_prev)``, input ``(y_k, u_{k-1})``).
-
-    ``init_fn(params, y0) -> xi``; ``out_fn(params, xi, y) -> estimate``; ``n_xi``, ``n_y``: sizes of the
-    observer state and of the measurement (static).
-    """
-    if hold not in HOLDS:
-        raise ValueError(f"hold must be one of {HOLDS}, got {hold!r}")
-    if substeps < 1:
-        raise ValueError(f"substeps must be >= 1, got {substeps}")
-
-    def init(params, key, x0):
-        dtype = jnp.result_type(float)
-        return jnp.zeros(n_xi, dtype), jnp.zeros(n_y, dtype)
-
-    def step(params, state, inp, key, k):
-        xi, y_prev = state
-        y, u = inp
-        y = jnp.asarray(y)
-        u = jnp.reshape(jnp.asarray(u), (-1,))
-        xi_int = integrate_interval(rhs, params, xi, y_prev, y, u, dt, substeps, hold)
-        xi_new = jnp.where(k == 0, init_fn(params, y), xi_int)
-        return (xi_new, y), out_fn(params, xi_new, y)
-
-    return Component(init, step)
-
-
 class SampledObserver(Estimator):
-    """A continuous observer as an engine estimator: ``sampled_observer`` with the params as the subclass's fields.
+    """A continuous observer as an engine estimator, state ``(xi, y_prev)``.
 
-    Subclasses give the old pure functions as ``staticmethod``s ``rhs(params, xi, y, u)``, ``init_xi(params, y)``
-    and ``out(params, xi, y)`` and the sizes ``n_xi``, ``n_y`` as class attributes; their fields carry the old
-    params NamedTuple's field names, so the module itself is passed as params. ``dt``, ``substeps`` and ``hold``
-    are static. ``aux`` is the observer state xi after the step (velocity and bias estimates)."""
+    Subclasses give the observer's pure functions as ``staticmethod``s ``rhs(obs, xi, y, u)``, ``init_xi(obs, y0)``
+    (the state from the first sample) and ``out(obs, xi, y)`` (the estimate), called with the observer itself,
+    whose fields are the gains, and the sizes ``n_xi`` (observer state) and ``n_y`` (measurement) as class
+    attributes. ``dt``, ``substeps`` and ``hold`` are static. ``aux`` is the observer state xi after the step
+    (velocity and bias estimates)."""
 
     dt: float = eqx.field(static=True)
     substeps: int = eqx.field(default=10, static=True, kw_only=True)
@@ -98,13 +70,21 @@ class SampledObserver(Estimator):
     n_xi = 0
     n_y = 0
 
-    def _component(self) -> Component:
-        cls = type(self)
-        return sampled_observer(cls.rhs, cls.init_xi, cls.out, cls.n_xi, cls.n_y, self.dt, self.substeps, self.hold)
+    def __check_init__(self):
+        if self.hold not in HOLDS:
+            raise ValueError(f"hold must be one of {HOLDS}, got {self.hold!r}")
+        if self.substeps < 1:
+            raise ValueError(f"substeps must be >= 1, got {self.substeps}")
 
     def init(self, key, x0):
-        return self._component().init(self, key, x0)
+        dtype = jnp.result_type(float)
+        return jnp.zeros(self.n_xi, dtype), jnp.zeros(self.n_y, dtype)
 
     def step(self, state, y, u_prev, key, k):
-        state, out = self._component().step(self, state, (y, u_prev), key, k)
-        return state, out, state[0]
+        cls = type(self)
+        xi, y_prev = state
+        y = jnp.asarray(y)
+        u = jnp.reshape(jnp.asarray(u_prev), (-1,))
+        xi_int = integrate_interval(cls.rhs, self, xi, y_prev, y, u, self.dt, self.substeps, self.hold)
+        xi_new = jnp.where(k == 0, cls.init_xi(self, y), xi_int)
+        return (xi_new, y), cls.out(self, xi_new, y), xi_new

@@ -21,7 +21,7 @@ Observer, network and weight update, as decided from the (partly mangled) text:
   W_{k+1} by (6). Carrying y_k (rather than phi(y_k)) lets phi be recomputed once per sample with the current
   basis parameters.
 
-In the loop's init/step interface sample k brings (y_k, u_{k-1}) and the estimator hands the controller
+In the loop sample k brings (y_k, u_{k-1}) and the estimator hands the controller
 xhat_k. For k >= 1 that is (3) advanced from k - 1 with u_{k-1}: the DMSO is a one-step *predictor*; its
 estimate of x_k uses y_0 .. y_{k-1}, not y_k. At k = 0 it returns xhat_0 (the thesis starts it at zero) and
 W_0 (zeros). The KF compared with it in the thesis, (169)-(170) with y_k in the update of x_{k+1}, is a
@@ -39,19 +39,6 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine.roles import Estimator, param
-from jaxdip.sim.component import Component
-
-
-class DMSOParams(NamedTuple):
-    F: jnp.ndarray  # (n, n) discrete model (148)
-    G: jnp.ndarray  # (n, m)
-    B: jnp.ndarray  # (n, p) B_MSO (173): which rows carry uncertainty
-    K: jnp.ndarray  # (n, n) K_MSO
-    Gamma: jnp.ndarray  # () or (l, l) adaptation rate
-    basis_scale: jnp.ndarray  # (n,) s in phi_i = tanh(s_i x_i + c_i)
-    basis_offset: jnp.ndarray  # (n,) c
-    W0: jnp.ndarray  # (l, p) initial weights
-    xhat0: jnp.ndarray  # (n,) initial estimate
 
 
 class DMSOState(NamedTuple):
@@ -60,7 +47,7 @@ class DMSOState(NamedTuple):
     y: jnp.ndarray  # y_k, kept for the next prediction and weight update
 
 
-def tanh_basis(params: DMSOParams, x):
+def tanh_basis(params, x):
     """phi(x) = [1, tanh(s_1 x_1 + c_1), ..., tanh(s_n x_n + c_n)] (§8.1.1, with s = 1, c = 0)."""
     z = jnp.tanh(params.basis_scale * x + params.basis_offset)
     return jnp.concatenate([jnp.ones((1,), z.dtype), z])
@@ -72,35 +59,11 @@ def selection_matrix(n: int, rows) -> jnp.ndarray:
     return B.at[jnp.asarray(rows), jnp.arange(len(rows))].set(1.0)
 
 
-def dmso_params(F, G, B, K=None, Gamma=0.1, basis_scale=None, basis_offset=None, W0=None, xhat0=None,
-                n_basis: int | None = None) -> DMSOParams:
-    """Parameters with the thesis's defaults: K = I (174), Gamma = 0.1 (175), W0 = 0, xhat0 = 0.
-
-    ``n_basis`` is l, the length of phi (n + 1 for ``tanh_basis``).
-    """
-    f64 = lambda a: jnp.asarray(a, dtype=jnp.float64)  # noqa: E731
-    F, G, B = f64(F), f64(G), f64(B)
-    n = F.shape[0]
-    G = G.reshape(n, -1)
-    B = B.reshape(n, -1)
-    l = n + 1 if n_basis is None else n_basis
-    K = jnp.eye(n) if K is None else f64(K)
-    if K.ndim == 1:
-        K = jnp.diag(K)
-    return DMSOParams(
-        F=F, G=G, B=B, K=K, Gamma=f64(Gamma),
-        basis_scale=jnp.ones(n) if basis_scale is None else f64(basis_scale),
-        basis_offset=jnp.zeros(n) if basis_offset is None else f64(basis_offset),
-        W0=jnp.zeros((l, B.shape[1])) if W0 is None else f64(W0),
-        xhat0=jnp.zeros(n) if xhat0 is None else f64(xhat0),
-    )
-
-
 def _gamma_phi(Gamma, phi):
     return Gamma @ phi if jnp.ndim(Gamma) == 2 else Gamma * phi
 
 
-def predict(params: DMSOParams, basis: Callable, xhat, W, y, u):
+def predict(params, basis: Callable, xhat, W, y, u):
     """(3)-(4): xhat_{k+1} from xhat_k, W_k, y_k, u_k; also returns fhat_k and phi(y_k)."""
     phi = basis(params, y)
     fhat = W.T @ phi
@@ -108,68 +71,16 @@ def predict(params: DMSOParams, basis: Callable, xhat, W, y, u):
     return xnext, fhat, phi
 
 
-def update_weights(params: DMSOParams, W, phi, e_next):
+def update_weights(params, W, phi, e_next):
     """(6): W_{k+1} = W_k + Gamma phi(y_k) e_{k+1}^T B."""
     return W + jnp.outer(_gamma_phi(params.Gamma, phi), params.B.T @ e_next)
 
 
-def advance(params: DMSOParams, basis: Callable, st: DMSOState, y_next, u):
+def advance(params, basis: Callable, st: DMSOState, y_next, u):
     """One sample: from (xhat_k, W_k, y_k) and u_k, y_{k+1} to (xhat_{k+1}, W_{k+1}, y_{k+1}); returns fhat_k."""
     xnext, fhat, phi = predict(params, basis, st.xhat, st.W, st.y, u)
     W = update_weights(params, st.W, phi, y_next - xnext)
     return DMSOState(xnext, W, y_next), fhat
-
-
-def dmso(basis: Callable = tanh_basis) -> Component:
-    """The DMSO as a loop estimator: sample k brings (y_k, u_{k-1}); the output is xhat_k (see module doc)."""
-
-    def init(params: DMSOParams, key, x0):
-        xhat0 = jnp.asarray(params.xhat0, dtype=jnp.float64)
-        return DMSOState(xhat0, jnp.asarray(params.W0, dtype=jnp.float64), xhat0)
-
-    def step(params: DMSOParams, st: DMSOState, inp, key, k):
-        y, u_prev = inp
-        y = jnp.asarray(y, dtype=st.xhat.dtype)
-        u_prev = jnp.reshape(jnp.asarray(u_prev, st.xhat.dtype), (params.G.shape[1],))
-        nxt, _ = advance(params, basis, st, y, u_prev)
-        first = k == 0
-        new = DMSOState(
-            xhat=jnp.where(first, st.xhat, nxt.xhat),
-            W=jnp.where(first, st.W, nxt.W),
-            y=y,
-        )
-        return new, new.xhat
-
-    return Component(init, step)
-
-
-class DMSOTrace(NamedTuple):
-    xhat: jnp.ndarray  # (T, n): xhat_k, what the loop's controller saw at sample k
-    fhat: jnp.ndarray  # (T, p): fhat_k = W_k^T phi(y_k), the estimate of f(x_k) used to predict x_{k+1}
-    W: jnp.ndarray  # (T, l, p): W_k
-
-
-def dmso_sequence(params: DMSOParams, ys, us, basis: Callable = tanh_basis) -> DMSOTrace:
-    """Replay the DMSO over recorded y_0..y_{T-1} and u_0..u_{T-1} (open loop, one ``lax.scan``).
-
-    Gives exactly the estimates the loop component produced from the same data, plus fhat_k and W_k, which
-    the loop does not record. ``us[k]`` is u_k (the input applied after sample k).
-    """
-    ys = jnp.asarray(ys, dtype=jnp.float64)
-    us = jnp.asarray(us, dtype=jnp.float64).reshape(ys.shape[0], -1)
-    xhat0 = jnp.asarray(params.xhat0, dtype=jnp.float64)
-    W0 = jnp.asarray(params.W0, dtype=jnp.float64)
-    st0 = DMSOState(xhat0, W0, ys[0])
-
-    def body(st, inp):
-        y_next, u = inp
-        nxt, fhat = advance(params, basis, st, y_next, u)
-        return nxt, (st.xhat, fhat, st.W)
-
-    # sample T-1 has no successor: feed its own y (the last fhat/W are still those of sample T-1)
-    y_next = jnp.concatenate([ys[1:], ys[-1:]], axis=0)
-    _, (xh, fh, W) = jax.lax.scan(body, st0, (y_next, us))
-    return DMSOTrace(xh, fh, W)
 
 
 class DMSOAux(NamedTuple):
@@ -178,10 +89,11 @@ class DMSOAux(NamedTuple):
 
 
 class DMSO(Estimator):
-    """The DMSO as an engine estimator: ``DMSOParams``' fields are its array fields, the basis is static
-    (``tanh_basis``). Sample k brings (y_k, u_{k-1}); the output is xhat_k (module doc). ``aux`` is a
+    """The DMSO as an engine estimator: the model, gains and basis parameters are its array fields, the basis
+    is static (``tanh_basis``). Sample k brings (y_k, u_{k-1}); the output is xhat_k (module doc). ``aux`` is a
     ``DMSOAux``: the network's estimate fhat_{k-1} of the uncertainty and the weights W_k, so a run records
-    them with ``save`` (no replay). ``DMSO.of(dmso_params(...))`` builds it."""
+    them with ``save`` and a run over recorded data (``jaxdip.estimators.recorded.run``) returns them.
+    ``DMSO.thesis(F, G, B, ...)`` builds it with the thesis's defaults."""
 
     F: jax.Array = param()
     G: jax.Array = param()
@@ -195,8 +107,24 @@ class DMSO(Estimator):
     basis: Callable = eqx.field(default=tanh_basis, static=True)
 
     @classmethod
-    def of(cls, p: DMSOParams, basis: Callable = tanh_basis) -> "DMSO":
-        return cls(**p._asdict(), basis=basis)
+    def thesis(cls, F, G, B, K=None, Gamma=0.1, basis_scale=None, basis_offset=None, W0=None, xhat0=None,
+               n_basis: int | None = None, basis: Callable = tanh_basis) -> "DMSO":
+        """The thesis's defaults: K = I (174), Gamma = 0.1 (175), W0 = 0, xhat0 = 0. ``n_basis`` is l, the
+        length of phi (n + 1 for ``tanh_basis``)."""
+        f64 = lambda a: jnp.asarray(a, dtype=jnp.float64)  # noqa: E731
+        F, G, B = f64(F), f64(G), f64(B)
+        n = F.shape[0]
+        G = G.reshape(n, -1)
+        B = B.reshape(n, -1)
+        l = n + 1 if n_basis is None else n_basis
+        K = jnp.eye(n) if K is None else f64(K)
+        if K.ndim == 1:
+            K = jnp.diag(K)
+        return cls(F=F, G=G, B=B, K=K, Gamma=f64(Gamma),
+                   basis_scale=jnp.ones(n) if basis_scale is None else f64(basis_scale),
+                   basis_offset=jnp.zeros(n) if basis_offset is None else f64(basis_offset),
+                   W0=jnp.zeros((l, B.shape[1])) if W0 is None else f64(W0),
+                   xhat0=jnp.zeros(n) if xhat0 is None else f64(xhat0), basis=basis)
 
     def init(self, key, x0):
         xhat0 = jnp.asarray(self.xhat0, dtype=jnp.float64)

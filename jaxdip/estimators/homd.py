@@ -34,7 +34,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxdip.estimators.continuous import SampledObserver, sampled_observer
+from jaxdip.estimators.continuous import SampledObserver
 from jaxdip.plants import rwp
 
 
@@ -115,19 +115,9 @@ def wheel_accel(p: rwp.RWP, I, theta):
 # ---- the pair of differentiators (10) + (12) as a loop estimator ----------------------------------------
 
 
-class HOMDParams(NamedTuple):
-    pend: HOMDGains  # [k_p1, k_p2, α_p] of (10)
-    wheel: HOMDGains  # [k_r1, k_r2, α_r] of (12)
-    model: rwp.RWP  # the observer's model of the plant (Table 1)
-
-
-def homd_params(pend=(5.0, 12.0, 0.9), wheel=(5.0, 12.0, 0.9), model: rwp.RWP | None = None) -> HOMDParams:
-    model = rwp.RWP() if model is None else model
-    return HOMDParams(gains(*pend), gains(*wheel), model)
-
-
-def rwp_homd_rhs(params: HOMDParams, xi, y, u):
-    """d/dt [x̂_p1, x̂_p2, x̂_r1, x̂_r2] of (10) and (12); y = [theta measurement, theta_r measurement]."""
+def rwp_homd_rhs(params, xi, y, u):
+    """d/dt [x̂_p1, x̂_p2, x̂_r1, x̂_r2] of (10) and (12); y = [theta measurement, theta_r measurement];
+    ``params`` has the gains ``pend``, ``wheel`` and the ``model`` (an ``HOMDObserver`` or an observer built on it)."""
     I = u[0]
     th = y[0]
     dp = differentiator_rhs(params.pend, xi[0:2], th, pendulum_accel(params.model, I, th))
@@ -145,19 +135,19 @@ def _out(params, xi, y):
     return jnp.stack([y[0], xi[1], xi[2], xi[3]])
 
 
-def rwp_homd(dt: float, substeps: int = 10, hold: str = "foh"):
-    """(10) + (12) as a loop estimator: input y = [theta, theta_r] (measured), output
-    [y_theta, x̂_p2, x̂_r1, x̂_r2] = the vector law (8) multiplies by K (with K = [k1, k2, 0, k3])."""
-    return sampled_observer(rwp_homd_rhs, _init_from_y, _out, 4, 2, dt, substeps, hold)
+def observer_model(model: rwp.RWP | None = None) -> rwp.RWP:
+    """The observer's model of the plant (Table 1 unless given; its constants are float64 array fields)."""
+    return rwp.RWP() if model is None else model
 
 
 class HOMDObserver(SampledObserver):
-    """(10) + (12) as an engine estimator (``rwp_homd`` with ``HOMDParams``' fields); build with
-    ``HOMDObserver.of(homd_params(...), dt, substeps=..., hold=...)``."""
+    """(10) + (12) as an engine estimator: input y = [theta, theta_r] (measured), output
+    [y_theta, x̂_p2, x̂_r1, x̂_r2] = the vector law (8) multiplies by K (with K = [k1, k2, 0, k3]). Build with
+    ``HOMDObserver.build(dt, pend=(k1, k2, alpha), wheel=..., model=..., substeps=..., hold=...)``."""
 
-    pend: HOMDGains = None
-    wheel: HOMDGains = None
-    model: rwp.RWP = None
+    pend: HOMDGains = None  # [k_p1, k_p2, α_p] of (10)
+    wheel: HOMDGains = None  # [k_r1, k_r2, α_r] of (12)
+    model: rwp.RWP = None  # the observer's model of the plant (Table 1)
 
     rhs = staticmethod(rwp_homd_rhs)
     init_xi = staticmethod(_init_from_y)
@@ -165,5 +155,6 @@ class HOMDObserver(SampledObserver):
     n_xi, n_y = 4, 2
 
     @classmethod
-    def of(cls, params: HOMDParams, dt: float, **kw) -> "HOMDObserver":
-        return cls(dt, *params, **kw)
+    def build(cls, dt: float, pend=(5.0, 12.0, 0.9), wheel=(5.0, 12.0, 0.9), model: rwp.RWP | None = None,
+              **kw) -> "HOMDObserver":
+        return cls(dt, gains(*pend), gains(*wheel), observer_model(model), **kw)

@@ -1,4 +1,7 @@
-"""Discrete Kalman filter and extended Kalman filter (thesis §1.1; Stumfoll (163)-(171)).
+"""The Kalman kernel: time update, measurement update, guarded factorisation and log-likelihood (thesis §1.1;
+Stumfoll (163)-(171)). Every Kalman-type filter of jaxdip (``KalmanFilter``, ``ExtendedKalmanFilter``,
+``UnscentedKalmanFilter`` and the offline filter, smoother and likelihood of ``jaxdip.estimators.recorded``) is
+written with these functions.
 
 Model x_{k+1} = F x_k + G u_k + w_k, y_k = H x_k + v_k, w ~ (0, Q), v ~ (0, R). One cycle:
 
@@ -10,7 +13,8 @@ Model x_{k+1} = F x_k + G u_k + w_k, y_k = H x_k + v_k, w ~ (0, Q), v ~ (0, R). 
 
 Stumfoll prints P-_k on the right of (167) and K_k, y_k in (170); the indices above are the consistent reading
 (the a-posteriori covariance is propagated; the gain and the measurement of the same step are used). The gain
-comes from a Cholesky solve with S = H P- H^T + R, not from an explicit inverse.
+comes from a Cholesky solve with S = H P- H^T + R, not from an explicit inverse; log N(y; yhat, S) comes from
+the same factor.
 
 Singular S. With R = 0 (or R singular) and H P- H^T of lower rank, for instance two sensors reading the same
 state exactly, S is singular and a plain Cholesky gives NaN. The limit of the gain as R -> R + d I, d -> 0, is
@@ -25,55 +29,39 @@ A well-conditioned S takes the unguarded path, bit for bit.
 
 ``jitter`` (default 0) adds jitter * I to S in the gain only; the Joseph form (171) keeps the true R,
 so P stays the error covariance of the estimator that uses that (slightly suboptimal) gain.
-
-In the init/step interface sample j brings y_j and u_{j-1}: the filter predicts with u_{j-1} (for j >= 1; at
-j = 0 the prior is (xhat0, P0)) and updates with y_j; the output is x+_j.
-
-The EKF (``ekf``) replaces F, G by the local model of continuous dynamics at x+ (``local_model``: Jacobian,
-matrix exponential over h, as in thesis §1.6), and propagates the mean by the same local affine model
-(the exponential-Euler step, exact for linear dynamics: the EKF of a linear model is the KF).
 """
 
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
-from jaxdip.estimators.linearized import local_model
-from jaxdip.sim.component import Component
-
-
-class KFParams(NamedTuple):
-    Phi: jnp.ndarray  # F (d, d)
-    W: jnp.ndarray  # G (d, m)
-    C: jnp.ndarray  # H (p, d)
-    Q: jnp.ndarray  # (d, d) process noise covariance
-    R: jnp.ndarray  # (p, p) measurement noise covariance
-    P0: jnp.ndarray  # (d, d) prior covariance of xhat0
-    xhat0: jnp.ndarray  # (d,)
-
-
-class EKFParams(NamedTuple):
-    model: Any  # the plant's parameter pytree
-    C: jnp.ndarray
-    Q: jnp.ndarray
-    R: jnp.ndarray
-    P0: jnp.ndarray
-    xhat0: jnp.ndarray
-
-
-class KFState(NamedTuple):
-    x: jnp.ndarray  # x+ (a posteriori) after the step; the prior (xhat0) before the first one
-    P: jnp.ndarray
-
-
+_LOG_2PI = 1.8378770664093453
 _PIVOT_RTOL = 1e-10  # guarded innovation solve: smallest Cholesky pivot^2 relative to max diag S (see above)
 
 
-def _guarded_cho_factor(S):
+class KFState(NamedTuple):
+    x: jax.Array  # x+ (a posteriori) after the step; the starting estimate before the first one
+    P: jax.Array
+
+
+class GaussianAux(NamedTuple):
+    """What a Kalman-type filter reports at sample j (its ``aux``)."""
+
+    cov: jax.Array  # P+_j
+    prior: jax.Array  # x-_j, the one-step prediction from y_0..y_{j-1} (the starting estimate at j = 0)
+    prior_cov: jax.Array  # P-_j
+    log_likelihood: jax.Array  # log N(y_j; yhat_j, S_j)
+
+
+def sym(P):
+    return 0.5 * (P + P.T)
+
+
+def guarded_cho_factor(S):
     """Cholesky factor of S, or of S + d I when S is singular or nearly so (d = _PIVOT_RTOL max diag S)."""
     L = jnp.linalg.cholesky(jax.lax.stop_gradient(S))
     d = _PIVOT_RTOL * jnp.max(jnp.diag(S)) + jnp.finfo(S.dtype).tiny
@@ -85,65 +73,46 @@ def _guarded_cho_factor(S):
     return jsl.cho_factor(S, lower=True)
 
 
-def kf_update(x_pred, P_pred, y, C, R, jitter: float = 0.0):
-    """Measurement update (168), (170), (171); ``jitter`` (>= 0, a number or an array) adds jitter * I to S
-    for the gain only."""
-    S = C @ P_pred @ C.T + R
-    S = 0.5 * (S + S.T)
+def log_likelihood_of(cf, e):
+    """log N(e; 0, S) from the Cholesky factor ``cf`` of S."""
+    L = cf[0]
+    z = jsl.solve_triangular(L, e, lower=True)
+    return -0.5 * (z @ z + 2.0 * jnp.sum(jnp.log(jnp.abs(jnp.diag(L)))) + e.shape[0] * _LOG_2PI)
+
+
+def predict(x, P, F, x_next, Q):
+    """Time update (167), (169) with the mean ``x_next`` already propagated (F x + G u + b, or f(x, u)):
+    returns (x_next, F P F^T + Q)."""
+    return x_next, F @ P @ F.T + Q
+
+
+def update(x_pred, P_pred, y, H, yhat, R, jitter=0.0):
+    """Measurement update (168), (170), (171) of N(x_pred, P_pred) by y ~ N(yhat + H (x - x_pred), R):
+    returns (x+, P+, log N(y; yhat, S)). ``jitter`` (>= 0, a number or an array) adds jitter * I to S for the
+    gain only."""
+    S = H @ P_pred @ H.T + R
+    S = sym(S)
     if not (isinstance(jitter, (int, float)) and jitter == 0):  # a literal 0 leaves the graph as it was
         S = S + jitter * jnp.eye(S.shape[0], dtype=S.dtype)
-    cf = _guarded_cho_factor(S)
-    K = jsl.cho_solve(cf, C @ P_pred).T  # K = P- C^T S^{-1}, S and P- symmetric
-    x = x_pred + K @ (y - C @ x_pred)
-    IKC = jnp.eye(P_pred.shape[0], dtype=P_pred.dtype) - K @ C
-    P = IKC @ P_pred @ IKC.T + K @ R @ K.T
-    return x, 0.5 * (P + P.T)
+    cf = guarded_cho_factor(S)
+    K = jsl.cho_solve(cf, H @ P_pred).T  # K = P- H^T S^{-1}, S and P- symmetric
+    e = y - yhat
+    x = x_pred + K @ e
+    IKH = jnp.eye(P_pred.shape[0], dtype=P_pred.dtype) - K @ H
+    P = IKH @ P_pred @ IKH.T + K @ R @ K.T
+    return x, sym(P), log_likelihood_of(cf, e)
 
 
-def kf_predict(x, P, Phi, Wu_b, Q):
-    """Time update (167), (169): x- = Phi x + (W u + b), P- = Phi P Phi^T + Q."""
-    return Phi @ x + Wu_b, Phi @ P @ Phi.T + Q
+def condition(x_pred, P_pred, y, yhat, Pyy, Pxy, R):
+    """Measurement update from moments (the unscented filter's): S = Pyy + R, K = Pxy S^{-1},
+    P+ = P- - K S K^T. Returns (x+, P+, log N(y; yhat, S))."""
+    S = sym(Pyy + R)
+    cf = guarded_cho_factor(S)
+    K = jsl.cho_solve(cf, Pxy.T).T
+    e = y - yhat
+    return x_pred + K @ e, sym(P_pred - K @ S @ K.T), log_likelihood_of(cf, e)
 
 
-def _init(params, from_truth, x0):
-    x = jnp.asarray(x0 if from_truth else params.xhat0, dtype=jnp.result_type(float))
-    return KFState(x, jnp.asarray(params.P0, x.dtype))
-
-
-def kalman(from_truth: bool = False, jitter: float = 0.0) -> Component:
-    """Discrete Kalman filter for an LTI model (``KFParams``); ``jitter``: see ``kf_update``."""
-
-    def init(params: KFParams, key, x0):
-        return _init(params, from_truth, x0)
-
-    def step(params: KFParams, st: KFState, inp, key, k):
-        y, u_prev = inp
-        u_prev = jnp.reshape(u_prev, (params.W.shape[1],))
-        xp, Pp = kf_predict(st.x, st.P, params.Phi, params.W @ u_prev, params.Q)
-        first = k == 0
-        xp, Pp = jnp.where(first, st.x, xp), jnp.where(first, st.P, Pp)
-        x, P = kf_update(xp, Pp, y, params.C, params.R, jitter)
-        return KFState(x, P), x
-
-    return Component(init, step)
-
-
-def ekf(f: Callable, h: float, n_inputs: int, from_truth: bool = False, expm_squarings: int = 24,
-        jitter: float = 0.0) -> Component:
-    """Extended Kalman filter for continuous dynamics ``f(model_params, x, u)`` sampled every ``h``
-    (``expm_squarings``: see ``linearized.expm_small``; ``jitter``: see ``kf_update``)."""
-
-    def init(params: EKFParams, key, x0):
-        return _init(params, from_truth, x0)
-
-    def step(params: EKFParams, st: KFState, inp, key, k):
-        y, u_prev = inp
-        u_prev = jnp.reshape(jnp.asarray(u_prev, st.x.dtype), (n_inputs,))
-        lm = local_model(f, params.model, st.x, u_prev, h, with_inverse=False, max_squarings=expm_squarings)
-        xp, Pp = kf_predict(st.x, st.P, lm.Phi, lm.W @ u_prev + lm.b, params.Q)
-        first = k == 0
-        xp, Pp = jnp.where(first, st.x, xp), jnp.where(first, st.P, Pp)
-        x, P = kf_update(xp, Pp, y, params.C, params.R, jitter)
-        return KFState(x, P), x
-
-    return Component(init, step)
+def smoother_gain(P, F, P_pred_next):
+    """RTS gain G = P F^T (P-_{k+1})^{-1} by the guarded factor of P-_{k+1}."""
+    return jsl.cho_solve(guarded_cho_factor(P_pred_next), F @ P).T

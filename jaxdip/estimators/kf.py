@@ -1,35 +1,63 @@
-"""The discrete Kalman filter as an engine estimator (``jaxdip.estimators.kalman`` holds the equations)."""
+"""The Kalman filter and the extended Kalman filter as engine estimators (the equations: ``jaxdip.estimators.kalman``).
+
+Timing. Sample j brings y_j and u_{j-1}: from j = 1 on the filter predicts with u_{j-1}, then updates with y_j; at
+j = 0 the prior is (xhat0, P0), so (xhat0, P0) is the prior of x_0 before y_0 is seen. The output is x+_j; ``aux``
+is a ``GaussianAux`` (P+_j, the prediction x-_j and P-_j, log N(y_j; yhat_j, S_j)). Other output timings and
+other starting estimates are the wrappers of ``jaxdip.estimators.wrappers`` (``Prior`` hands out x-_j,
+``DelayedMeasurement`` feeds y_{j-1}, ``FromTruth``/``InitialError`` start from the true x_0).
+
+Run over recorded data, the same step is the offline filter (``jaxdip.estimators.recorded.kalman_filter``); for
+that use every matrix of ``KalmanFilter`` may also be a stack over time (leading axis T: ``Phi[j]``, ``W[j]``,
+``Q[j]`` drive x_j -> x_{j+1}; ``C[j]``, ``R[j]`` read y_j).
+"""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable, Optional
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from jaxdip.engine.roles import Estimator, param
-from jaxdip.estimators.kalman import KFState, kf_predict, kf_update
+from jaxdip.estimators.kalman import GaussianAux, KFState, predict, update
 from jaxdip.estimators.linearized import local_model
 
 
-OUTPUTS = ("posterior", "prior", "delayed")
+def _at(a, j):
+    """A time-invariant matrix, or entry j of a stack over time."""
+    return a if a.ndim == 2 else a[j]
 
 
-class KalmanFilter(Estimator):
-    """KF for x_{k+1} = Phi x_k + W u_k + w, y_k = C x_k + v, w ~ (0, Q), v ~ (0, R).
+def _first_or(k, start: KFState, xp, Pp):
+    first = k == 0
+    return jnp.where(first, start.x, xp), jnp.where(first, start.P, Pp)
 
-    Sample j brings y_j and u_{j-1}: predict with u_{j-1} (from j = 1 on; at j = 0 the prior is (xhat0, P0),
-    or (x0, P0) with ``from_truth``), update with y_j, output x+_j. ``aux`` is the posterior covariance P+_j.
-    Numbers identical to ``kalman.kalman()``.
 
-    ``output`` (static) picks what is handed out at sample j (the filter itself is the same):
-      "posterior"  x+_j (updated with y_j);
-      "prior"      the prediction x-_j = Phi x+_{j-1} + W u_{j-1} (xhat0 at j = 0), from y_0 .. y_{j-1}: a
-                   one-step predictor, the information of a predictor-form observer such as the DMSO;
-      "delayed"    Stumfoll's (170) as printed: the filter at sample j is updated with y_{j-1} (with C xhat0,
-                   a zero innovation, at j = 0), its posterior handed out.
-    """
+class _Gaussian(Estimator):
+    """Shared by the KF and the EKF: ``_transition(x, u, j) -> (F, x_next)`` and ``_output(x) -> (H, yhat)``."""
+
+    def init(self, key, x0):
+        x = jnp.asarray(self.xhat0, dtype=jnp.result_type(float))
+        return KFState(x, jnp.asarray(self.P0, x.dtype))
+
+    def step(self, state, y, u_prev, key, k):
+        u = jnp.reshape(jnp.asarray(u_prev, state.x.dtype), (self.n_inputs,))
+        j = jnp.maximum(k - 1, 0)  # the transition that brought x_{k-1} to x_k
+        F, x_next = self._transition(state.x, u, j)
+        xp, Pp = _first_or(k, state, *predict(state.x, state.P, F, x_next, _at(self.Q, j)))
+        H, yhat = self._output(xp, k)
+        x, P, ll = update(xp, Pp, y, H, yhat, _at(self.R, k), self.jitter)
+        return KFState(x, P), x, GaussianAux(P, xp, Pp, ll)
+
+    def transition_jacobian(self, x, u, j):
+        """F_j at (x, u): what the Rauch-Tung-Striebel smoother needs."""
+        return self._transition(x, jnp.reshape(u, (self.n_inputs,)), j)[0]
+
+
+class KalmanFilter(_Gaussian):
+    """KF for x_{k+1} = Phi x_k + W u_k + w, y_k = C x_k + v, w ~ (0, Q), v ~ (0, R) (module doc for the
+    timing). ``jitter`` (static): see ``kalman.update``."""
 
     Phi: jax.Array = param()
     W: jax.Array = param()
@@ -38,86 +66,82 @@ class KalmanFilter(Estimator):
     R: jax.Array = param()
     P0: jax.Array = param()
     xhat0: jax.Array = param()
-    from_truth: bool = eqx.field(default=False, static=True)
-    output: str = eqx.field(default="posterior", static=True)
+    jitter: float = eqx.field(default=0.0, static=True)
 
-    def __init__(self, Phi, W, C, Q, R, P0, xhat0=None, from_truth: bool = False, output: str = "posterior"):
-        if output not in OUTPUTS:
-            raise ValueError(f"output must be one of {OUTPUTS}, got {output!r}")
-        self.output = output
-        self.Phi, self.C, self.Q, self.R, self.P0 = Phi, C, Q, R, P0
-        self.W = jnp.reshape(jnp.asarray(W), (jnp.shape(Phi)[0], -1))
-        self.xhat0 = jnp.zeros(jnp.shape(Phi)[0]) if xhat0 is None else xhat0
-        self.from_truth = from_truth
+    def __init__(self, Phi, W, C, Q, R, P0, xhat0=None, jitter: float = 0.0):
+        self.Phi, self.C, self.Q, self.R, self.P0, self.jitter = Phi, C, Q, R, P0, jitter
+        d = jnp.shape(Phi)[-1]
+        W = jnp.zeros((d, 1)) if W is None else jnp.asarray(W)
+        self.W = jnp.reshape(W, (d, -1)) if W.ndim <= 2 else W
+        self.xhat0 = jnp.zeros(d) if xhat0 is None else xhat0
 
-    def init(self, key, x0):
-        x = jnp.asarray(x0 if self.from_truth else self.xhat0, dtype=jnp.result_type(float))
-        st = KFState(x, jnp.asarray(self.P0, x.dtype))
-        if self.output == "delayed":
-            return st, self.C @ jnp.asarray(self.xhat0, jnp.float64)
-        return st
+    @property
+    def n_inputs(self) -> int:
+        return self.W.shape[-1]
 
-    def step(self, state, y, u_prev, key, k):
-        if self.output == "delayed":
-            st, y_prev = state
-            st, x, P = self._filter(st, y_prev, u_prev, k)
-            return (st, jnp.asarray(y, jnp.float64)), x, P
-        if self.output == "prior":
-            u = jnp.reshape(jnp.asarray(u_prev, state.x.dtype), (self.W.shape[1],))
-            prior = jnp.where(k == 0, state.x, self.Phi @ state.x + self.W @ u)
-            st, _, P = self._filter(state, y, u_prev, k)
-            return st, prior, P
-        return self._filter(state, y, u_prev, k)
+    def _transition(self, x, u, j):
+        Phi = _at(self.Phi, j)
+        return Phi, Phi @ x + _at(self.W, j) @ u
 
-    def _filter(self, state, y, u_prev, k):
-        u_prev = jnp.reshape(u_prev, (self.W.shape[1],))
-        xp, Pp = kf_predict(state.x, state.P, self.Phi, self.W @ u_prev, self.Q)
-        first = k == 0
-        xp, Pp = jnp.where(first, state.x, xp), jnp.where(first, state.P, Pp)
-        x, P = kf_update(xp, Pp, y, self.C, self.R)
-        return KFState(x, P), x, P
+    def _output(self, x, k):
+        C = _at(self.C, k)
+        return C, C @ x
 
 
 def _plant_vector_field(plant, x, u):
+    # module-level, so every filter of one plant structure traces the same function
     return plant.vector_field(x, u)
 
 
-class ExtendedKalmanFilter(Estimator):
-    """EKF for an engine ``Plant`` ``model`` sampled every ``h``: relinearised at x+ every sample (Jacobian and
-    matrix exponential, ``local_model``), the mean propagated by the same local affine model. The
-    ``kalman.ekf`` estimator with its params (``EKFParams``' fields) as fields; ``aux`` is P+_j.
-    ``jitter``: see ``kalman.kf_update`` (static: a literal 0 leaves the update as it was).
+class ExtendedKalmanFilter(_Gaussian):
+    """EKF for x_{k+1} = f(x_k, u_k) + w, y_k = h(x_k) + v (or C x_k + v).
 
-    ``output`` (static): "posterior" hands out x+_j; "prior" the one-step prediction x-_j made at j - 1 from
-    x+_{j-1} (the starting estimate at j = 0), for comparing with predictors on the same time alignment. The
-    filter itself is the same either way."""
+    The transition is either a discrete map ``f(x, u)`` (static, compared by identity: pass a module-level
+    function), linearised at x+ by forward-mode autodiff, or a continuous engine ``Plant`` ``model`` sampled
+    every ``dt``: relinearised at x+ every sample (Jacobian and matrix exponential, ``local_model``;
+    ``expm_squarings``: see ``linearized.expm_small``), the mean propagated by the same local affine model (the
+    exponential-Euler step, exact for linear dynamics: the EKF of a linear model is the KF). The output is
+    linear (array ``C``) or a map ``h(x)`` (static), linearised at the prediction. ``jitter``: see
+    ``kalman.update``.
+    """
 
-    model: Any
-    C: jax.Array = param()
     Q: jax.Array = param()
     R: jax.Array = param()
     P0: jax.Array = param()
     xhat0: jax.Array = param()
-    h: float = eqx.field(static=True)
-    from_truth: bool = eqx.field(default=False, static=True)
-    expm_squarings: int = eqx.field(default=24, static=True)
-    jitter: float = eqx.field(default=0.0, static=True)
-    output: str = eqx.field(default="posterior", static=True)
+    C: Optional[jax.Array]
+    model: Any
+    f: Optional[Callable] = eqx.field(static=True)
+    h: Optional[Callable] = eqx.field(static=True)
+    dt: Optional[float] = eqx.field(static=True)
+    n_inputs: int = eqx.field(static=True)
+    expm_squarings: int = eqx.field(static=True)
+    jitter: float = eqx.field(static=True)
 
-    def __check_init__(self):
-        if self.output not in ("posterior", "prior"):
-            raise ValueError(f"output must be 'posterior' or 'prior', got {self.output!r}")
+    def __init__(self, Q, R, P0, xhat0=None, *, model=None, dt: Optional[float] = None,
+                 f: Optional[Callable] = None, C=None, h: Optional[Callable] = None, n_inputs: Optional[int] = None,
+                 expm_squarings: int = 24, jitter: float = 0.0):
+        if (f is None) == (model is None):
+            raise ValueError("give exactly one of f (a discrete map) and model (a continuous plant, with dt)")
+        if model is not None and dt is None:
+            raise ValueError("a continuous model needs the sample period dt")
+        if (h is None) == (C is None):
+            raise ValueError("give exactly one of C (linear output) and h (nonlinear output)")
+        self.Q, self.R, self.P0 = Q, R, P0
+        self.xhat0 = jnp.zeros(jnp.shape(P0)[0]) if xhat0 is None else xhat0
+        self.C = None if C is None else jnp.asarray(C, jnp.result_type(float))
+        self.model, self.f, self.h, self.dt = model, f, h, dt
+        self.n_inputs = (model.m if model is not None else 1) if n_inputs is None else n_inputs
+        self.expm_squarings, self.jitter = expm_squarings, jitter
 
-    def init(self, key, x0):
-        x = jnp.asarray(x0 if self.from_truth else self.xhat0, dtype=jnp.result_type(float))
-        return KFState(x, jnp.asarray(self.P0, x.dtype))
-
-    def step(self, state, y, u_prev, key, k):
-        u_prev = jnp.reshape(jnp.asarray(u_prev, state.x.dtype), (self.model.m,))
-        lm = local_model(_plant_vector_field, self.model, state.x, u_prev, self.h, with_inverse=False,
+    def _transition(self, x, u, j):
+        if self.model is None:
+            return jax.jacfwd(self.f, argnums=0)(x, u), self.f(x, u)
+        lm = local_model(_plant_vector_field, self.model, x, u, self.dt, with_inverse=False,
                          max_squarings=self.expm_squarings)
-        xp, Pp = kf_predict(state.x, state.P, lm.Phi, lm.W @ u_prev + lm.b, self.Q)
-        first = k == 0
-        xp, Pp = jnp.where(first, state.x, xp), jnp.where(first, state.P, Pp)
-        x, P = kf_update(xp, Pp, y, self.C, self.R, self.jitter)
-        return KFState(x, P), (xp if self.output == "prior" else x), P
+        return lm.Phi, lm.Phi @ x + (lm.W @ u + lm.b)
+
+    def _output(self, x, k):
+        if self.h is None:
+            return self.C, self.C @ x
+        return jax.jacfwd(self.h)(x), self.h(x)

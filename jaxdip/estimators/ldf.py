@@ -10,26 +10,12 @@ encoders read them) and its derivative state at zero.
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from jaxdip.engine.roles import Estimator, param
-from jaxdip.sim.component import Component
 from jaxdip.sim.discretize import zoh
-
-
-class LDFParams(NamedTuple):
-    omega: jnp.ndarray  # (p,) cut-off per measured position, rad/s
-    zeta: jnp.ndarray  # damping (scalar or (p,))
-
-
-def dip_ldf_params(cart_cutoff=100 * jnp.pi, angle_cutoff=20 * jnp.pi, zeta=0.9) -> LDFParams:
-    """The paper's settings: 100 pi rad/s for the cart, 20 pi rad/s for the angles, damping 0.9."""
-    return LDFParams(jnp.array([cart_cutoff, angle_cutoff, angle_cutoff], dtype=jnp.float64),
-                     jnp.asarray(zeta, dtype=jnp.float64))
 
 
 def _discretise(w, zeta, dt):
@@ -39,30 +25,11 @@ def _discretise(w, zeta, dt):
     return d.Phi, d.W[:, 0]
 
 
-def ldf(n_pos: int, dt: float) -> Component:
-    """LDF for a plant whose state is [positions (n_pos), velocities (n_pos)] and whose first n_pos outputs are
-    the positions."""
-
-    def init(p: LDFParams, key, x0):
-        zeta = jnp.broadcast_to(p.zeta, p.omega.shape)
-        Phi, W = jax.vmap(lambda w, z: _discretise(w, z, dt))(p.omega, zeta)
-        filt = jnp.stack([x0[:n_pos], jnp.zeros(n_pos)], axis=1)  # (p, 2)
-        return (Phi, W, filt)
-
-    def step(p: LDFParams, state, inp, key, k):
-        Phi, W, filt = state
-        y = inp[0][:n_pos]
-        xhat = jnp.concatenate([y, filt[:, 1]])
-        filt = jnp.einsum("pij,pj->pi", Phi, filt) + W * y[:, None]
-        return (Phi, W, filt), xhat
-
-    return Component(init, step)
-
-
 class LDF(Estimator):
-    """The LDF as an engine estimator: ``LDFParams``' fields (``omega`` per measured position, ``zeta``), the
-    number of positions and the sample period static. ``aux`` is the filter state (position, derivative) per
-    channel. ``LDF.dip(dt)`` has the paper's settings."""
+    """The LDF for a plant whose state is [positions (n_pos), velocities (n_pos)] and whose first n_pos outputs
+    are the positions: a cut-off ``omega`` per measured position and a damping ``zeta`` (scalar or per
+    position); the number of positions and the sample period static. ``aux`` is the filter state (position,
+    derivative) per channel. ``LDF.dip(dt)`` has the paper's settings."""
 
     omega: jax.Array = param()
     zeta: jax.Array = param()
@@ -71,11 +38,19 @@ class LDF(Estimator):
 
     @classmethod
     def dip(cls, dt: float, cart_cutoff=100 * jnp.pi, angle_cutoff=20 * jnp.pi, zeta=0.9) -> "LDF":
-        return cls(*dip_ldf_params(cart_cutoff, angle_cutoff, zeta), n_pos=3, dt=dt)
+        """The paper's settings: 100 pi rad/s for the cart, 20 pi rad/s for the angles, damping 0.9."""
+        return cls(jnp.array([cart_cutoff, angle_cutoff, angle_cutoff], dtype=jnp.float64),
+                   jnp.asarray(zeta, dtype=jnp.float64), n_pos=3, dt=dt)
 
     def init(self, key, x0):
-        return ldf(self.n_pos, self.dt).init(self, key, x0)
+        zeta = jnp.broadcast_to(self.zeta, self.omega.shape)
+        Phi, W = jax.vmap(lambda w, z: _discretise(w, z, self.dt))(self.omega, zeta)
+        filt = jnp.stack([x0[:self.n_pos], jnp.zeros(self.n_pos)], axis=1)  # (p, 2)
+        return (Phi, W, filt)
 
     def step(self, state, y, u_prev, key, k):
-        state, xhat = ldf(self.n_pos, self.dt).step(self, state, (y, u_prev), key, k)
-        return state, xhat, state[2]
+        Phi, W, filt = state
+        y = y[:self.n_pos]
+        xhat = jnp.concatenate([y, filt[:, 1]])
+        filt = jnp.einsum("pij,pj->pi", Phi, filt) + W * y[:, None]
+        return (Phi, W, filt), xhat, filt

@@ -21,14 +21,13 @@ of a reference size equals the HOMD's (the HOMD's rise time depends on the step 
 from __future__ import annotations
 
 from functools import partial
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxdip.estimators import homd
-from jaxdip.estimators.continuous import SampledObserver, sampled_observer
+from jaxdip.estimators.continuous import SampledObserver
 from jaxdip.plants import rwp
 
 
@@ -61,17 +60,7 @@ def decoupled_gain(p: rwp.RWP, lp1, lp2, lr1, lr2):
     ])
 
 
-class LuenbergerParams(NamedTuple):
-    L: jnp.ndarray  # (4, 2)
-    model: rwp.RWP
-
-
-def luenberger_params(L, model: rwp.RWP | None = None) -> LuenbergerParams:
-    model = rwp.RWP() if model is None else model
-    return LuenbergerParams(jnp.asarray(L, dtype=jnp.float64), model)
-
-
-def luenberger_rhs(params: LuenbergerParams, xi, y, u):
+def luenberger_rhs(params, xi, y, u):
     A, B, C = full_linear_model(params.model)
     return A @ xi + B[:, 0] * u[0] + params.L @ (y - C @ xi)
 
@@ -84,11 +73,6 @@ def _init_from_y(params, y):
 def _out(params, xi, y):
     # law (8): measured angle, estimated velocities
     return jnp.stack([y[0], xi[1], xi[2], xi[3]])
-
-
-def rwp_luenberger(dt: float, substeps: int = 10, hold: str = "foh"):
-    """(9) as a loop estimator: input y = [theta, theta_r], output [y_theta, θ̂', θ̂_r, θ̂_r']."""
-    return sampled_observer(luenberger_rhs, _init_from_y, _out, 4, 2, dt, substeps, hold)
 
 
 # ---- rise-time matching ----------------------------------------------------------------------------------
@@ -149,8 +133,8 @@ def matched_gain(p: rwp.RWP, pend: homd.HOMDGains, wheel: homd.HOMDGains, v_ref_
 
 
 class LuenbergerObserver(SampledObserver):
-    """(9) as an engine estimator (``rwp_luenberger`` with ``LuenbergerParams``' fields); build with
-    ``LuenbergerObserver.of(luenberger_params(...), dt, substeps=..., hold=...)``."""
+    """(9) as an engine estimator: input y = [theta, theta_r], output [y_theta, θ̂', θ̂_r, θ̂_r']; gain ``L``
+    (4, 2) and the observer's ``model``. Build with ``LuenbergerObserver.build(dt, L, model, substeps=..., ...)``."""
 
     L: jnp.ndarray = None
     model: rwp.RWP = None
@@ -161,5 +145,5 @@ class LuenbergerObserver(SampledObserver):
     n_xi, n_y = 4, 2
 
     @classmethod
-    def of(cls, params: LuenbergerParams, dt: float, **kw) -> "LuenbergerObserver":
-        return cls(dt, *params, **kw)
+    def build(cls, dt: float, L, model: rwp.RWP | None = None, **kw) -> "LuenbergerObserver":
+        return cls(dt, jnp.asarray(L, dtype=jnp.float64), homd.observer_model(model), **kw)

@@ -34,13 +34,15 @@ there, which would be the proximal step of gamma^2; see ``jaxdip.estimators.cpx`
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import NamedTuple
+
+import equinox as eqx
 
 import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
-from jaxdip.sim.component import Component
+from jaxdip.engine.roles import Estimator, param
 
 # ---- the proximal step --------------------------------------------------------------------------------
 
@@ -230,15 +232,7 @@ def ls_mhe_filter(gamma, Phis, Ws, us, Cs, ys, xhat0, N: int, method: str = "qr"
     return MHETrace(xhat=jnp.concatenate([jnp.asarray(xhat0, Phis.dtype)[None], xs]), p=ps)
 
 
-# ---- online component (LTI model) -----------------------------------------------------------------------
-
-
-class LSMHEParams(NamedTuple):
-    gamma: Any  # proximal weight
-    Phi: jnp.ndarray  # (d, d)
-    W: jnp.ndarray  # (d, m)
-    C: jnp.ndarray  # (p, d)
-    xhat0: jnp.ndarray  # (d,) initial estimate (ignored when the component starts from the true state)
+# ---- online estimator (LTI model) -----------------------------------------------------------------------
 
 
 class LSMHEState(NamedTuple):
@@ -250,53 +244,61 @@ class LSMHEState(NamedTuple):
     xhat: jnp.ndarray  # current estimate
 
 
-def ls_mhe(N: int, output: str = "current", from_truth: bool = False) -> Component:
-    """Online LS proximal MHE of horizon N for an LTI model, as an init/step component.
+class LSMHEAux(NamedTuple):
+    xhat: jax.Array  # xhat_j (the output)
+    ahead: jax.Array  # Phi xhat_j + W u_{j-1}, the estimate for the next sample with the input held
+
+
+class LeastSquaresMHE(Estimator):
+    """Online LS proximal MHE of horizon N for an LTI model (``Phi``, ``W``, ``C``; weight ``gamma``).
 
     At sample j (inputs y_j and u_{j-1}) the window starts at x_{j-N} and holds y_{j-N+1} .. y_j. The proximal
-    point p_{j-N} is propagated with the model and the buffered inputs to the current estimate xhat_j; the
-    prior for the next window is xhat_{j-N+1} = Phi p + W u_{j-N}. Until N outputs have arrived the estimate is
-    propagated by the model only. ``output``: "current" returns xhat_j, "prediction" returns
-    Phi xhat_j + W u_{j-1} (the input held), the estimate for the next sample.
+    point p_{j-N} is propagated with the model and the buffered inputs to the current estimate xhat_j (the
+    output); the prior for the next window is xhat_{j-N+1} = Phi p + W u_{j-N}. Until N outputs have arrived the
+    estimate is propagated by the model only. ``aux`` is an ``LSMHEAux``; ``Ahead`` hands out its prediction.
     """
-    if N < 1:
-        raise ValueError(f"horizon N must be >= 1, got {N}")
-    if output not in ("current", "prediction"):
-        raise ValueError(f"output must be 'current' or 'prediction', got {output!r}")
 
-    def init(params: LSMHEParams, key, x0):
-        G = lti_horizon_matrix(params.Phi, params.C, N)
-        QT, R = qr_factor(G, params.gamma)
-        x_init = jnp.asarray(x0 if from_truth else params.xhat0, dtype=params.Phi.dtype)
-        p_dim, m = params.C.shape[0], params.W.shape[1]
-        return LSMHEState(QT, R, x_init, jnp.zeros((N, p_dim)), jnp.zeros((N, m)), x_init)
+    gamma: jax.Array = param()
+    Phi: jax.Array = param()
+    W: jax.Array = param()
+    C: jax.Array = param()
+    xhat0: jax.Array = param()
+    N: int = eqx.field(static=True)
 
-    def step(params: LSMHEParams, st: LSMHEState, inp, key, k):
-        y, u_prev = inp
-        u_prev = jnp.reshape(u_prev, (params.W.shape[1],))
+    def __check_init__(self):
+        if self.N < 1:
+            raise ValueError(f"horizon N must be >= 1, got {self.N}")
+
+    def init(self, key, x0):
+        G = lti_horizon_matrix(self.Phi, self.C, self.N)
+        QT, R = qr_factor(G, self.gamma)
+        x_init = jnp.asarray(self.xhat0, dtype=self.Phi.dtype)
+        p_dim, m = self.C.shape[0], self.W.shape[1]
+        return LSMHEState(QT, R, x_init, jnp.zeros((self.N, p_dim)), jnp.zeros((self.N, m)), x_init)
+
+    def step(self, state, y, u_prev, key, k):
+        st, N, Phi, W, C = state, self.N, self.Phi, self.W, self.C
+        u_prev = jnp.reshape(u_prev, (W.shape[1],))
         ybuf = jnp.concatenate([st.ybuf[1:], y[None]])
         ubuf = jnp.concatenate([st.ubuf[1:], u_prev[None]])
-        d = params.Phi.shape[0]
+        d = Phi.shape[0]
         # measurement vector: y_{j-N+i} minus the response to u_{j-N} .. u_{j-N+i-1}
-        Phis = jnp.broadcast_to(params.Phi, (N, d, d))
-        Ws = jnp.broadcast_to(params.W, (N,) + params.W.shape)
-        Cs = jnp.broadcast_to(params.C, (N,) + params.C.shape)
+        Phis = jnp.broadcast_to(Phi, (N, d, d))
+        Ws = jnp.broadcast_to(W, (N,) + W.shape)
+        Cs = jnp.broadcast_to(C, (N,) + C.shape)
         _, q = horizon_stack(Phis, Ws, ubuf, Cs, ybuf)
         full = k >= N
-        p = jnp.where(full, prox_from_qr(st.QT, st.R, q, st.xstart, params.gamma), st.xstart)
+        p = jnp.where(full, prox_from_qr(st.QT, st.R, q, st.xstart, self.gamma), st.xstart)
         # prior of the next window, then forward to the current time with the buffered inputs
-        xstart_next = params.Phi @ p + params.W @ ubuf[0]
+        xstart_next = Phi @ p + W @ ubuf[0]
 
         def fwd(x, u):
-            return params.Phi @ x + params.W @ u, None
+            return Phi @ x + W @ u, None
 
         x_cur, _ = jax.lax.scan(fwd, xstart_next, ubuf[1:])
         # before the first full window: plain model propagation from xhat_0
-        x_model = jnp.where(k == 0, st.xhat, params.Phi @ st.xhat + params.W @ u_prev)
+        x_model = jnp.where(k == 0, st.xhat, Phi @ st.xhat + W @ u_prev)
         xhat = jnp.where(full, x_cur, x_model)
         xstart = jnp.where(full, xstart_next, st.xstart)
         new = LSMHEState(st.QT, st.R, xstart, ybuf, ubuf, xhat)
-        out = xhat if output == "current" else params.Phi @ xhat + params.W @ u_prev
-        return new, out
-
-    return Component(init, step)
+        return new, xhat, LSMHEAux(xhat, Phi @ xhat + W @ u_prev)

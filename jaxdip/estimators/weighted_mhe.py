@@ -49,24 +49,9 @@ the predicted mean. The stacked matrix then changes every step and is factorised
 Constraints on every window state z_i: a box ``lower <= z_i <= upper`` and affine rows ``A_c z_i <= b_c``.
 In the unknown X of either form they are rows lo <= G X + c <= hi: the full form has G = I (box) and
 blockdiag(A_c) (affine), c = 0; the hard-model form has z_i = Phi^{i-a} z_a + s_i, so G stacks Phi^{i-a} and
-A_c Phi^{i-a}, and c (the input response s_i) changes every step. The proximal step is then the strictly convex QP
-min 1/2 X^T H X - g^T X subject to those rows, H = A^T A = R^T R, solved through its multipliers by a dual
-active-set method (Goldfarb and Idnani 1983): with K = H^{-1} G^T and M = G H^{-1} G^T (fixed for an LTI model:
-formed in ``init`` from the QR factor), a working set W of rows held at their bounds gives
-M_WW mu_W = G_W X_u + c_W - bound_W and X = X_u - K mu, X_u the unconstrained minimiser. Each iteration adds the
-most violated row; if a multiplier of the working set would change sign, the step stops where it reaches zero and
-that row leaves. Why this and not projected gradient, ADMM or a dual gradient step inside the proximal step:
-each iteration is an exact solve, so the answer satisfies the KKT conditions to rounding as soon as the working
-set is right, and the iteration count does not depend on the conditioning of H, which is poor here (Ww = Q^{-1}
-is large for a precise model); the others would need many iterations and a step or penalty tuned to that
-conditioning, and projecting onto a polyhedron is itself a QP. Why one row at a time and not the all-at-once
-primal-dual active-set update (every violated row in, every wrong-sign multiplier out) that suffices for a box:
-with affine rows that update can pick more rows than the window has freedom for, and it cycled to an infeasible
-point on the hard-model test problem (3 unknowns, 25 rows, some repeated). Dependent rows are handled by the
-guarded factor of M (a long finite step along the dependence; the ratio test then drops the blocking row). The
-cost is a Cholesky of the masked M per iteration, one iteration per row that becomes active. A fixed number of
-iterations (``box_iters``, default 2 x rows + 2) keeps it a static program under jit/vmap (and reverse-mode
-differentiable); ``aux.violation`` reports the KKT residual left (row infeasibility and wrong-sign multipliers).
+A_c Phi^{i-a}, and c (the input response s_i) changes every step. The proximal step is then a strictly convex QP, solved by the dual active-set method of
+``jaxdip.estimators.active_set`` (why that method: its docstring). A fixed number of iterations (``box_iters``,
+default 2 x rows + 2) keeps it a static program under jit/vmap; ``aux.violation`` reports the KKT residual left.
 
 The filtered prior is propagated from the *unconstrained* window estimate. Feeding the constrained estimates
 back instead biases the arrival cost towards the interior of the box whenever the truth sits on a bound (every
@@ -86,7 +71,7 @@ import jax.scipy.linalg as jsl
 import numpy as np
 
 from jaxdip.engine.roles import Estimator, param
-from jaxdip.estimators.kalman import _guarded_cho_factor
+from jaxdip.estimators.active_set import dual_active_set
 from jaxdip.sim.discretize import Discrete
 
 
@@ -101,7 +86,8 @@ class WMHEState(NamedTuple):
 
 
 class WMHEAux(NamedTuple):
-    xhat: jax.Array  # current estimate x_j (the output may be the prediction)
+    xhat: jax.Array  # current estimate x_j (the output)
+    ahead: jax.Array  # Phi x_j + W u_{j-1}, the prediction with the input held (``Ahead``)
     violation: jax.Array  # KKT residual of the constrained step (0 unconstrained or converged)
 
 
@@ -137,8 +123,7 @@ class WeightedMHE(Estimator):
     ``meas_weight`` (p, p), ``arrival_weight`` (d, d), ``proc_weight`` (d, d) or None (hard model), ``gamma``
     the proximal scale; ``lower``/``upper`` (d,) box on every window state (``inf`` for none), ``A_c`` (r, d)
     and ``b_c`` (r,) affine constraints A_c z_i <= b_c on every window state; ``box_iters`` active-set
-    iterations for either. ``N`` and the
-    anchor ``a`` are static. Output: "current" (x_j) or "prediction" (Phi x_j + W u_{j-1}, as CPX). ``prior``:
+    iterations for either. ``N`` and the anchor ``a`` are static. Output: x_j (``Ahead`` hands out Phi x_j + W u_{j-1}, as for CPX). ``prior``:
     "smoothed" or "filtered" (see the module docstring); ``h(x)`` replaces ``C`` by a nonlinear output map
     (static, compared by identity); ``window_sqrt`` weighs the hard-model window residual as a whole (SCPX).
     Constructors for the usual cases: ``from_noise`` (Gaussian weights) and ``scpx``.
@@ -155,8 +140,6 @@ class WeightedMHE(Estimator):
     upper: jax.Array = param()
     N: int = eqx.field(static=True)
     anchor: int = eqx.field(static=True)
-    output: str = eqx.field(static=True)
-    from_truth: bool = eqx.field(static=True)
     A_c: Optional[jax.Array]
     b_c: Optional[jax.Array]
     box: bool = eqx.field(static=True)
@@ -167,14 +150,12 @@ class WeightedMHE(Estimator):
     window_sqrt: Optional[jax.Array]
 
     def __init__(self, model, C, meas_weight, arrival_weight, gamma=1.0, proc_weight=None, N: int = 2,
-                 anchor: int = 0, xhat0=None, lower=None, upper=None, output: str = "current",
-                 from_truth: bool = False, box_iters: Optional[int] = None, prior: str = "smoothed", h: Optional[Callable] = None,
+                 anchor: int = 0, xhat0=None, lower=None, upper=None, box_iters: Optional[int] = None,
+                 prior: str = "smoothed", h: Optional[Callable] = None,
                  window_sqrt=None, A_c=None, b_c=None):
         d = jnp.shape(model[0])[0]
         if not 0 <= anchor < N:
             raise ValueError(f"the anchor must satisfy 0 <= anchor < N = {N}, got {anchor}")
-        if output not in ("current", "prediction"):
-            raise ValueError(f"output must be 'current' or 'prediction', got {output!r}")
         if prior not in ("smoothed", "filtered"):
             raise ValueError(f"prior must be 'smoothed' or 'filtered', got {prior!r}")
         self.prior = prior
@@ -200,7 +181,7 @@ class WeightedMHE(Estimator):
         self.b_c = None if b_c is None else jnp.atleast_1d(jnp.asarray(b_c, fl))
         if A_c is not None and (self.A_c.shape[1] != d or self.b_c.shape != (self.A_c.shape[0],)):
             raise ValueError(f"A_c must be (r, {d}) and b_c (r,), got {self.A_c.shape} and {self.b_c.shape}")
-        self.N, self.anchor, self.output, self.from_truth, self.box_iters = N, anchor, output, from_truth, box_iters
+        self.N, self.anchor, self.box_iters = N, anchor, box_iters
 
     @classmethod
     def from_noise(cls, model: Discrete, C, Q, R, N: int, arrival_cov=None, **kw) -> "WeightedMHE":
@@ -220,7 +201,7 @@ class WeightedMHE(Estimator):
 
     @classmethod
     def scpx(cls, model: Discrete, C, gamma, keep: int, **kw) -> "WeightedMHE":
-        """SCPX (``jaxdip.estimators.scpx``) as a weighted MHE: the hard-model centred window (N = 2, a = 1) with
+        """SCPX (``CPX(..., keep=p)``) as a weighted MHE: the hard-model centred window (N = 2, a = 1) with
         the window weight P = Ug_p Ug_p^T, the projector onto the ``keep`` leading left singular vectors of
         G = [C Phi^{-1}; C; C Phi]. Its square root Ug_p^T is ``window_sqrt``: 1/2 ||Ug_p^T (G z - q)||^2 has the
         proximal point (1.26) of the thesis (the components of z outside V_p keep the prior)."""
@@ -232,7 +213,6 @@ class WeightedMHE(Estimator):
         C = jnp.asarray(C, m.Phi.dtype)
         Ug = svd_factor(centered_matrix(lti_step(m.Phi, m.Phi_inv, m.W), C)).Ug
         d, p = m.Phi.shape[0], C.shape[0]
-        kw.setdefault("output", "prediction")
         return cls(m, C, jnp.eye(p), jnp.eye(d), gamma, N=2, anchor=1, window_sqrt=Ug[:, :keep].T, **kw)
 
     # ---- the stacked problem --------------------------------------------------------------------------------
@@ -340,68 +320,17 @@ class WeightedMHE(Estimator):
         return jsl.solve_triangular(R, V, lower=False), V.T @ V
 
     def constrained_solve(self, R, X_u, KM, c):
-        """Dual active-set iterations (Goldfarb and Idnani) for min 1/2 X^T H X - g^T X subject to
-        lo <= G X + c <= hi, from the unconstrained minimiser X_u = H^{-1} g (module docstring). ``KM``:
-        (H^{-1} G^T, G H^{-1} G^T) from ``_constraint_factor(R)``. Returns (X, KKT residual)."""
+        """The proximal step under the window constraints (``active_set.dual_active_set``): returns (X, KKT
+        residual). ``KM``: (H^{-1} G^T, G H^{-1} G^T) from ``_constraint_factor(R)``."""
         G, lo, hi = self.constraint_matrix()
-        K, M = KM
-        s_u = G @ X_u + c
-        n_rows = s_u.shape[0]
-        dM = jnp.diag(M)
-        dM = jnp.where(dM > 0, dM, 1.0)
-        idx = jnp.arange(n_rows)
-        fin = lambda v: jnp.where(jnp.isfinite(v), v, 0.0)
-        bound_scale = jnp.abs(fin(lo)) + jnp.abs(fin(hi)) + jnp.abs(s_u)
-
-        def it(_, carry):
-            mu, act, side, pend = carry  # signed multipliers (> 0 at an upper bound), working set, pending row
-            s = s_u - M @ mu  # G X + c at X = X_u - K mu
-            over, under = s - hi, lo - s
-            viol = jnp.maximum(over, under)
-            tol = 1e-11 * (bound_scale + jnp.abs(M @ mu)) + jnp.finfo(s.dtype).tiny
-            cand = ~act & (viol > tol)
-            # the most violated row in the H^{-1} metric (its distance to the bound over the row's norm)
-            j_new = jnp.argmax(jnp.where(cand, viol / jnp.sqrt(dM), -jnp.inf))
-            pend = jnp.where(pend >= 0, pend, jnp.where(jnp.any(cand), j_new, -1))
-            idle = pend < 0
-            is_p = (idx == pend) & ~idle
-            side2 = jnp.where(is_p, jnp.where(over[jnp.maximum(pend, 0)] > 0, 1.0, -1.0), side)
-            A2 = act | is_p
-            target = jnp.where(A2, jnp.where(side2 > 0, fin(hi), fin(lo)), 0.0)
-            rhs = jnp.where(A2, s_u - target, 0.0)
-            Mm = jnp.where(A2[:, None] & A2[None, :], M, 0.0) + jnp.diag(jnp.where(A2, 0.0, dM))
-            # a pending row dependent on the working set makes Mm singular: the guarded factor then gives a long
-            # finite step along the dependence, and the ratio test below drops the row that blocks it
-            mu_full = jnp.where(A2, jsl.cho_solve(_guarded_cho_factor(Mm), rhs), 0.0)
-            wrong = act & (side * mu_full < 0)
-            ratio = jnp.where(wrong, mu / jnp.where(wrong, mu - mu_full, 1.0), jnp.inf)
-            k_drop = jnp.argmin(ratio)
-            partial = jnp.any(wrong)
-            t = jnp.where(partial, ratio[k_drop], 1.0)
-            mu_next = mu + t * (mu_full - mu)
-            act_next = jnp.where(partial, act & (idx != k_drop), A2)
-            mu_next = jnp.where(act_next | (is_p & partial), mu_next, 0.0)
-            pend_next = jnp.where(partial, pend, -1)
-            keep = lambda old, new: jnp.where(idle, old, new)
-            return keep(mu, mu_next), keep(act, act_next), keep(side, side2), keep(pend, pend_next)
-
-        init = (jnp.zeros_like(s_u), jnp.zeros(n_rows, bool), jnp.ones_like(s_u), jnp.array(-1))
-        iters = 2 * n_rows + 2 if self.box_iters is None else self.box_iters
-        mu, act, side, _ = jax.lax.fori_loop(0, iters, it, init)
-        X = X_u - K @ mu
-        s = G @ X + c
-        # KKT residual: feasibility of every row, and multipliers of the right sign on the working set
-        # (complementarity holds by construction: mu = 0 off it, its rows sit on their bounds)
-        gap = jnp.max(jnp.maximum(jnp.maximum(s - hi, lo - s), 0.0), initial=0.0)
-        g = R.T @ (R @ X_u)
-        wrong = jnp.max(jnp.where(act, jnp.maximum(-side * mu, 0.0), 0.0), initial=0.0)
-        return X, jnp.maximum(gap, wrong * jnp.max(jnp.abs(G)) / jnp.maximum(jnp.max(jnp.abs(g)), 1.0))
+        iters = 2 * G.shape[0] + 2 if self.box_iters is None else self.box_iters
+        return dual_active_set(G, lo, hi, *KM, R, X_u, c, iters)
 
     # ---- the engine protocol -------------------------------------------------------------------------------
 
     def init(self, key, x0):
         d, p, m = self._dims
-        x = jnp.asarray(x0 if self.from_truth else self.xhat0, dtype=jnp.result_type(float))
+        x = jnp.asarray(self.xhat0, dtype=jnp.result_type(float))
         if self.h is None:
             Qm, R = jnp.linalg.qr(self.stacked_matrix(), mode="reduced")
             # the unconstrained estimate is linear in b: X = R^{-1} Q^T b, one matrix-vector product a step
@@ -466,5 +395,5 @@ class WeightedMHE(Estimator):
         xbar = jnp.where(full, Phi @ z_a + W @ ubuf[a],
                          jnp.where(k - N + a >= 0, Phi @ state.xbar + W @ ubuf[a], state.xbar))
         violation = jnp.where(full, violation, 0.0)
-        out = xcur if self.output == "current" else Phi @ xcur + W @ u_prev
-        return WMHEState(state.factor, xbar, ybuf, ubuf, xcur, pbuf, xchain), out, WMHEAux(xcur, violation)
+        aux = WMHEAux(xcur, Phi @ xcur + W @ u_prev, violation)
+        return WMHEState(state.factor, xbar, ybuf, ubuf, xcur, pbuf, xchain), xcur, aux

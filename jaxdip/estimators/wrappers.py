@@ -1,41 +1,103 @@
-"""Estimator wrappers that change when or from where an estimator starts, not what it computes.
+"""When an estimator's output is taken and where it starts: wrappers, the one mechanism for both.
 
-``InitialError(inner, std)``: the estimator starts from x0 + std * N(0, I) (x0 the true initial state), drawn
-from its init key; ``inner`` must start from the x0 it is given (``from_truth=True``). Estimators that receive
-the same init key (the members of a ``FanOut``) therefore start from the same perturbed estimate.
+An estimator computes its current estimate (its output) and starts from its own ``xhat0`` field (estimators
+without one start from what they read: the LDF from the measured positions, the continuous observers from y_0).
+The wrappers change that, never what the estimator computes:
 
-``Delayed(inner)``: the output at sample j is the inner estimator's output at j - 1 (at j = 0: the initial
-estimate). For a predictor whose output at j is its estimate of x_{j+1}, the delayed output at j is its
-estimate of x_j made one sample earlier, the quantity to compare with x_j.
+Where it starts (``init`` replaces ``xhat0`` of the innermost estimator that has one):
+  ``FromTruth(inner)``         from x0, the true initial state handed to ``init``;
+  ``InitialError(inner, std)`` from x0 + std * N(0, I), drawn from the init key. Estimators that receive the same
+                               init key (the members of a ``FanOut``) start from the same perturbed estimate.
+
+When its output is taken (at sample j, which brings y_j and u_{j-1}):
+  ``Prior(inner)``   x_{j|j-1}, the one-step prediction made with u_{j-1} before y_j (``aux.prior`` of the
+                     Kalman-type filters; their starting estimate at j = 0);
+  ``Ahead(inner)``   x_{j+1|j}, the prediction of the next state with the input u_{j-1} held (``aux.ahead`` of the
+                     proximal MHEs): what a controller computing u_j should act on;
+  ``Delayed(inner)`` the inner output of sample j - 1 (at j = 0: the x0 given to ``init``). For a predictor whose
+                     output at j is its estimate of x_{j+1}, the delayed output at j is its estimate of x_j made
+                     one sample earlier, the quantity to compare with x_j;
+  ``DelayedMeasurement(inner, y_init)`` the inner estimator fed y_{j-1} instead of y_j (``y_init`` at j = 0).
+
+Every wrapper's ``aux`` is ``inner``'s aux of the current sample.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from jaxdip.engine.roles import Estimator, param
 
 
+def started_at(est, x):
+    """``est`` with the ``xhat0`` of its innermost estimator that has one replaced by ``x``."""
+    if hasattr(est, "xhat0"):
+        return eqx.tree_at(lambda e: e.xhat0, est, x)
+    if hasattr(est, "inner"):
+        return eqx.tree_at(lambda e: e.inner, est, started_at(est.inner, x))
+    raise TypeError(f"{type(est).__name__} has no starting estimate xhat0 to set")
+
+
+class FromTruth(Estimator):
+    """``inner`` started from the true initial state x0."""
+
+    inner: Any
+
+    def init(self, key, x0):
+        x0 = jnp.asarray(x0, dtype=jnp.result_type(float))
+        return started_at(self.inner, x0).init(key, x0)
+
+    def step(self, state, y, u_prev, key, k):
+        return self.inner.step(state, y, u_prev, key, k)
+
+
 class InitialError(Estimator):
-    """``inner`` started from x0 + std * N(0, I) drawn from the init key; ``aux`` is ``inner``'s aux."""
+    """``inner`` started from x0 + std * N(0, I) drawn from the init key."""
 
     inner: Any
     std: jax.Array = param()
 
     def init(self, key, x0):
         x0 = jnp.asarray(x0, dtype=jnp.result_type(float))
-        return self.inner.init(key, x0 + self.std * jax.random.normal(key, x0.shape))
+        x = x0 + self.std * jax.random.normal(key, x0.shape)
+        return started_at(self.inner, x).init(key, x)
 
     def step(self, state, y, u_prev, key, k):
         return self.inner.step(state, y, u_prev, key, k)
 
 
+class Prior(Estimator):
+    """The output of ``inner`` is its one-step prediction x_{j|j-1} (``aux.prior``)."""
+
+    inner: Any
+
+    def init(self, key, x0):
+        return self.inner.init(key, x0)
+
+    def step(self, state, y, u_prev, key, k):
+        state, _, aux = self.inner.step(state, y, u_prev, key, k)
+        return state, aux.prior, aux
+
+
+class Ahead(Estimator):
+    """The output of ``inner`` is its prediction of the next state with the input held (``aux.ahead``)."""
+
+    inner: Any
+
+    def init(self, key, x0):
+        return self.inner.init(key, x0)
+
+    def step(self, state, y, u_prev, key, k):
+        state, _, aux = self.inner.step(state, y, u_prev, key, k)
+        return state, aux.ahead, aux
+
+
 class Delayed(Estimator):
-    """The output of ``inner`` held for one sample; the initial output is the x0 given to ``init``.
-    ``aux`` is ``inner``'s aux of the current sample."""
+    """The output of ``inner`` held for one sample; the initial output is the x0 given to ``init``."""
 
     inner: Any
 
@@ -47,3 +109,18 @@ class Delayed(Estimator):
         inner_state, held = state
         inner_state, out, aux = self.inner.step(inner_state, y, u_prev, key, k)
         return (inner_state, out), held, aux
+
+
+class DelayedMeasurement(Estimator):
+    """``inner`` fed the previous sample's measurement: y_{j-1} at sample j, ``y_init`` at j = 0."""
+
+    inner: Any
+    y_init: jax.Array = param()
+
+    def init(self, key, x0):
+        return self.inner.init(key, x0), self.y_init
+
+    def step(self, state, y, u_prev, key, k):
+        inner_state, y_prev = state
+        inner_state, out, aux = self.inner.step(inner_state, y_prev, u_prev, key, k)
+        return (inner_state, jnp.asarray(y, jnp.float64)), out, aux

@@ -8,7 +8,7 @@ name) and R computes u_k; the plant receives u_k plus an input disturbance (a pe
 noise, ``jaxdip.sim.disturbance``).
 
 CPX is ``jaxdip.estimators.CPX`` on the ZOH discretisation of the model's linearisation at upright, x_hat_0 = 0
-(as in the paper). What it hands the controller is, by default, its one-step model prediction (see
+(as in the paper). What it hands the controller is, by default, its one-step model prediction (``Ahead``, see
 ``jaxdip.estimators.cpx``); ``cpx_output = "current"`` hands x^_k instead. Its ``gamma`` is a leaf, so a sweep or
 a gradient over it reuses one compiled loop. The LDF hands the measured positions and the filtered derivatives.
 """
@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxdip as jd
-from jaxdip.estimators import CPX, LDF
+from jaxdip.estimators import CPX, LDF, Ahead
 from jaxdip.plants import dip
 from jaxdip.plants.dip_friction import CartFriction
 from jaxdip.sim import dip_sensors
@@ -44,7 +44,8 @@ def estimation_error(s: jd.Sample):
 
 def gamma_leaf(r: jd.Rollout):
     """Where CPX's gamma sits in a rollout of this scenario (for ``monte_carlo(sweep=...)`` and tuning)."""
-    return r.loop.estimator.gamma
+    e = r.loop.estimator
+    return (e.inner if isinstance(e, Ahead) else e).gamma
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,12 +116,13 @@ class DipCpxLdf:
         plant = self.plant() if plant is None else plant
         return jd.zoh(*jd.linearize(plant), self.dt), dip_sensors.output_matrix(plant.state_names)
 
-    def cpx(self, gamma=None, output: Optional[str] = None) -> CPX:
+    def cpx(self, gamma=None, output: Optional[str] = None):
         """CPX at the configured gamma (through the ``cpx_weight`` reading), or at the proximal weight
         ``gamma`` when one is given."""
         model, C = self.model()
         g = self.effective_gamma(self.cpx_gamma) if gamma is None else gamma
-        return CPX(gamma=g, model=model, C=C, xhat0=jnp.zeros(6), output=output or self.cpx_output)
+        cpx = CPX(gamma=g, model=model, C=C, xhat0=jnp.zeros(6))
+        return Ahead(cpx) if (output or self.cpx_output) == "prediction" else cpx
 
     def ldf(self) -> LDF:
         return LDF.dip(self.dt, self.ldf_cart_cutoff, self.ldf_angle_cutoff, self.ldf_zeta)

@@ -5,17 +5,17 @@ with C measuring (yL, zL), eps ~ N(0, sigma_eps^2 I); after every sample the sta
 N(0, sigma_eta^2 I). The truth starts at x0_mean + x0_std N(0, I); every estimator starts from the same
 xhat_0 = x_0 + init_error_std N(0, I) (``InitialError``; the EKFs' P_0 = init_error_std^2 I).
 
-The four estimators sit in one ``FanOut``. CPX and SCPX hand out the model prediction of the next state; they
-are wrapped in ``Delayed`` so that their output at sample k is the prediction of x_k made at k - 1 (the
+The four estimators sit in one ``FanOut``. CPX and SCPX hand out the model prediction of the next state
+(``Ahead``); they are wrapped in ``Delayed`` so that their output at sample k is the prediction of x_k made at k - 1 (the
 thesis's xtilde_{k+2} = Phi xhat_{k+1} compared with the state it predicts), and their current estimates
-xhat_k come out as aux. The EKFs' outputs are their filtered estimates x+_k. Nothing is controlled
+xhat_k come out as ``aux.xhat``. The EKFs' outputs are their filtered estimates x+_k. Nothing is controlled
 (``ConstantInput`` of zero); the EKF is the nominal driver of the FanOut.
 
 ``alignment`` picks the time alignment the four are scored on:
   "mixed"       (default, as above) CPX/SCPX: the delayed prediction of x_k; EKFs: the filtered x+_k;
   "filtered"    every method's estimate of x_k from y_0 .. y_k: CPX/SCPX their current xhat_k, EKFs x+_k;
   "prediction"  every method's one-step prediction of x_k made at k - 1: CPX/SCPX as in "mixed", EKFs their
-                prior x-_k.
+                prior x-_k (``Prior``).
 The estimators compute the same numbers in every alignment; only what is compared with x_k changes.
 
 Random streams (the experiment's convention, kept by ``MHEKeys``): trial key sk; x0 from fold_in(sk, 0), the
@@ -36,7 +36,7 @@ from jaxdip.engine import Gaussian, KeySchedule, Loop, Rollout, param
 from jaxdip.engine.metrics import Reducer
 from jaxdip.estimators.cpx import LinearizedCPX
 from jaxdip.estimators.kf import ExtendedKalmanFilter
-from jaxdip.estimators.wrappers import Delayed, InitialError
+from jaxdip.estimators.wrappers import Ahead, Delayed, InitialError, Prior
 from jaxdip.engine.roles import FanOut
 from jaxdip.plants import lorenz
 from jaxdip.plants.lorenz import Lorenz
@@ -90,7 +90,7 @@ class TrackingErrors(Reducer):
         err = jnp.stack([est.xhat[n] for n in self.names]) - x
         norm = jnp.sqrt(jnp.sum(err**2, axis=1))
         xl = jnp.abs(err[:, self.component])
-        cur = jnp.stack([est.aux[n] for n in self.current]) - x if self.current else jnp.zeros((0, x.shape[0]))
+        cur = jnp.stack([est.aux[n].xhat for n in self.current]) - x if self.current else jnp.zeros((0, x.shape[0]))
         norm_cur = jnp.sqrt(jnp.sum(cur**2, axis=1))
         xl_cur = jnp.abs(cur[:, self.component])
         bad = ~jnp.isfinite(norm) | (norm > self.bound)
@@ -141,17 +141,13 @@ def build(*, h: float = 0.001, steps: int, substeps: int = 1, sigma_eps: float =
         return InitialError(e, init_error_std)
 
     def cpx(gamma, keep):
-        if alignment == "filtered":
-            return start(LinearizedCPX(gamma, plant, Cm, z3, h=h, keep=keep, output="current", from_truth=True,
-                                       expm_squarings=expm_squarings))
-        return start(Delayed(LinearizedCPX(gamma, plant, Cm, z3, h=h, keep=keep, output="prediction",
-                                           from_truth=True, expm_squarings=expm_squarings)))
-
-    ekf_output = "prior" if alignment == "prediction" else "posterior"
+        e = LinearizedCPX(gamma, plant, Cm, z3, h=h, keep=keep, expm_squarings=expm_squarings)
+        return start(e if alignment == "filtered" else Delayed(Ahead(e)))
 
     def ekf(s_eta, s_eps):
-        return start(ExtendedKalmanFilter(plant, Cm, s_eta**2 * jnp.eye(3), s_eps**2 * jnp.eye(2), P0, z3, h=h,
-                                          from_truth=True, expm_squarings=expm_squarings, output=ekf_output))
+        e = ExtendedKalmanFilter(s_eta**2 * jnp.eye(3), s_eps**2 * jnp.eye(2), P0, z3, model=plant, dt=h, C=Cm,
+                                 expm_squarings=expm_squarings)
+        return start(Prior(e) if alignment == "prediction" else e)
 
     estimators = FanOut({"cpx": cpx(cpx_gamma, None), "scpx": cpx(scpx_gamma, scpx_p),
                          "ekf": ekf(ekf_sigma_eta, ekf_sigma_eps), "ekf2": ekf(ekf2_sigma_eta, ekf2_sigma_eps)},
@@ -171,6 +167,8 @@ def gamma_of(name: str):
     gradients: ``eqx.tree_at(gamma_of("cpx"), rollout, g)``)."""
     def where(r):
         e = r.loop.estimator.estimators[name].inner
-        return (e.inner if isinstance(e, Delayed) else e).gamma
+        while not isinstance(e, LinearizedCPX):
+            e = e.inner
+        return e.gamma
 
     return where

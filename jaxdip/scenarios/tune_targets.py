@@ -125,8 +125,8 @@ class RWPTarget(Target):
 
         self.dt = rwp.DT
         self.n_steps = int(round(cfg.duration / self.dt))
-        hp = homd.homd_params(pend=self.HOMD, wheel=self.HOMD)
-        est = bo.JointObserver.of(bo.joint_params(hp, self.L0), self.dt, substeps=self.OBSERVER_SUBSTEPS)
+        hp = homd.HOMDObserver.build(self.dt, pend=self.HOMD, wheel=self.HOMD, substeps=self.OBSERVER_SUBSTEPS)
+        est = bo.JointObserver.build(hp, self.L0)
         q = True if quantize is None else bool(quantize)
         kw = dict(steps=self.n_steps, theta0=self.THETA0, dt=self.dt, substeps=cfg.substeps, d=self.BIAS,
                   quantize=q)
@@ -141,7 +141,7 @@ class RWPTarget(Target):
     @staticmethod
     def _where(r):
         e = r.loop.estimator
-        return e.homd.pend.k1, e.homd.pend.k2, e.homd.pend.alpha, e.L0
+        return e.pend.k1, e.pend.k2, e.pend.alpha, e.L0
 
     scenario_leaves = {"x0": [lambda r: r.x0.theta0], "bias": [lambda r: r.loop.sensor.const_bias]}
 

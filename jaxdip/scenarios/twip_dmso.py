@@ -28,15 +28,18 @@ import numpy as np
 import jaxdip as jd
 from jaxdip.control.feedback import SaturatedFeedback
 from jaxdip.control.twip_lqr import TwipDesign, twip_dlqr
-from jaxdip.estimators.dmso import DMSO, DMSOAux, dmso_params, selection_matrix
+from jaxdip.estimators.dmso import DMSO, DMSOAux, selection_matrix
 from jaxdip.estimators.kf import KalmanFilter
+from jaxdip.estimators.wrappers import DelayedMeasurement, Prior
 from jaxdip.plants import twip
 from jaxdip.scenarios.twip_initial import Spread, exact_first
 from jaxdip.sim.twip_sensors import DEG, TwipSensors
 
 ESTIMATORS = ("dmso", "kf", "kf_posterior", "kf_printed")
 UNCERTAIN_ROWS = (1, 3)  # B_MSO (173): the x_dot and phi_dot rows
-KF_OUTPUT = {"kf": "prior", "kf_posterior": "posterior", "kf_printed": "delayed"}
+# how each KF reading is taken from the one filter: its prior (the DMSO's information), its posterior, or (170) as
+# printed, the update fed the previous sample's y (C xhat0 = 0 before the first)
+KF_READING = {"kf": Prior, "kf_posterior": lambda kf: kf, "kf_printed": lambda kf: DelayedMeasurement(kf, jnp.zeros(4))}
 
 
 def design(dt: float, lqr_Q=(10.0, 10.0, 1e-5, 1e-4), lqr_R=1000.0) -> TwipDesign:
@@ -54,12 +57,12 @@ def estimator(name: str, d: TwipDesign, *, dmso_K=(1.0, 1.0, 1.0, 1.0), dmso_gam
     """One of ``ESTIMATORS`` on the design's (F, G): the DMSO with K_MSO (174), Gamma (175), or the KF with the
     Q, R, P0 of (176)-(178); estimates start at zero."""
     if name == "dmso":
-        return DMSO.of(dmso_params(d.F, d.G, selection_matrix(4, UNCERTAIN_ROWS), K=_diag(dmso_K), Gamma=dmso_gamma,
-                                   basis_scale=basis_scale))
-    if name not in KF_OUTPUT:
+        return DMSO.thesis(d.F, d.G, selection_matrix(4, UNCERTAIN_ROWS), K=_diag(dmso_K), Gamma=dmso_gamma,
+                           basis_scale=basis_scale)
+    if name not in KF_READING:
         raise ValueError(f"unknown estimator {name!r}; choose one of {ESTIMATORS}")
-    return KalmanFilter(d.F, d.G, jnp.eye(4), jnp.asarray(_diag(kf_Q)), jnp.asarray(_diag(kf_R)),
-                        kf_P0 * jnp.eye(4), jnp.zeros(4), output=KF_OUTPUT[name])
+    return KF_READING[name](KalmanFilter(d.F, d.G, jnp.eye(4), jnp.asarray(_diag(kf_Q)), jnp.asarray(_diag(kf_R)),
+                                         kf_P0 * jnp.eye(4), jnp.zeros(4)))
 
 
 def sensors(dt: float, noisy: bool, *, tilt_var=4.0397e-6, tilt_bias_var=1.8929e-7, tilt_tau=2160.0,

@@ -24,13 +24,14 @@ import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
 from jaxdip.engine import effort
-from jaxdip.estimators.lgssm import log_likelihood
+from jaxdip.estimators.kf import KalmanFilter
+from jaxdip.estimators.recorded import log_likelihood
 from jaxdip.tune.transforms import unconstrained_spec, to_constrained, to_unconstrained
 from jaxdip.tune.tuner import TuneResult, tune
 
 
 class LGSSMModel(NamedTuple):
-    """x_0 ~ N(m0, P0), x_{k+1} = Phi x_k + W u_k + w, y_k = C x_k + v (see ``jaxdip.estimators.lgssm``)."""
+    """x_0 ~ N(m0, P0), x_{k+1} = Phi x_k + W u_k + w, y_k = C x_k + v (see ``jaxdip.estimators.recorded``)."""
 
     Phi: Any
     C: Any
@@ -54,7 +55,8 @@ def total_log_likelihood(model: LGSSMModel, ys, us=None) -> jax.Array:
     """sum_i log p(y^(i)) for ``ys`` (B, T, p) (and ``us`` (B, T, m)), vmapped over the sequences."""
 
     def one(y, u):
-        return log_likelihood(y, model.m0, model.P0, model.Q, model.R, Phi=model.Phi, C=model.C, W=model.W, us=u)
+        kf = KalmanFilter(model.Phi, model.W, model.C, model.Q, model.R, model.P0, model.m0)
+        return log_likelihood(kf, y, None if model.W is None else u)
 
     if us is None:
         return jnp.sum(jax.vmap(lambda y: one(y, None))(ys))

@@ -1,4 +1,4 @@
-"""Batch KF / RTS smoother / log-likelihood against the brute-force joint Gaussian of the whole sequence (NumPy),
+"""The offline KF / RTS smoother / log-likelihood (``jaxdip.estimators.recorded``) against the brute-force joint Gaussian of the whole sequence (NumPy),
 the EKF against a plain NumPy EKF with finite-difference Jacobians."""
 
 import numpy as np
@@ -8,7 +8,8 @@ from scipy.stats import multivariate_normal
 import jax
 import jax.numpy as jnp
 
-from jaxdip.estimators import lgssm
+from jaxdip.estimators.kf import ExtendedKalmanFilter, KalmanFilter
+from jaxdip.estimators.recorded import kalman_filter, log_likelihood, rts_smoother
 
 T, D, P, M = 6, 3, 2, 1
 
@@ -82,8 +83,8 @@ def _condition(mean, cov_X, Cb, Rb, ys, k, upto):
 @pytest.mark.parametrize("time_varying", [False, True])
 def test_filter_smoother_likelihood_equal_the_joint_gaussian(time_varying):
     mod, ys = _model(3, time_varying)
-    kw = dict(Phi=mod["Phi"], C=mod["C"], W=mod["W"], us=mod["us"])
-    sm = lgssm.rts_smoother(ys, mod["m0"], mod["P0"], mod["Q"], mod["R"], **kw)
+    kf = KalmanFilter(mod["Phi"], mod["W"], mod["C"], mod["Q"], mod["R"], mod["P0"], mod["m0"])
+    sm = rts_smoother(kf, ys, mod["us"])
     fi = sm.filtered
     mean, cov_X, Cb, Rb = _joint(mod)
     for k in range(T):
@@ -107,7 +108,7 @@ def test_singular_innovation_stays_finite():
     Phi = np.array([[1.0, 0.1], [0.0, 1.0]])
     C = np.array([[1.0, 0.0], [1.0, 0.0]])
     ys = np.tile(np.array([[0.3, 0.3]]), (5, 1))
-    sm = lgssm.rts_smoother(ys, np.zeros(2), np.eye(2), 1e-3 * np.eye(2), np.zeros((2, 2)), Phi=Phi, C=C)
+    sm = rts_smoother(KalmanFilter(Phi, None, C, 1e-3 * np.eye(2), np.zeros((2, 2)), np.eye(2), np.zeros(2)), ys)
     assert np.all(np.isfinite(sm.mean)) and np.all(np.isfinite(sm.cov))
     np.testing.assert_allclose(sm.filtered.mean[:, 0], 0.3, atol=1e-6)  # the exact reading is believed
 
@@ -148,7 +149,7 @@ def test_ekf_nonlinear_maps_against_numpy_ekf():
     us = rng.normal(size=(8, 1))
     m0, P0 = np.array([0.2, -0.1, 0.4]), 0.5 * np.eye(3)
     Q, R = 0.01 * np.eye(3), np.diag([0.1, 0.2])
-    fi = lgssm.kalman_filter(ys, m0, P0, Q, R, us=us, f=_f, h=_h)
+    fi = kalman_filter(ExtendedKalmanFilter(Q, R, P0, m0, f=_f, h=_h), ys, us)
     m_ref, P_ref, ll_ref = _numpy_ekf(ys, us, m0, P0, Q, R, _f, _h)
     # finite-difference Jacobians in the reference: agreement to their truncation error
     np.testing.assert_allclose(fi.mean, m_ref, atol=1e-7)
@@ -159,9 +160,9 @@ def test_ekf_nonlinear_maps_against_numpy_ekf():
 def test_ekf_with_linear_maps_is_the_kf():
     mod, ys = _model(5, False)
     Phi, W, C = (jnp.asarray(mod[k]) for k in ("Phi", "W", "C"))
-    kf = lgssm.rts_smoother(ys, mod["m0"], mod["P0"], mod["Q"], mod["R"], Phi=Phi, C=C, W=W, us=mod["us"])
-    ekf = lgssm.rts_smoother(ys, mod["m0"], mod["P0"], mod["Q"], mod["R"], us=mod["us"],
-                             f=lambda x, u: Phi @ x + W @ u, h=lambda x: C @ x)
+    kf = rts_smoother(KalmanFilter(Phi, W, C, mod["Q"], mod["R"], mod["P0"], mod["m0"]), ys, mod["us"])
+    ekf = rts_smoother(ExtendedKalmanFilter(mod["Q"], mod["R"], mod["P0"], mod["m0"], f=lambda x, u: Phi @ x + W @ u,
+                                            h=lambda x: C @ x), ys, mod["us"])
     for a, b in ((kf.mean, ekf.mean), (kf.cov, ekf.cov), (kf.filtered.log_likelihood, ekf.filtered.log_likelihood)):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
 
@@ -171,32 +172,10 @@ def test_likelihood_gradient_matches_finite_differences():
 
     @jax.jit
     def ll(log_q):
-        return lgssm.log_likelihood(ys, mod["m0"], mod["P0"], jnp.exp(log_q) * mod["Q"], mod["R"], Phi=mod["Phi"],
-                                    C=mod["C"], W=mod["W"], us=mod["us"])
+        kf = KalmanFilter(mod["Phi"], mod["W"], mod["C"], jnp.exp(log_q) * mod["Q"], mod["R"], mod["P0"], mod["m0"])
+        return log_likelihood(kf, ys, mod["us"])
 
     g = float(jax.jit(jax.grad(ll))(0.3))
     eps = 1e-5
     fd = (float(ll(0.3 + eps)) - float(ll(0.3 - eps))) / (2 * eps)
     assert abs(g - fd) < 1e-6 * max(1.0, abs(fd))
-
-
-def test_online_ekf_equals_the_batch_filter():
-    from jaxdip.estimators.ekf_online import NonlinearEKF
-
-    rng = np.random.default_rng(1)
-    ys = rng.normal(size=(8, 2))
-    us = rng.normal(size=(8, 1))
-    m0, P0 = np.array([0.2, -0.1, 0.4]), 0.5 * np.eye(3)
-    Q, R = 0.01 * np.eye(3), np.diag([0.1, 0.2])
-    ref = lgssm.kalman_filter(ys, m0, P0, Q, R, us=us, f=_f, h=_h)
-    ekf = NonlinearEKF(_h, Q, R, P0, m0, f=_f)
-
-    def body(st, inp):
-        y, u_prev, k = inp
-        st, x, P = ekf.step(st, y, u_prev, None, k)
-        return st, (x, P)
-
-    u_prev = np.concatenate([np.zeros((1, 1)), us[:-1]])  # sample k brings u_{k-1}
-    _, (xs, Ps) = jax.jit(lambda: jax.lax.scan(body, ekf.init(None, None), (ys, u_prev, jnp.arange(8))))()
-    np.testing.assert_allclose(xs, ref.mean, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(Ps, ref.cov, rtol=0, atol=1e-12)

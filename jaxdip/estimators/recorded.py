@@ -1,0 +1,112 @@
+"""Estimators over recorded data (open loop): one ``lax.scan`` of an estimator's own ``step``.
+
+``run`` feeds any engine ``Estimator`` the samples of a recorded sequence. The offline Gaussian filter, smoother
+and likelihood are that run for a Kalman-type estimator (``KalmanFilter``, ``ExtendedKalmanFilter``,
+``UnscentedKalmanFilter``), read from its ``aux`` (``jaxdip.estimators.kalman.GaussianAux``):
+
+    x_0 ~ N(xhat0, P0),   x_{k+1} = f(x_k, u_k) + w_k,   y_k = h(x_k) + v_k,
+
+(xhat0, P0) the prior of x_0 before y_0 is seen. ``kalman_filter`` returns the filtered moments x_k | y_0..k,
+the predicted ones x_k | y_0..k-1 and log p(y_0..T-1) = sum_k log N(y_k; yhat_k, S_k) (the prediction-error
+decomposition); ``rts_smoother`` adds x_k | y_0..T-1 (for a nonlinear transition the usual extended RTS
+smoother, with the transition Jacobians at the filtered means).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Optional
+
+import jax
+import jax.numpy as jnp
+
+from jaxdip.engine.roles import Estimator
+from jaxdip.estimators.kalman import smoother_gain, sym
+
+
+def run(est: Estimator, ys, us_prev, x0, key: Optional[jax.Array] = None):
+    """Feed samples j = 0..T-1 to ``est``: ``ys[j]`` = y_j and ``us_prev[j]`` = u_{j-1} (zeros for j = 0).
+
+    ``x0`` is what ``init`` receives as the true initial state (used by ``FromTruth``, ``InitialError`` and the
+    estimators that read it). Keys: ``fold_in(key, 0)`` at init, ``fold_in(key, j + 1)`` at sample j. Returns
+    (final state, outputs (T, ...), aux (T, ...)).
+    """
+    key = jax.random.PRNGKey(0) if key is None else key
+    state = est.init(jax.random.fold_in(key, 0), x0)
+    ys = jnp.asarray(ys)
+    us_prev = jnp.asarray(us_prev)
+
+    def body(st, inp):
+        j, y, u = inp
+        st, out, aux = est.step(st, y, u, jax.random.fold_in(key, j + 1), j)
+        return st, (out, aux)
+
+    js = jnp.arange(ys.shape[0], dtype=jnp.int32)
+    state, (outs, auxes) = jax.lax.scan(body, state, (js, ys, us_prev))
+    return state, outs, auxes
+
+
+def inputs_before(us, T: int, dtype=None):
+    """u_{j-1} for j = 0..T-1 from u_0..u_{T-1} (``us`` (T, m), or None for no input): zeros first."""
+    dtype = jnp.result_type(float) if dtype is None else dtype
+    if us is None:
+        return jnp.zeros((T, 1), dtype)
+    us = jnp.asarray(us, dtype).reshape(T, -1)
+    return jnp.concatenate([jnp.zeros_like(us[:1]), us[:-1]])
+
+
+class FilterResult(NamedTuple):
+    mean: jax.Array  # (T, d) E[x_k | y_0..k]
+    cov: jax.Array  # (T, d, d)
+    pred_mean: jax.Array  # (T, d) E[x_k | y_0..k-1] (pred_mean[0] = xhat0)
+    pred_cov: jax.Array  # (T, d, d)
+    log_likelihood: jax.Array  # () log p(y_0..T-1)
+    log_likelihood_terms: jax.Array  # (T,) log p(y_k | y_0..k-1)
+
+
+class SmootherResult(NamedTuple):
+    mean: jax.Array  # (T, d) E[x_k | y_0..T-1]
+    cov: jax.Array  # (T, d, d)
+    filtered: FilterResult
+
+
+def kalman_filter(est: Estimator, ys, us=None) -> FilterResult:
+    """The Kalman-type estimator ``est`` over a whole sequence ``ys`` (T, p); ``us[k]`` (T, m) drives
+    x_k -> x_{k+1} (None: no input)."""
+    ys = jnp.asarray(ys, dtype=jnp.result_type(float))
+    _, mean, aux = run(est, ys, inputs_before(us, ys.shape[0], ys.dtype), jnp.asarray(est.xhat0, ys.dtype))
+    ll = aux.log_likelihood
+    return FilterResult(mean, aux.cov, aux.prior, aux.prior_cov, jnp.sum(ll), ll)
+
+
+def log_likelihood(est: Estimator, ys, us=None) -> jax.Array:
+    """log p(y_0..T-1) of the model of ``est``."""
+    return kalman_filter(est, ys, us).log_likelihood
+
+
+def rts_smoother(est: Estimator, ys, us=None) -> SmootherResult:
+    """Rauch-Tung-Striebel smoother (extended for a nonlinear transition) after ``kalman_filter``:
+
+        G_k  = P_k F_k^T (P-_{k+1})^{-1}
+        ms_k = m_k + G_k (ms_{k+1} - m-_{k+1}),     Ps_k = P_k + G_k (Ps_{k+1} - P-_{k+1}) G_k^T.
+
+    ``est`` needs ``transition_jacobian(x, u, k)`` (the KF and the EKF have it).
+    """
+    filt = kalman_filter(est, ys, us)
+    T = filt.mean.shape[0]
+    us_ = jnp.zeros((T, 1), filt.mean.dtype) if us is None else jnp.asarray(us, filt.mean.dtype).reshape(T, -1)
+    Fs = jax.vmap(est.transition_jacobian)(filt.mean, us_, jnp.arange(T))
+
+    def body(carry, inp):
+        ms_next, Ps_next = carry
+        m, P, F, mp_next, Pp_next = inp
+        G = smoother_gain(P, F, Pp_next)
+        ms = m + G @ (ms_next - mp_next)
+        Ps = sym(P + G @ (Ps_next - Pp_next) @ G.T)
+        return (ms, Ps), (ms, Ps)
+
+    last = (filt.mean[-1], filt.cov[-1])
+    inputs = (filt.mean[:-1], filt.cov[:-1], Fs[:-1], filt.pred_mean[1:], filt.pred_cov[1:])
+    _, (ms, Ps) = jax.lax.scan(body, last, inputs, reverse=True)
+    ms = jnp.concatenate([ms, last[0][None]])
+    Ps = jnp.concatenate([Ps, last[1][None]])
+    return SmootherResult(ms, Ps, filt)
