@@ -147,7 +147,7 @@ def test_ekf_lorenz_matches_numpy():
     ys = np.array(ys)
     Q, R, P0 = 0.01 * np.eye(3), 25.0 * np.eye(2), np.eye(3)
     x0 = np.array([-7.0, 6.0, 28.0])
-    ekf = ExtendedKalmanFilter(Q, R, P0, x0, model=lorenz.Lorenz(*p), dt=h, C=C)
+    ekf = ExtendedKalmanFilter(Q, R, P0, x0, model=p, dt=h, C=C)
     _, out = jax.jit(lambda e: filter_run(e, ys, np.zeros((T, 1)), x0))(ekf)
     ref = np_ekf_lorenz(p, C, Q, R, P0, x0, ys, h)
     print(f"\nEKF (Lorenz) vs NumPy: rel {rel(out, ref):.1e}")
