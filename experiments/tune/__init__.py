@@ -23,7 +23,7 @@ Held-out scenarios. The tuning seeds run the target's nominal scenario; every he
 0.5 each; 0 everywhere gives the tuning scenario with new noise only, the behaviour before these keys). Which
 leaves each kind scales is the target's ``scenario_leaves``; a kind a target lacks is not drawn.
 
-The config is in ``tune_config``, the targets in ``jaxdip.scenarios.tune_targets`` and the scenario draw in
+The config is in ``experiments.tune.config``, the targets in ``jaxdip.scenarios.tune_targets`` and the scenario draw in
 ``jaxdip.scenarios.heldout``; this module runs and reports.
 """
 

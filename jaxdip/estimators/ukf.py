@@ -1,7 +1,7 @@
 """The unscented Kalman filter as an engine estimator (run over recorded data by ``jaxdip.estimators.recorded``).
 
-Model: x_0 ~ N(m0, P0), x_{k+1} = f(x_k, u_k) + w_k, y_k = h(x_k) + v_k, with
-w ~ N(0, Q), v ~ N(0, R); (m0, P0) is the prior of x_0 before y_0.
+Model: x_0 ~ N(xhat0, P0), x_{k+1} = f(x_k, u_k) + w_k, y_k = h(x_k) + v_k, with
+w ~ N(0, Q), v ~ N(0, R); (xhat0, P0) is the prior of x_0 before y_0.
 
 Sigma points (the scaled unscented transform of van der Merwe and Wan): for N(m, P) in d dimensions,
 lambda = alpha^2 (d + kappa) - d, points m and m +- sqrt(d + lambda) L_i (L the lower Cholesky factor of P, L_i its
