@@ -8,6 +8,9 @@ surrogate that a strict encoder refuses. Everything jaxdip echoes back goes thro
 
 from __future__ import annotations
 
+import difflib
+from typing import Iterable
+
 MAX_LINE = 300  # one error line, "error: " included
 
 
@@ -43,3 +46,26 @@ def clean(message: str, limit: int = MAX_LINE) -> str:
     if len(message) > 8 * limit:
         message = message[: 4 * limit] + " ... " + message[-2 * limit:]
     return shorten(escape(" ".join(message.split())), limit)
+
+
+def closest(word: str, choices: Iterable[str]) -> str | None:
+    """The one of ``choices`` that ``word`` most likely misspells, or None when none is close."""
+    close = difflib.get_close_matches(word, list(choices), n=1)
+    return close[0] if close else None
+
+
+def suggestion(word: str, choices: Iterable[str], known: str | None = "known") -> str:
+    """The hint after a name jaxdip does not know (an experiment id, a config key, a flag, a choice):
+    `` (did you mean 'x'?)`` for the closest of ``choices``, else `` (known: a, b, c)`` (nothing with
+    ``known=None``: for a message that lists the choices already). Every such refusal words its hint here, so a
+    user reads it the same way wherever the command line takes a name."""
+    choices = [str(c) for c in choices]
+    if isinstance(word, str) and (near := closest(word, choices)) is not None:
+        return f" (did you mean {shown(near)}?)"
+    return listing(choices, known) if known else ""
+
+
+def listing(choices: Iterable[str], known: str = "known") -> str:
+    """`` (known: a, b, c)``: the names there are, for a refusal that has no closest one to suggest."""
+    choices = [str(c) for c in choices]
+    return f" ({known}: {', '.join(choices)})" if choices else ""
