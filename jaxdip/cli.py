@@ -14,7 +14,7 @@ import numpy as np
 
 from jaxdip.cli_args import check_paths, parser, special_kind
 from jaxdip.cli_errors import emit, error, guarded, note, numerical, out_of_memory, riccati_keys, warn
-from jaxdip.messages import closest, listing, shown, suggestion
+from jaxdip.messages import listing, unknown
 from jaxdip.reproduce_pool import run_parallel
 
 
@@ -239,11 +239,8 @@ def cmd_reproduce(args, argv=None) -> int:
         ids = [i for i, _ in reg]
         if not want:
             return error("--only", f"no experiment given{listing(ids)}")
-        if unknown := [w for w in want if w not in ids]:
-            # each unknown id with its closest id; the whole list once, after them, when one has none
-            hints = [f"{shown(w)}{suggestion(w, ids, known=None)}" for w in unknown]
-            rest = "" if all(closest(w, ids) for w in unknown) else suggestion("", ids)
-            return error("--only", f"unknown experiment {', '.join(hints)}{rest}")
+        if missing := [w for w in want if w not in ids]:
+            return error("--only", unknown("experiment", missing, ids))
         reg = [(i, e) for i, e in reg if i in want]
     report_path = os.path.join(args.out, "REPORT.md")
     # every destination is checked before the first experiment compiles (with --distributed by process 0, the

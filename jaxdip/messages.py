@@ -4,6 +4,9 @@ A value from the command line or a config file can be 100,000 characters long or
 terminal would obey (colours, cursor moves, a title change); an undecodable byte in a path arrives as a lone
 surrogate that a strict encoder refuses. Everything jaxdip echoes back goes through ``shown`` (one value) or
 ``clean`` (a whole message).
+
+A name jaxdip does not know (an experiment id, a config key, a choice, a flag) is answered with the closest one
+it knows, ``(did you mean 'dip-lqr'?)``, else the list (``suggestion``, ``unknown``): one wording everywhere.
 """
 
 from __future__ import annotations
@@ -69,3 +72,12 @@ def listing(choices: Iterable[str], known: str = "known") -> str:
     """`` (known: a, b, c)``: the names there are, for a refusal that has no closest one to suggest."""
     choices = [str(c) for c in choices]
     return f" ({known}: {', '.join(choices)})" if choices else ""
+
+
+def unknown(what: str, names: Iterable[str], choices: Iterable[str]) -> str:
+    """``unknown <what> 'x' (did you mean 'y'?), 'z' (known: a, b)``: several unknown names (a comma list a
+    flag took), each with its closest choice, and the whole list once when one of them has none."""
+    names, choices = list(names), [str(c) for c in choices]
+    hints = [f"{shown(w)}{suggestion(w, choices, known=None)}" for w in names]
+    rest = "" if all(closest(w, choices) for w in names) else listing(choices)
+    return f"unknown {what} {', '.join(hints)}{rest}"

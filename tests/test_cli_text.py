@@ -97,6 +97,24 @@ def test_an_unknown_flag_far_from_all_points_at_its_command_help(capsys):
     assert capsys.readouterr().err.strip() == "error: --zzzzzz: unrecognized argument (see jaxdip run --help)"
 
 
+@pytest.mark.parametrize("module, given, near", [
+    ("dip", "contollers", "controllers"),
+    ("twip", "transient", "transients"),
+    ("lorenz_published_p", "lorenzz", "lorenz"),
+    ("integration_choice", "dip-controlers", "dip-controllers"),
+])
+def test_the_fidelity_scripts_only_suggests_too(capsys, module, given, near):
+    import importlib
+
+    main = importlib.import_module(f"experiments.fidelity.{module}").main
+    with pytest.raises(SystemExit) as e:
+        main(["--only", given])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.endswith(f"error: --only: unknown {'experiment' if module == 'integration_choice' else 'part'} "
+                        f"'{given}' (did you mean '{near}'?)"), err
+
+
 # ---- the scale of a quick run ----------------------------------------------------------------------------
 
 
