@@ -57,6 +57,8 @@ def _value(v, unit: str = "") -> str:
 def quick_changes(exp, cfg) -> list[tuple[str, Any, Any]]:
     """(key, this run's value, the full run's default) for every key of ``exp.quick`` whose value in ``cfg``
     (the resolved config) differs from the config class's default: what makes this run smaller."""
+    if not exp.quick or not dataclasses.is_dataclass(cfg):  # a config without quick overrides has one scale
+        return []
     full = _flat(dataclasses.asdict(exp.config_cls()))
     used = _flat(dataclasses.asdict(cfg))
     return [(k, used[k], full[k]) for k in _flat(exp.quick) if k in used and used[k] != full.get(k)]
@@ -82,7 +84,7 @@ def scale_line(exp, cfg, kind: str) -> str:
     for key, v, d in quick_changes(exp, cfg):
         unit = _unit(_field_doc(exp.config_cls, key))
         parts.append(f"{key} {_value(v, unit)} (full run: {_value(d, unit)})")
-    what, why = (("Quick scale** (the `--quick` overrides)", "smaller") if kind == QUICK
-                 else ("Changed scale**", "different"))
-    return (f"**{what}: {', '.join(parts)}. Its numbers differ from the full run's (`jaxdip run {exp.id}`) "
+    head, why = (("**Quick scale** (the `--quick` overrides)", "smaller") if kind == QUICK
+                 else ("**Changed scale**", "different"))
+    return (f"{head}: {', '.join(parts)}. Its numbers differ from the full run's (`jaxdip run {exp.id}`) "
             f"because of the {why} scale.")
