@@ -1,4 +1,4 @@
-"""Command line: ``jaxdip list | run <id> | bench | reproduce``."""
+"""Command line: ``jaxdip list | run <id> | config [<id>] | bench | reproduce`` (the parser: ``cli_args``)."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ import numpy as np
 
 from jaxdip.cli_args import check_paths, parser, special_kind
 from jaxdip.cli_errors import emit, error, guarded, note, numerical, out_of_memory, riccati_keys, warn
+from jaxdip.messages import listing, unknown
 from jaxdip.reproduce_pool import run_parallel
 
 
@@ -196,7 +197,8 @@ def cmd_run(args, argv=None) -> int:
             level = _effort(args, exp)
             ckpt = run_context(exp, cfg, out, compile_effort=level).checkpoint_path
             metrics = run_experiment(exp, cfg, out, resume=args.resume, force=args.force,
-                                     flag_keys=flags, stop_requested=sig.requested, compile_effort=level)
+                                     flag_keys=flags, stop_requested=sig.requested, compile_effort=level,
+                                     quick=args.quick)
         except (ConfigError, OutputError, ResultError) as e:
             return error(e.key, e.why)
         except CheckpointError as e:
@@ -234,10 +236,11 @@ def cmd_reproduce(args, argv=None) -> int:
         reg = [(i, e) for i, e in reg if e.reproduce]
     else:
         want = [w.strip() for w in args.only.split(",") if w.strip()]
-        unknown = [w for w in want if w not in dict(reg)]
-        if unknown or not want:
-            return error("--only", f"unknown experiment {', '.join(unknown) or '(none given)'}; "
-                                   f"choose from {', '.join(i for i, _ in reg)}")
+        ids = [i for i, _ in reg]
+        if not want:
+            return error("--only", f"no experiment given{listing(ids)}")
+        if missing := [w for w in want if w not in ids]:
+            return error("--only", unknown("experiment", missing, ids))
         reg = [(i, e) for i, e in reg if i in want]
     report_path = os.path.join(args.out, "REPORT.md")
     # every destination is checked before the first experiment compiles (with --distributed by process 0, the
@@ -292,7 +295,7 @@ def cmd_reproduce(args, argv=None) -> int:
                     if main:
                         print(f"== {exp_id}", file=sys.stderr)
                     run_experiment(exp, cfgs[exp_id], out, force=args.force, stop_requested=sig.requested,
-                                   compile_effort=_effort(args, exp))
+                                   compile_effort=_effort(args, exp), quick=args.quick)
                     collect(exp_id, exp)
             except (ConfigError, OutputError) as e:
                 return error(e.key, e.why)
@@ -365,7 +368,7 @@ def main(argv=None) -> int:
 
     def command() -> int:
         try:
-            args = parser(__doc__).parse_args(argv)
+            args = parser().parse_args(argv)
         except SystemExit as e:
             return int(e.code or 0)
         return _command(args, argv)

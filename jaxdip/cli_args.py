@@ -14,7 +14,7 @@ import re
 
 from jaxdip.cli_errors import error
 from jaxdip.distributed import DEFAULT_TIMEOUT_S, MAX_TIMEOUT_S
-from jaxdip.messages import shown
+from jaxdip.messages import shown, suggestion
 from jaxdip.reproduce_pool import MAX_JOBS
 
 
@@ -22,7 +22,30 @@ PATH_MAX, NAME_MAX = 4096, 255  # Linux's limits, the strictest of the common sy
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse with the project's one-line errors: ``error: <flag>: <why>`` and exit 2, no usage block."""
+    """argparse with the project's one-line errors: ``error: <flag>: <why>`` and exit 2, no usage block; a
+    misspelt command, choice or flag gets the closest one suggested (``messages.suggestion``)."""
+
+    commands: dict[str, argparse.ArgumentParser] | None = None  # the top-level parser's subcommands
+
+    def _check_value(self, action, value):
+        # argparse's own wording ("invalid choice: 'x' (choose from ...)") differs between Python versions and
+        # suggests nothing before 3.14; this is the one place it checks a value against a choice list
+        if action.choices is not None and value not in action.choices:
+            raise argparse.ArgumentError(action, f"invalid choice {shown(value)}{suggestion(value, action.choices)}")
+
+    def parse_args(self, args=None, namespace=None):
+        # a subcommand's parser hands the arguments it does not know up to this one: it is the subcommand's
+        # flags that a misspelt one is closest to
+        ns, extras = self.parse_known_args(args, namespace)
+        if extras:
+            command = getattr(ns, "cmd", None)
+            sub = (self.commands or {}).get(command, self)
+            flags = [f for f in sub._option_string_actions if f.startswith("--")]  # argparse has no public list
+            first = next((e for e in extras if e.startswith("-")), None)
+            hint = suggestion(first.split("=", 1)[0], flags, known=None) if first else ""
+            see = f"jaxdip {command} --help" if sub is not self else "jaxdip --help"
+            raise SystemExit(error(" ".join(extras), f"unrecognized argument{hint or f' (see {see})'}"))
+        return ns
 
     def error(self, message: str):
         message = " ".join(message.split())
@@ -31,10 +54,8 @@ class Parser(argparse.ArgumentParser):
             key, why = m.group(1).split("/")[0], m.group(2)
         elif m := re.match(r"the following arguments are required: (.*)", message):
             key, why = m.group(1), "required"
-        elif m := re.match(r"unrecognized arguments: (.*)", message):
-            # the top-level parser reports these too, and its prog is already "jaxdip"
-            command = " ".join(self.prog.split()[1:])
-            key, why = m.group(1), f"unrecognized argument (see jaxdip {command + ' ' if command else ''}--help)"
+        elif m := re.match(r"unrecognized arguments: (.*)", message):  # parse_args reports them first
+            key, why = m.group(1), "unrecognized argument (see jaxdip --help)"
         raise SystemExit(error(key, why))
 
 
@@ -62,13 +83,25 @@ def _seconds(text: str) -> float:
     return s
 
 
-def parser(description: str = "") -> Parser:
+DESCRIPTION = ("Run the experiments of jaxdip (differentiable estimation and control of pendulums in JAX): list "
+               "them, run one, print their configs, time the closed loop, or reproduce them all into one report. "
+               "'jaxdip COMMAND --help' describes a command.")
+
+
+def _command(sub, name: str, what: str) -> Parser:
+    """A subcommand whose one-line summary is also its own --help's description."""
+    return sub.add_parser(name, help=what, description=what[0].upper() + what[1:] + ".")
+
+
+def parser(description: str = DESCRIPTION) -> Parser:
+    """The command line's parser. Every help text is plain text (no markup: a terminal shows it as written) and
+    the usage line names every command."""
     p = Parser(prog="jaxdip", description=description)
     sub = p.add_subparsers(dest="cmd", metavar="command", required=True, parser_class=Parser)
-    sub.add_parser("list", help="print the experiment ids, one a line")
+    _command(sub, "list", "print the experiment ids, one a line")
 
-    r = sub.add_parser("run", help="run one experiment")
-    r.add_argument("id")
+    r = _command(sub, "run", "run one experiment")
+    r.add_argument("id", help="the experiment (jaxdip list prints the ids)")
     r.add_argument("--config", help="TOML file overriding the defaults")
     r.add_argument("--seeds", type=_whole, help="number of Monte Carlo seeds")
     r.add_argument("--out", help="output folder (default results/<id>)")
@@ -78,26 +111,28 @@ def parser(description: str = "") -> Parser:
     r.add_argument("--force", action="store_true",
                    help="replace a jaxdip result folder of another experiment (a user's files are never replaced)")
 
-    c = sub.add_parser("config", help="print an experiment's default config as TOML, or write every one's")
-    c.add_argument("id", nargs="?")
+    c = _command(sub, "config", "print an experiment's default config as TOML, or write every one's")
+    c.add_argument("id", nargs="?", help="the experiment (jaxdip list prints the ids)")
     c.add_argument("--write", metavar="DIR",
                    help="write DIR/<id>.toml for every experiment (the repository's configs/), replacing only files "
                         "this command wrote")
 
-    b = sub.add_parser("bench", help="closed-loop throughput against a plain NumPy loop")
-    b.add_argument("--quick", action="store_true")
-    b.add_argument("--out", default="bench.json")
+    b = _command(sub, "bench", "closed-loop throughput against a plain NumPy loop")
+    b.add_argument("--quick", action="store_true", help="fewer seeds and steps")
+    b.add_argument("--out", default="bench.json", help="the JSON file written (default bench.json)")
 
-    rp = sub.add_parser("reproduce", help="run every registered experiment and write one combined report")
-    rp.add_argument("--quick", action="store_true")
-    rp.add_argument("--out", default="results")
+    rp = _command(sub, "reproduce", "run every registered experiment and write one combined report")
+    rp.add_argument("--quick", action="store_true",
+                    help="every experiment's reduced run: few seeds, short horizon (each report says what changed)")
+    rp.add_argument("--out", default="results", help="output folder: <out>/<id>/ and <out>/REPORT.md "
+                                                      "(default results)")
     rp.add_argument("--force", action="store_true", help="replace jaxdip result folders of other experiments")
     rp.add_argument("--jobs", type=_jobs, default=None,
                     help="experiments run side by side in worker processes (default: one per CPU core, "
                          f"at most 2; at most {MAX_JOBS}; compilation is single-threaded, so a second job uses the "
                          "idle core)")
     rp.add_argument("--only", default=None, metavar="ID,ID", help="run these experiments only (default: every "
-                    "experiment but the fidelity readings' supporting runs, which `jaxdip list` marks)")
+                    "experiment but the fidelity readings' supporting runs, which jaxdip list marks)")
     for q in (r, rp):
         q.add_argument("--compile-effort", choices=("fast", "balanced", "full"), default=None,
                        help="how hard XLA optimises the compiled programs: fast compiles in about half the time "
@@ -118,6 +153,9 @@ def parser(description: str = "") -> Parser:
         d.add_argument("--connect-timeout", metavar="SECONDS", type=_seconds, default=None,
                        help=f"how long to wait for the coordinator and the other processes (default "
                             f"{DEFAULT_TIMEOUT_S:g}); Ctrl-C stops the wait")
+    # argparse's usage shows the metavar "command"; the names themselves say what there is to run
+    p.usage = "%(prog)s [-h] {" + ",".join(sub.choices) + "} ..."
+    p.commands = dict(sub.choices)
     return p
 
 

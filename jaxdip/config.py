@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import difflib
 import math
 import os
 import stat
@@ -27,7 +26,7 @@ from typing import Any
 import tomllib
 
 from jaxdip.config_toml import documented_toml, to_toml  # noqa: F401  (part of this module's interface)
-from jaxdip.messages import shown
+from jaxdip.messages import shown, suggestion
 
 INT_MAX = 2**63 - 1
 INT_MIN = -(2**63)
@@ -77,7 +76,7 @@ def nonneg_finite(v):
 def one_of(*choices):
     def check(v):
         if v not in choices:
-            return f"must be one of {', '.join(map(repr, choices))}"
+            return f"must be one of {', '.join(map(repr, choices))}{suggestion(v, choices, known=None)}"
 
     return check
 
@@ -163,9 +162,7 @@ def from_dict(cls, data: dict, prefix: str = ""):
     unknown = [k for k in data if k not in fields]
     if unknown:
         k = unknown[0]
-        close = difflib.get_close_matches(k, fields, n=1)
-        hint = f" (did you mean {close[0]!r}?)" if close else f" (known keys: {', '.join(fields)})"
-        raise ConfigError(prefix + k, "unknown key" + hint)
+        raise ConfigError(prefix + k, "unknown key" + suggestion(k, fields, "known keys"))
     kwargs = {}
     for name, f in fields.items():
         key = prefix + name
@@ -328,9 +325,10 @@ def _run_table(data: dict) -> dict:
         raise ConfigError(RUN_TABLE, "must be a table")
     for k, v in run.items():
         if k != "compile_effort":
-            raise ConfigError(f"{RUN_TABLE}.{k}", "unknown key (known: compile_effort)")
+            raise ConfigError(f"{RUN_TABLE}.{k}", "unknown key" + suggestion(k, ["compile_effort"], "known keys"))
         if v not in EFFORTS:
-            raise ConfigError(f"{RUN_TABLE}.{k}", f"must be one of {', '.join(EFFORTS)}")
+            raise ConfigError(f"{RUN_TABLE}.{k}", f"must be one of {', '.join(EFFORTS)}"
+                                                  + suggestion(v, EFFORTS, known=None))
     return run
 
 

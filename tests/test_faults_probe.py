@@ -124,7 +124,8 @@ def test_probe_refusal(tmp_path, monkeypatch, capsys, name, argv, setup, key):
 
 
 def test_unknown_flag_names_the_right_help(capsys):
-    """The top-level parser reports a subcommand's unknown flag; its hint used to read "jaxdip jaxdip --help"."""
+    """The top-level parser reports a subcommand's unknown flag; its hint used to read "jaxdip jaxdip --help",
+    and names the subcommand's help now."""
     assert cli.main(["run", "dip-lqr", "--" + "z" * 100_000]) == 2
     line = one_line(capsys.readouterr().err)
-    assert "jaxdip jaxdip" not in line and line.endswith("(see jaxdip --help)"), line
+    assert "jaxdip jaxdip" not in line and line.endswith("(see jaxdip run --help)"), line

@@ -27,6 +27,7 @@ import sys
 import tempfile
 
 import jaxdip  # noqa: F401  (float64)
+from jaxdip.messages import listing, unknown
 from experiments.fidelity.dip_search import eki, eki_nonlinear
 from experiments.fidelity.dip_tables import controllers, cpx_ldf, cpx_ldf_notes
 from experiments.fidelity.dip_theory import theory
@@ -47,7 +48,7 @@ def main(argv=None) -> int:
     parts = [p.strip() for p in args.only.split(",") if p.strip()]
     bad = [p for p in parts if p not in PARTS]
     if bad or not parts:
-        ap.error(f"--only: unknown part(s) {bad or parts}; choose from {', '.join(PARTS)}")
+        ap.error(f"--only: {unknown('part', bad, PARTS)}" if bad else f"--only: no part given{listing(PARTS)}")
     if args.seeds < 2:
         ap.error("--seeds: must be at least 2")
     os.makedirs(args.docs, exist_ok=True)

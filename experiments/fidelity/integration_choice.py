@@ -26,6 +26,7 @@ import sys
 import tempfile
 import tomllib
 
+from jaxdip.messages import unknown
 from experiments.fidelity.runs import ROOT, command, run
 
 # experiment -> [(config key, candidate value, what it means)]
@@ -122,7 +123,7 @@ def main(argv=None) -> int:
     ids = [i for i in args.only.split(",") if i]
     bad = [i for i in ids if i not in CANDIDATES]
     if bad:
-        ap.error(f"--only: unknown {bad}; choose from {', '.join(CANDIDATES)}")
+        ap.error(f"--only: {unknown('experiment', bad, CANDIDATES)}")
     rows = json.load(open(args.out)) if os.path.exists(args.out) else []
     rows = [r for r in rows if r["experiment"] not in ids]
     work = tempfile.mkdtemp(prefix="jaxdip-integration-")

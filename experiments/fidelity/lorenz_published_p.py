@@ -30,6 +30,7 @@ import tempfile
 from dataclasses import replace
 
 import jaxdip  # noqa: F401  (float64)
+from jaxdip.messages import listing, unknown
 from experiments.fidelity.runs import ROOT, command as _cmd, run as _run
 
 METHODS = ("cpx", "scpx", "ekf", "ekf2")
@@ -328,7 +329,8 @@ def main(argv=None) -> int:
     parts = [p.strip() for p in args.only.split(",") if p.strip()]
     bad = [p for p in parts if p not in ("lorenz", "published_p")]
     if bad or not parts:
-        ap.error(f"--only: unknown part(s) {bad or parts}; choose from lorenz, published_p")
+        ap.error(f"--only: {unknown('part', bad, ['lorenz', 'published_p'])}" if bad
+                 else f"--only: no part given{listing(['lorenz', 'published_p'])}")
     if args.seeds < 1:
         ap.error("--seeds: must be positive")
     os.makedirs(args.docs, exist_ok=True)

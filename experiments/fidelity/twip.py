@@ -31,6 +31,7 @@ import sys
 import tempfile
 
 import jaxdip  # noqa: F401  (float64)
+from jaxdip.messages import listing, unknown
 from experiments.fidelity.runs import ROOT
 from experiments.fidelity.rwp import rwp, rwp_fig3
 from experiments.fidelity.twip_fig_8_18 import fig_8_18
@@ -71,7 +72,7 @@ def main(argv=None) -> int:
     parts = [p.strip() for p in args.only.split(",") if p.strip()]
     bad = [p for p in parts if p not in PARTS]
     if bad or not parts:
-        ap.error(f"--only: unknown part(s) {bad or parts}; choose from {', '.join(PARTS)}")
+        ap.error(f"--only: {unknown('part', bad, PARTS)}" if bad else f"--only: no part given{listing(PARTS)}")
     if args.seeds < 2 or args.dmso_seeds < 2:
         ap.error("--seeds / --dmso-seeds: need at least 2 for an interval")
     os.makedirs(args.docs, exist_ok=True)

@@ -8,10 +8,10 @@ the runner, which finds them at run time as a plugin host finds its plugins. doc
 
 from __future__ import annotations
 
-import difflib
 import importlib
 import pkgutil
 
+from jaxdip.messages import suggestion
 from jaxdip.runner.experiment import Experiment
 
 PACKAGE = "experiments"
@@ -57,7 +57,5 @@ def get(exp_id: str, package: str = PACKAGE) -> Experiment:
     """The experiment ``exp_id``; a ``KeyError`` naming the closest id, or every id, when there is none."""
     reg = registry(package)
     if exp_id not in reg:
-        close = difflib.get_close_matches(exp_id, reg, n=1)
-        hint = f" (did you mean {close[0]!r}?)" if close else f" (known: {', '.join(sorted(reg))})"
-        raise KeyError(f"{exp_id}: unknown experiment{hint}")
+        raise KeyError(f"{exp_id}: unknown experiment{suggestion(exp_id, sorted(reg))}")
     return reg[exp_id]

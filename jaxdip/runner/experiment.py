@@ -27,6 +27,7 @@ from jaxdip import config as cfgmod
 from jaxdip import distributed, outdir, resources
 from jaxdip.engine import effort
 from jaxdip.runner.results import ResultError, check_writable, drop_missing
+from jaxdip.runner.scale import scale, scale_line
 
 
 @dataclass
@@ -208,7 +209,7 @@ def _difference(theirs: dict, ours: dict) -> str:
 
 def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, force: bool = False,
                    flag_keys: dict[str, str] | None = None, stop_requested: Callable[[], bool] | None = None,
-                   compile_effort: str = "full") -> dict:
+                   compile_effort: str = "full", quick: bool = False) -> dict:
     """Run an experiment with a validated config and write its folder; returns metrics.json's content.
 
     Raises ``ConfigError`` (resources), ``outdir.OutputError`` (destination) or ``CheckpointError`` (``resume``
@@ -219,7 +220,9 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
     complete, if this run wrote it or resumed from it. ``stop_requested``
     is asked once more before the folder is moved into place, so an interrupt that a library swallowed still
     leaves no folder behind. ``compile_effort``: how hard XLA optimises the programs (``jaxdip.engine.effort``;
-    results agree across levels to the last bits), recorded in the provenance.
+    results agree across levels to the last bits), recorded in the provenance. ``quick``: ``cfg`` holds the
+    experiment's ``--quick`` overrides; metrics.json's ``scale`` and the report's first line say so
+    (``runner.scale``).
     """
     import matplotlib
 
@@ -252,16 +255,19 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
             kept = _keep_unwritable(out_dir, exp.id, outcome) if main else None
             raise ResultError(e.key, f"{e.why}; nothing replaced" + (f"; results kept in {kept}" if kept else "")) from None
         seeds = getattr(cfg, "seeds", 1)
-        metrics = {**provenance(exp.id, seeds, wall, compile_effort), "results": outcome.results, "timing": outcome.timing}
+        kind = scale(exp, cfg, quick)
+        metrics = {**provenance(exp.id, seeds, wall, compile_effort), "scale": kind, "results": outcome.results,
+                   "timing": outcome.timing}
         if not main:
             for fig in outcome.figures.values():
                 plt.close(fig)
             return metrics
         where = f"{metrics['devices']} device(s)" + (
             f" in {metrics['processes']} processes" if "processes" in metrics else "")
+        line = scale_line(exp, cfg, kind)  # first, so a quick report is never read as the full run's numbers
         header = (
-            f"# {exp.id}: {exp.title}\n\n"
-            f"Reproduces: {exp.source}. Seeds: {seeds}; {metrics['dtype']} on {metrics['backend']} "
+            f"# {exp.id}: {exp.title}\n\n" + (f"{line}\n\n" if line else "")
+            + f"Reproduces: {exp.source}. Seeds: {seeds}; {metrics['dtype']} on {metrics['backend']} "
             f"({where}), JAX {metrics['jax_version']}; wall time {wall:.1f} s.\n\n"
         )
         tmp = staging.tmp
