@@ -23,8 +23,8 @@ from jaxdip.cli_errors import error, note
 
 MAX_JOBS = 64  # far beyond the experiments there are; a larger --jobs is a typo, not a plan
 
-# cold --quick wall times (s) of each experiment in the parallel reproduce on a 2-core CPU, at the quick compile
-# efforts (rwp-bias estimated at balanced from its run alone): the parallel reproduce starts the long ones first
+# cold --quick wall times (s) of each experiment in the parallel reproduce on a 2-core CPU, when the quick compile
+# effort was chosen per experiment (their order has not changed since): the parallel reproduce starts the long ones first
 QUICK_COST = {"ifn-protection": 37, "eki-dip": 25, "tune": 18, "rwp-bias": 18, "dip-cpx-ldf": 15,
               "lorenz-mhe": 14, "dip-controllers": 13, "twip-dmso": 10, "eki-linear": 9, "eki-nonlinear": 7,
               "twip-extra-control": 6, "dip-lqr": 2}

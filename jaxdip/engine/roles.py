@@ -30,7 +30,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from jaxdip.engine import effort
 
 
 def _as_float_array(v):
@@ -123,7 +122,7 @@ def _discrete_map(plant, x, u):
     return plant.step(x, u)
 
 
-@effort.filter_jit
+@eqx.filter_jit
 def _jacobians(plant, x, u):
     # x and u are arguments, not constants made inside: XLA would fold them and round differently
     f = _vector_field if plant.continuous else _discrete_map

@@ -25,7 +25,6 @@ import jax
 from jaxdip import checkpoint
 from jaxdip import config as cfgmod
 from jaxdip import distributed, outdir, resources
-from jaxdip.engine import effort
 from jaxdip.experiments.common import ResultError, check_writable, drop_missing
 
 
@@ -77,10 +76,6 @@ class Experiment:
     # False for the supporting runs of the fidelity readings (docs/fidelity.md): `jaxdip run` and
     # `reproduce --only` run them, a plain `reproduce` (the headline reproduction) leaves them out
     reproduce: bool = True
-    # compile effort of a --quick run (jaxdip.engine.effort), measured per experiment: "fast" where compiling
-    # dominates the quick run, "balanced" where running the compiled code weighs too, "full" (XLA's default, and
-    # every full run's) where the results amplify the last bits in which the levels differ, or not measured
-    quick_effort: str = "full"
     # True for experiments whose run checkpoints (``RunContext``) and so can continue with --resume
     resumable: bool = False
 
@@ -215,7 +210,7 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
     passed to ``run``) and, with ``resume``, continue from there; the checkpoint is removed once the folder is
     complete, if this run wrote it or resumed from it. ``stop_requested``
     is asked once more before the folder is moved into place, so an interrupt that a library swallowed still
-    leaves no folder behind. ``compile_effort``: how hard XLA optimises the programs (``jaxdip.engine.effort``;
+    leaves no folder behind. ``compile_effort``: how hard XLA optimises the process's programs (``jaxdip.xla_flags``;
     results agree across levels to the last bits), recorded in the provenance.
     """
     import matplotlib
@@ -238,7 +233,7 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
         raise refused or outdir.OutputError("--out", f"process 0 cannot write {out_dir} (see its error)")
     try:
         t0 = time.perf_counter()
-        with effort.effort(compile_effort), checkpoint.owning(uuid.uuid4().hex, ctx.info) as owner:
+        with checkpoint.owning(uuid.uuid4().hex, ctx.info) as owner:
             outcome = exp.run(cfg, ctx)
         wall = time.perf_counter() - t0
         # a statistic over no seed is left out, never written as NaN or null; anything else non-finite is refused

@@ -8,10 +8,9 @@ import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
-from jaxdip.engine import effort
 
 
-@effort.jit(static_argnums=0)
+@jax.jit(static_argnums=0)
 def linearize(f, params, x0, u0):
     """(A, B) = (df/dx, df/du) at (x0, u0), by forward-mode autodiff.
 
@@ -31,7 +30,7 @@ class Discrete(NamedTuple):
     W: jnp.ndarray  # int_0^h e^{A s} ds B
 
 
-@effort.jit
+@jax.jit
 def zoh(A, B, h) -> Discrete:
     """Exact ZOH discretisation from one matrix exponential of the augmented matrix [[A, B], [0, 0]] h.
 
