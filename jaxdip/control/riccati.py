@@ -122,7 +122,7 @@ def _care(A, B, Q, R, sign_iters, newton_iters):
 
 # jitted once per shape: an eager fori_loop compiles its body anew at every call (experiments solve many
 # Riccati equations while they set up, and each eager solve cost ~0.5 s of compilation)
-@jax.jit(static_argnums=(4, 5))
+@partial(jax.jit, static_argnums=(4, 5))
 def _care_solve(A, B, Q, R, sign_iters, newton_iters):
     n = A.shape[0]
     G = B @ jnp.linalg.solve(R, B.T)
@@ -180,7 +180,7 @@ def dare_checked(A, B, Q, R, iters: int = 40, *, rtol: float = RTOL) -> tuple[ja
     return X, riccati_status(A, B, Q, R, X, discrete=True, rtol=rtol)
 
 
-@jax.jit(static_argnums=3)
+@partial(jax.jit, static_argnums=3)
 def _sda(A, G, Q, iters):
     I = jnp.eye(A.shape[0])
 
@@ -198,7 +198,7 @@ def _sda(A, G, Q, iters):
     return X
 
 
-@jax.jit(static_argnums=5)
+@partial(jax.jit, static_argnums=5)
 def _dare_regularised(A, B, Q, R, G, iters):
     # The doubling needs (Q, A) detectable as well: its dual iterate G_k diverges on an unobservable mode
     # outside the unit circle, although the stabilising X exists. Q + eps I is detectable, its stabilising

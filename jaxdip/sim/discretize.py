@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -10,7 +11,7 @@ import jax.scipy.linalg as jsl
 
 
 
-@jax.jit(static_argnums=0)
+@partial(jax.jit, static_argnums=0)
 def linearize(f, params, x0, u0):
     """(A, B) = (df/dx, df/du) at (x0, u0), by forward-mode autodiff.
 
