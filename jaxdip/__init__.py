@@ -9,7 +9,7 @@ The public namespace is flat (``import jaxdip as jd``): the engine (``jd.simulat
 subpackages ``jd.plants``, ``jd.sensors``, ``jd.estimators``, ``jd.control``. See docs/engine.md.
 """
 
-import importlib
+from importlib import import_module as _import_module
 
 import jax
 
@@ -35,9 +35,9 @@ __all__ = sorted([*_SUBMODULES, *_NAMES])
 
 def __getattr__(name: str):
     if name in _SUBMODULES:
-        value = importlib.import_module(_SUBMODULES[name])
+        value = _import_module(_SUBMODULES[name])
     elif name in _NAMES:
-        value = getattr(importlib.import_module(_NAMES[name]), name)
+        value = getattr(_import_module(_NAMES[name]), name)
     else:
         raise AttributeError(f"module 'jaxdip' has no attribute {name!r}")
     globals()[name] = value
