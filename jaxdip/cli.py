@@ -12,8 +12,8 @@ import time
 
 import numpy as np
 
-from jaxdip.cli_args import check_paths, parser, special_kind
 from jaxdip import xla_flags
+from jaxdip.cli_args import check_paths, parser, special_kind
 from jaxdip.cli_errors import emit, error, guarded, note, numerical, out_of_memory, riccati_keys, warn
 from jaxdip.reproduce_pool import run_parallel
 

@@ -210,7 +210,7 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
     passed to ``run``) and, with ``resume``, continue from there; the checkpoint is removed once the folder is
     complete, if this run wrote it or resumed from it. ``stop_requested``
     is asked once more before the folder is moved into place, so an interrupt that a library swallowed still
-    leaves no folder behind. ``compile_effort``: how hard XLA optimises the process's programs (``jaxdip.xla_flags``;
+    leaves no folder behind. ``compile_effort``: the level this process compiles at (``jaxdip.xla_flags.effort()``;
     results agree across levels to the last bits), recorded in the provenance.
     """
     import matplotlib
