@@ -347,6 +347,5 @@ EXPERIMENT = Experiment(
     run=run, quick={"seeds": 32, "ensemble": 8, "iterations": 4, "chunk": 2, "T": 1.0, "t_star": 0.5,
                     "grad_steps": 3, "grad_x0": 2, "eval_states": 8, "judge_duration": 2.0},
     source="thesis §3.2.1, Procedure 1, (2.20), (2.24)",
-    quick_effort="fast",  # compiling dominates its quick run (measured)
     resumable=True,
     quick_cost_s=25)

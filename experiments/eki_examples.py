@@ -322,13 +322,9 @@ class EkiNonlinearConfig(EkiExampleConfig):
 EXPERIMENTS = (
     Experiment(id="eki-linear", title="ensemble Kalman search for P, linear example of §2.7",
                     config_cls=EkiExampleConfig, run=run, quick={"seeds": 20, "iterations": 60},
-                    source="thesis §2.7.1, Fig. 2.1-2.2",
-                    # one search of 60 iterations amplifies the last bits in which the levels differ into
-                    # visibly different quick numbers (spectral radius 0.21 vs 0.14): keep XLA's default
-                    quick_effort="full", quick_cost_s=9),
+                    source="thesis §2.7.1, Fig. 2.1-2.2", quick_cost_s=9),
     Experiment(id="eki-nonlinear", title="ensemble Kalman search for P, nonlinear example of §2.7",
                     config_cls=EkiNonlinearConfig, run=run,
                     quick={"seeds": 10, "iterations": 80, "judge_states": 100},
-                    source="thesis §2.7.2, Fig. 2.3",
-                    quick_effort="fast", quick_cost_s=7),  # quick results moved by <= 1.3e-4 relative, well inside their spread
+                    source="thesis §2.7.2, Fig. 2.3", quick_cost_s=7),
 )

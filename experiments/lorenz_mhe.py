@@ -386,6 +386,5 @@ EXPERIMENT = Experiment(
     run=run,
     quick={"seeds": 16, "duration": 2.0},
     source="thesis §1.6 (Fig. 1.1-1.2): CPX gamma 0.5, SCPX gamma 50 p 2, EKF and EKF2",
-    quick_effort="balanced",  # cold + cached time measured lower than with "fast"
     quick_cost_s=14,
 )

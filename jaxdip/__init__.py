@@ -9,18 +9,40 @@ The public namespace is flat (``import jaxdip as jd``): the engine (``jd.simulat
 subpackages ``jd.plants``, ``jd.sensors``, ``jd.estimators``, ``jd.control``. See docs/engine.md.
 """
 
+from importlib import import_module as _import_module
+
 import jax
 
 jax.config.update("jax_enable_x64", True)
 
 __version__ = "0.1.0"
 
-from jaxdip import plants, sim  # noqa: E402,F401
-from jaxdip import control, estimators  # noqa: E402,F401
-from jaxdip.engine import (  # noqa: E402,F401
-    RESULTS, Actuator, Aux, Ball, Controller, DiscretePlant, Estimator, FanOut, FanOutAux, Identity, KeySchedule,
-    Loop, Passthrough, Plant, Rollout, Sample, Sensor, Solution, State, init_state, linearize,
-    metrics, monte_carlo, param, simulate, split_lanes,
-)
-from jaxdip.sim import sensors  # noqa: E402,F401
-from jaxdip.sim.discretize import Discrete, zoh  # noqa: E402,F401
+# The namespace is re-exported lazily (PEP 562): each name's module is imported on first use, so importing one part
+# of the library (the engine, jaxdip.xla_flags before JAX starts, the CLI's argument parser) imports no other, and
+# no module depends on the package root: the layers (docs/architecture.md) hold for the imports Python runs too.
+_SUBMODULES = {"control": "jaxdip.control", "engine": "jaxdip.engine", "estimators": "jaxdip.estimators",
+               "plants": "jaxdip.plants", "sim": "jaxdip.sim", "sensors": "jaxdip.sim.sensors"}
+_NAMES = {
+    **dict.fromkeys((
+        "RESULTS", "Actuator", "Aux", "Ball", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux",
+        "Identity", "KeySchedule", "Loop", "Passthrough", "Plant", "Rollout", "Sample",
+        "Sensor", "Solution", "State", "init_state", "linearize", "metrics", "monte_carlo", "param", "simulate",
+        "split_lanes"), "jaxdip.engine"),
+    "Discrete": "jaxdip.sim.discretize", "zoh": "jaxdip.sim.discretize",
+}
+__all__ = sorted([*_SUBMODULES, *_NAMES])
+
+
+def __getattr__(name: str):
+    if name in _SUBMODULES:
+        value = _import_module(_SUBMODULES[name])
+    elif name in _NAMES:
+        value = getattr(_import_module(_NAMES[name]), name)
+    else:
+        raise AttributeError(f"module 'jaxdip' has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 
+from jaxdip import xla_flags
 from jaxdip.cli_args import check_paths, parser, special_kind
 from jaxdip.cli_errors import emit, error, guarded, note, numerical, out_of_memory, riccati_keys, warn
 from jaxdip.messages import listing, unknown
@@ -27,8 +28,6 @@ def _use_all_cores(processes: int = 1):
     XLA reads the flag when the backend starts (first computation), so setting it here, before any array is
     made, is enough. A user's own XLA_FLAGS are left alone; worker processes inherit this one.
     """
-    from jaxdip import xla_flags
-
     cores = os.cpu_count() or 1
     n = max(1, cores // max(1, processes))
     # set even when it is 1: the workers' own `run` would otherwise take every core
@@ -163,15 +162,27 @@ def _interrupted(checkpoint: str | None, argv: list[str] | None) -> int:
     return 130
 
 
-def _effort(args, exp) -> str:
-    """The compile effort of a run: the flag's, else the config file's (a run's own config.toml records it),
-    else the experiment's quick-run level with --quick, else full."""
-    from jaxdip.config import run_table
+def _set_effort(args) -> int:
+    """Make the run's compile effort the process's, before JAX starts (``jaxdip.xla_flags``): ``--compile-effort``,
+    else the config file's ``[jaxdip]`` table (a run's own config.toml records it), else balanced with --quick
+    (cold and cached, the cheapest single level for the quick runs; docs/performance.md) and full without. A
+    level ``XLA_FLAGS`` already sets (the user's, a ``reproduce``'s parent's) stays; one asked for must agree.
+    0, or the exit code."""
+    from jaxdip.config import ConfigError, run_table
 
-    if args.compile_effort:
-        return args.compile_effort
-    return run_table(getattr(args, "config", None)).get("compile_effort") or (
-        exp.quick_effort if args.quick else "full")
+    try:
+        asked = args.compile_effort or run_table(getattr(args, "config", None)).get("compile_effort")
+    except ConfigError:
+        asked = None  # the run reports the config's error, after the checks that come before it
+    xla_flags.set_effort(asked or ("balanced" if args.quick else "full"))
+    try:
+        level = xla_flags.effort()
+    except ValueError as e:
+        return error("XLA_FLAGS", str(e))
+    if asked and level != asked:
+        return error("--compile-effort" if args.compile_effort else "--config",
+                     f"compile effort {asked!r} asked, but XLA_FLAGS already sets {level!r} for this process")
+    return 0
 
 
 def cmd_run(args, argv=None) -> int:
@@ -194,7 +205,7 @@ def cmd_run(args, argv=None) -> int:
     ckpt = None
     with _Signals() as sig:
         try:
-            level = _effort(args, exp)
+            level = xla_flags.effort()
             ckpt = run_context(exp, cfg, out, compile_effort=level).checkpoint_path
             metrics = run_experiment(exp, cfg, out, resume=args.resume, force=args.force,
                                      flag_keys=flags, stop_requested=sig.requested, compile_effort=level,
@@ -295,7 +306,7 @@ def cmd_reproduce(args, argv=None) -> int:
                     if main:
                         print(f"== {exp_id}", file=sys.stderr)
                     run_experiment(exp, cfgs[exp_id], out, force=args.force, stop_requested=sig.requested,
-                                   compile_effort=_effort(args, exp), quick=args.quick)
+                                   compile_effort=xla_flags.effort(), quick=args.quick)
                     collect(exp_id, exp)
             except (ConfigError, OutputError) as e:
                 return error(e.key, e.why)
@@ -346,6 +357,8 @@ def _command(args, argv) -> int:
         return code
     if args.cmd in ("run", "reproduce", "bench"):
         _use_all_cores(_reproduce_jobs(args) if args.cmd == "reproduce" else 1)
+        if args.cmd != "bench" and (code := _set_effort(args)):
+            return code
         _compile_cache(not args.no_compile_cache)
     if args.cmd in ("run", "reproduce") and (code := _distributed(args)):
         return code

@@ -135,9 +135,9 @@ def parser(description: str = DESCRIPTION) -> Parser:
                     "experiment but the fidelity readings' supporting runs, which jaxdip list marks)")
     for q in (r, rp):
         q.add_argument("--compile-effort", choices=("fast", "balanced", "full"), default=None,
-                       help="how hard XLA optimises the compiled programs: fast compiles in about half the time "
-                            "and runs slower, full is XLA's default (default: full; with --quick, the level "
-                            "measured best for each experiment's quick run); results agree to the last bits")
+                       help="how hard XLA optimises every program the process compiles: fast compiles in about "
+                            "half the time and runs slower, full is XLA's default (default: full; with --quick, "
+                            "balanced); results agree to the last bits")
     for q in (r, b, rp):
         q.add_argument("--no-compile-cache", action="store_true",
                        help="do not read or write the on-disk cache of compiled code (see JAXDIP_CACHE_DIR)")

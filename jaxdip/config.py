@@ -27,6 +27,7 @@ import tomllib
 
 from jaxdip.config_toml import documented_toml, to_toml  # noqa: F401  (part of this module's interface)
 from jaxdip.messages import shown, suggestion
+from jaxdip.xla_flags import EFFORTS
 
 INT_MAX = 2**63 - 1
 INT_MIN = -(2**63)
@@ -316,7 +317,6 @@ def read_toml(path: str) -> dict:
 # A written config.toml's table of run settings that change results besides the config (the compile effort):
 # read back by ``run_table`` so that re-running a run's own config.toml gives the same last bits
 RUN_TABLE = "jaxdip"
-EFFORTS = ("fast", "balanced", "full")
 
 
 def _run_table(data: dict) -> dict:

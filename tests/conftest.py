@@ -12,21 +12,12 @@ os.environ.setdefault("JAXDIP_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"
 
 import jaxdip  # noqa: E402,F401  (enables float64 before any test builds an array)
 from jaxdip.cli import _compile_cache  # noqa: E402
-from jaxdip.engine import effort  # noqa: E402
+from jaxdip import xla_flags  # noqa: E402
 
 # Most of the suite's time is XLA compiling small programs that then run for milliseconds: the whole suite (its
 # own jits, eager operations, the CLI runs it starts) compiles at the "fast" effort, which halved its cold wall
 # time. JAXDIP_TEST_EFFORT=full runs it at XLA's defaults, as full experiment runs compile.
-effort.set_process_level(os.environ.setdefault("JAXDIP_TEST_EFFORT", "fast"))
-
-
-@pytest.fixture
-def runs_long():
-    """For the few tests that mostly run compiled code (large Monte Carlo batches, many optimiser steps): the
-    library's programs compile at the "balanced" effort, whose code runs about as fast as XLA's default (the
-    suite's "fast" code ran these 2-4x slower)."""
-    with effort.effort("balanced"):
-        yield
+xla_flags.set_effort(os.environ.setdefault("JAXDIP_TEST_EFFORT", "fast"))
 
 
 def host_devices_flags(n: int) -> str:

@@ -26,6 +26,7 @@ import re
 import pytest
 
 from jaxdip import config as C
+from jaxdip import xla_flags
 from jaxdip.runner import get, registry, run_experiment
 
 TINY_BOUND = "[1e-9, 1e-9, 1e-9, 1e-9, 1e-9, 1e-9]"
@@ -68,7 +69,7 @@ NOT_A_NUMBER = re.compile(r"(?<![\w.])(?:(?i:nan%?|[-+]?inf(?:inity)?)|null|None
 def _run(tmp_path, exp_id, sets):
     exp = get(exp_id)
     cfg = C.load(exp.config_cls, quick=exp.quick, sets=sets)
-    run_experiment(exp, cfg, str(tmp_path / "out"), compile_effort=exp.quick_effort)
+    run_experiment(exp, cfg, str(tmp_path / "out"), compile_effort=xla_flags.effort())
     metrics = (tmp_path / "out" / "metrics.json").read_text()
     report = (tmp_path / "out" / "report.md").read_text()
     for name, text in (("metrics.json", metrics), ("report.md", report)):

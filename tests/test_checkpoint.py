@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxdip import checkpoint, cli
+from jaxdip import checkpoint, cli, xla_flags
 from jaxdip import config as C
 from jaxdip.runner import get
 from jaxdip.runner.experiment import run_context
@@ -129,9 +129,10 @@ def _checkpoint_of(exp_id, out, effort, sets=(), owner="an interrupted run"):
 
 def test_resume_at_another_compile_effort_is_refused(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    path = _checkpoint_of("eki-dip", "o", "fast")
-    line = _one_line(capsys, [*EKI, "--out", "o", "--resume", "--compile-effort", "full"])
-    assert "compile_effort 'fast' (this run: 'full')" in line and path in line
+    other = "full" if xla_flags.effort() != "full" else "fast"  # a level this process does not compile at
+    path = _checkpoint_of("eki-dip", "o", other)
+    line = _one_line(capsys, [*EKI, "--out", "o", "--resume"])
+    assert f"compile_effort '{other}' (this run: '{xla_flags.effort()}')" in line and path in line
     line = _one_line(capsys, [*EKI, "--out", "o", "--resume", "--set", "gamma=11.0"])
     assert "gamma" in line
     assert os.path.exists(path) and not os.path.exists("o")
@@ -140,7 +141,7 @@ def test_resume_at_another_compile_effort_is_refused(tmp_path, capsys, monkeypat
 def test_resume_without_checkpoint_or_for_an_experiment_that_keeps_none(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert "no checkpoint of an interrupted eki-dip run" in _one_line(capsys, [*EKI, "--out", "o", "--resume"])
-    _checkpoint_of("tune", "o", get("tune").quick_effort)  # another experiment's, beside the same folder
+    _checkpoint_of("tune", "o", xla_flags.effort())  # another experiment's, beside the same folder
     assert "no checkpoint of an interrupted eki-dip run" in _one_line(capsys, [*EKI, "--out", "o", "--resume"])
     line = _one_line(capsys, ["run", "dip-lqr", "--quick", "--out", "o", "--resume"])
     assert "dip-lqr keeps no checkpoint" in line
@@ -150,7 +151,7 @@ def test_resume_without_checkpoint_or_for_an_experiment_that_keeps_none(tmp_path
 @pytest.mark.parametrize("kind", ["not_a_zip", "truncated", "meta_not_json", "fifo"])
 def test_resume_from_a_damaged_checkpoint_is_one_line(tmp_path, capsys, monkeypatch, kind):
     monkeypatch.chdir(tmp_path)
-    path = _checkpoint_of("eki-dip", "o", get("eki-dip").quick_effort)
+    path = _checkpoint_of("eki-dip", "o", xla_flags.effort())
     _damage(kind, path)
     line = _one_line(capsys, [*EKI, "--out", "o", "--resume"])
     assert path in line and not os.path.exists("o")
@@ -161,14 +162,14 @@ def test_a_finished_run_leaves_other_runs_checkpoints_alone(tmp_path, capsys, mo
     and another experiment's. Both survive this run; a checkpoint the run wrote itself does not."""
     monkeypatch.chdir(tmp_path)
     exp = get("dip-lqr")
-    same_name = _checkpoint_of("dip-lqr", "o", exp.quick_effort, owner="a run started later")
+    same_name = _checkpoint_of("dip-lqr", "o", xla_flags.effort(), owner="a run started later")
     other = _checkpoint_of("eki-dip", "o", "full")
     before = {p: open(p, "rb").read() for p in (same_name, other)}
     assert cli.main(["run", "dip-lqr", "--quick", "--out", "o"]) == 0, capsys.readouterr().err
     assert {p: open(p, "rb").read() for p in (same_name, other)} == before
 
     cfg = C.load(exp.config_cls, quick=exp.quick)
-    ctx = run_context(exp, cfg, "o", compile_effort=exp.quick_effort)
+    ctx = run_context(exp, cfg, "o", compile_effort=xla_flags.effort())
     with checkpoint.owning("this run") as owner:
         checkpoint.save(ctx.checkpoint_path, TREE, ctx.fingerprint)
         assert checkpoint.remove_own(other, owner) is False
@@ -182,7 +183,7 @@ def test_resume_from_a_checkpoint_of_other_leaves_is_one_line(tmp_path, capsys, 
     monkeypatch.chdir(tmp_path)
     tiny = ["seeds=4", "ensemble=6", "iterations=4", "chunk=2", "T=0.2", "t_star=0.1", "grad_steps=0",
             "eval_states=2", "judge_duration=0.2", "early_stop=false", "min_success=2"]
-    path = _checkpoint_of("eki-dip", "o", get("eki-dip").quick_effort, sets=tiny)
+    path = _checkpoint_of("eki-dip", "o", xla_flags.effort(), sets=tiny)
     line = _one_line(capsys, [*EKI, "--out", "o", "--resume", *[a for s in tiny for a in ("--set", s)]])
     assert path in line and "structure" in line
     assert sorted(os.listdir()) == [os.path.basename(path)]  # no output folder, no staging folder

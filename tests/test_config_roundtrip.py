@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-from jaxdip import cli
+from jaxdip import cli, xla_flags
 from jaxdip import config as C
 from jaxdip.runner import get, registry
 from jaxdip.runner.experiment import config_toml
@@ -22,10 +22,10 @@ def test_quick_config_toml_loads_back_to_the_same_config_without_quick(tmp_path,
     exp = get(exp_id)
     quick = C.load(exp.config_cls, quick=exp.quick)
     path = tmp_path / "config.toml"
-    path.write_text(config_toml(exp, quick, exp.quick_effort))
+    path.write_text(config_toml(exp, quick, "balanced"))
     again = C.load(exp.config_cls, path=str(path))
     assert C.to_dict(again) == C.to_dict(quick)  # seeds, horizons, every key: the quick overrides are in the file
-    assert C.run_table(str(path)) == {"compile_effort": exp.quick_effort}
+    assert C.run_table(str(path)) == {"compile_effort": "balanced"}
 
 
 @pytest.mark.parametrize("table, key", [("[jaxdip]\ncompile_effort = \"fastest\"\n", "jaxdip.compile_effort"),
@@ -50,10 +50,19 @@ def test_dip_lqr_quick_then_its_config_toml_is_bit_identical(tmp_path, monkeypat
     assert cli.main(["run", "dip-lqr", "--config", "A/config.toml", "--out", "B"]) == 0, capsys.readouterr().err
     assert _results("A") == _results("B")
     metrics = [json.load(open(f"{d}/metrics.json")) for d in "AB"]
-    assert metrics[0]["compile_effort"] == metrics[1]["compile_effort"] == get("dip-lqr").quick_effort
-    # the flag still wins over the file
-    assert cli.main(["run", "dip-lqr", "--config", "A/config.toml", "--compile-effort", "full", "--out", "C"]) == 0
-    assert json.load(open("C/metrics.json"))["compile_effort"] == "full"
+    assert metrics[0]["compile_effort"] == metrics[1]["compile_effort"] == xla_flags.effort()
+    # the flag wins over the file: a level this process does not compile at (XLA_FLAGS, conftest) is refused
+    # by the flag's name, before anything is written
+    other = "full" if xla_flags.effort() != "full" else "fast"
+    capsys.readouterr()
+    assert cli.main(["run", "dip-lqr", "--config", "A/config.toml", "--compile-effort", other, "--out", "C"]) == 2
+    assert "error: --compile-effort: " in capsys.readouterr().err and not os.path.exists("C")
+    with open("A/config.toml") as fh:
+        text = fh.read().replace(f'compile_effort = "{xla_flags.effort()}"', f'compile_effort = "{other}"')
+    with open("D.toml", "w") as fh:
+        fh.write(text)
+    assert cli.main(["run", "dip-lqr", "--config", "D.toml", "--out", "D"]) == 2
+    assert "error: --config: " in capsys.readouterr().err and not os.path.exists("D")
 
 
 @pytest.mark.slow

@@ -1,21 +1,31 @@
-"""Compile effort (jaxdip.engine.effort): each level compiles its own program, levels agree with each other and
-with an independent reference, a call under an enclosing trace still works, and the CLI records the level."""
+"""Compile effort (jaxdip.xla_flags): one level per process, set in XLA_FLAGS before JAX starts. Every level's
+program agrees with an independent NumPy reference, a user's own XLA_FLAGS stay, and the CLI applies, records
+and refuses levels."""
 
 import json
 import os
+import subprocess
+import sys
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from conftest import TINY_DIP_LQR, Child
+from jaxdip import xla_flags
 from jaxdip.cli import main
-from jaxdip.engine import effort
-from conftest import TINY_DIP_LQR
+
+LEVEL_OPTIONS = ("xla_backend_optimization_level", "xla_cpu_use_fusion_emitters")
+
+
+def _without_level() -> str:
+    """This process's XLA_FLAGS less the compile effort's options (the suite's own level), for a child process."""
+    return " ".join(f for f in os.environ.get("XLA_FLAGS", "").split() if not f[2:].startswith(LEVEL_OPTIONS))
 
 
 def _pendulum(x0, h, steps):
     """RK4 on the pendulum x'' = -sin x: written once for JAX (a scan) and once for NumPy (a loop)."""
+    import jax.numpy as jnp
 
     def f(x):
         return jnp.stack([x[1], -jnp.sin(x[0])])
@@ -44,78 +54,70 @@ def _pendulum_numpy(x0, h, steps):
     return x
 
 
-def test_each_level_compiles_its_own_program_and_all_agree_with_numpy():
-    compiled = []
+_CHILD = """
+import sys
+import numpy as np
+from jaxdip import xla_flags
+xla_flags.set_effort(sys.argv[1])
+import jax, jax.numpy as jnp
+exec(sys.argv[2])
+x = jax.jit(_pendulum, static_argnums=2)(jnp.array([2.0, 0.0]), 0.01, 500)
+print(xla_flags.effort(), *np.asarray(x).tolist())
+"""
 
-    def listen(ev, d, **kw):
-        if ev.endswith("backend_compile_duration"):
-            compiled.append(kw.get("fun_name"))
 
-    run = effort.jit(_pendulum, static_argnums=2)
-    x0 = jnp.array([2.0, 0.0])
+def test_each_level_agrees_with_numpy():
+    import inspect
+
+    env = dict(os.environ, XLA_FLAGS=_without_level())
+    procs = {level: subprocess.Popen([sys.executable, "-c", _CHILD, level, inspect.getsource(_pendulum)], env=env,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for level in xla_flags.EFFORTS}
     ref = _pendulum_numpy([2.0, 0.0], 0.01, 500)
-    out = {}
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
-        for level in ("fast", "balanced", "full", "fast"):
-            with effort.effort(level):
-                assert effort.current() == level
-                out[level] = np.asarray(run(x0, 0.01, 500))
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
-    # three levels, three programs; the second "fast" call reuses the first
-    assert compiled.count("jit(_pendulum)") == 3, compiled
-    for level, x in out.items():
-        np.testing.assert_allclose(x, ref, rtol=1e-12, atol=1e-12, err_msg=level)
+    for level, proc in procs.items():
+        out, err = proc.communicate(timeout=300)
+        assert proc.returncode == 0, err
+        got, *x = out.split()
+        assert got == level
+        np.testing.assert_allclose(np.array(x, float), ref, rtol=1e-12, atol=1e-12, err_msg=level)
 
 
-def test_a_call_inside_an_enclosing_jit_is_inlined_at_any_level():
-    inner = effort.jit(lambda x: jnp.sin(x) * 2.0)
-    outer = jax.jit(lambda x: inner(x) + inner(jnp.float64(1.0)))  # the second call has no traced argument
-    with effort.effort("fast"):
-        np.testing.assert_allclose(float(outer(jnp.float64(0.5))), 2 * np.sin(0.5) + 2 * np.sin(1.0), rtol=1e-14)
-        # differentiated and vmapped from outside: the call sees tracers and compiles nothing itself
-        g = jax.grad(lambda x: inner(x))(jnp.float64(0.3))
-        np.testing.assert_allclose(float(g), 2 * np.cos(0.3), rtol=1e-14)
-
-
-def test_unknown_level_is_refused():
+def test_unknown_level_is_refused(monkeypatch):
     with pytest.raises(ValueError, match="compile effort"):
-        with effort.effort("fastest"):
-            pass
-    with pytest.raises(ValueError, match="compile effort"):
-        effort.set_default("O0")
+        xla_flags.set_effort("fastest")
+    monkeypatch.setenv("XLA_FLAGS", "--xla_backend_optimization_level=2")
+    with pytest.raises(ValueError, match="none of the compile efforts"):
+        xla_flags.effort()
 
 
-def test_process_level_sets_xla_flags_once_and_keeps_the_users():
-    import subprocess
-    import sys
-
-    script = (
-        "import os; from jaxdip.engine import effort\n"
-        "effort.set_process_level('balanced'); effort.set_process_level('fast')\n"
-        "print(os.environ['XLA_FLAGS'])\n"
-        "import jax.numpy as jnp; float(jnp.ones(2).sum())\n"
-        "effort.set_process_level('balanced')  # every option already there: nothing to do\n"
-        "os.environ['XLA_FLAGS'] = ''\n"
-        "try:\n    effort.set_process_level('fast')\nexcept RuntimeError:\n    print('refused after start')\n")
-    env = dict(os.environ, XLA_FLAGS="--xla_cpu_use_fusion_emitters=true")
-    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr
-    flags, refused = out.stdout.strip().splitlines()
+def test_level_sets_xla_flags_once_and_keeps_the_users(monkeypatch):
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=true")
+    xla_flags.set_effort("balanced")
+    xla_flags.set_effort("fast")
     # the user's emitter choice stays; the first call's level is added once, the second call finds it there
-    assert flags.split() == ["--xla_cpu_use_fusion_emitters=true", "--xla_backend_optimization_level=1"]
-    assert refused == "refused after start"
-    effort.set_process_level("full")  # no options at all: never refused
+    assert os.environ["XLA_FLAGS"].split() == ["--xla_cpu_use_fusion_emitters=true",
+                                               "--xla_backend_optimization_level=1"]
+    with pytest.raises(ValueError, match="none of the compile efforts"):  # a mix, not one of the levels: said so
+        xla_flags.effort()
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
+    assert xla_flags.effort() == "full"
+    xla_flags.set_effort("full")  # no options at all
+    assert os.environ["XLA_FLAGS"] == "--xla_force_host_platform_device_count=2"
+    xla_flags.set_effort("fast")
+    assert xla_flags.effort() == "fast"
 
 
-def test_cli_records_the_level_and_levels_agree(tmp_path):
+def test_cli_applies_and_records_the_level_and_levels_agree(tmp_path):
+    env = dict(os.environ, XLA_FLAGS=_without_level(), JAXDIP_NO_PROGRESS="1")
+    runs = {level: Child([*TINY_DIP_LQR, "--out", str(tmp_path / level)]
+                         + (["--compile-effort", level] if level != "default" else []), env)
+            for level in ("fast", "full", "default")}
     outs = {}
-    for level in ("fast", "full"):
-        out = tmp_path / level
-        assert main([*TINY_DIP_LQR, "--out", str(out), "--compile-effort", level]) == 0
-        outs[level] = json.load(open(os.path.join(out, "metrics.json")))
-        assert outs[level]["compile_effort"] == level
+    for level, child in runs.items():
+        assert child.returncode == 0, child.stderr
+        outs[level] = json.load(open(tmp_path / level / "metrics.json"))
+    assert outs["fast"]["compile_effort"] == "fast" and outs["full"]["compile_effort"] == "full"
+    assert outs["default"]["compile_effort"] == "balanced"  # a quick run's level without the flag
     a, b = outs["fast"]["results"], outs["full"]["results"]
     flat_a, flat_b = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
     assert len(flat_a) == len(flat_b) > 0
@@ -124,6 +126,13 @@ def test_cli_records_the_level_and_levels_agree(tmp_path):
             assert u == pytest.approx(v, rel=1e-9, abs=1e-14)
         else:
             assert u == v
-    # without the flag a quick run takes the experiment's measured quick level
-    assert main([*TINY_DIP_LQR, "--out", str(tmp_path / "default")]) == 0
-    assert json.load(open(tmp_path / "default" / "metrics.json"))["compile_effort"] == "fast"
+    assert (tmp_path / "default" / "config.toml").read_text().endswith('compile_effort = "balanced"\n')
+
+
+def test_cli_refuses_a_level_the_process_cannot_take(tmp_path, capsys):
+    """This process compiles at the suite's level (XLA_FLAGS, conftest): another one asked for is refused before
+    anything runs, a run without the flag takes and records the process's."""
+    other = "full" if xla_flags.effort() != "full" else "fast"
+    assert main([*TINY_DIP_LQR, "--out", str(tmp_path / "x"), "--compile-effort", other]) == 2
+    assert "--compile-effort" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()

@@ -55,7 +55,6 @@ def test_continuum_rule_is_the_level_set(cost):
     np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
-@pytest.mark.usefixtures("runs_long")
 @pytest.mark.parametrize("cells", [8192, pytest.param(65536, marks=pytest.mark.slow)])
 def test_lattice_rule_approaches_the_level_set_and_stochastic_band_meets_V(cells):
     ctrls = (LevelSet(cost=Uniform(), log_r=jnp.asarray(LOG_R)),
@@ -76,7 +75,6 @@ def test_lattice_rule_approaches_the_level_set_and_stochastic_band_meets_V(cells
     assert abs(m - e) < 1.5 * (ci[1] - ci[0]) / 2
 
 
-@pytest.mark.usefixtures("runs_long")
 @pytest.mark.parametrize("cells", [4096, pytest.param(32768, marks=pytest.mark.slow)])
 def test_lattice_rule_monte_carlo_inside_its_quadrature_interval(cells):
     """The lattice rule's quadrature (unit cells and 4 x 4 squares) inside the Monte Carlo's 95% intervals: E[I]

@@ -119,7 +119,6 @@ def test_stochastic_shells_weight_the_flat_band():
     assert float(ml.h) == pytest.approx(float(ml.g) / math.exp(rf), rel=1e-5)
 
 
-@pytest.mark.usefixtures("runs_long")
 def test_quadrature_against_monte_carlo():
     """(4.4) by quadrature inside the Monte Carlo interval for three kinds of set, on the same virions: a level
     set of a costly-shell h, a ball over a window, and a ball off the infected cell (not radial about it)."""

@@ -26,7 +26,6 @@ def test_quadrature_gradient_matches_central_differences(cost):
     assert float(e) == pytest.approx(float(MODEL.R0) - float(Q.F(MODEL, cost, jnp.asarray(LOG_R), 1024).g))
 
 
-@pytest.mark.usefixtures("runs_long")
 def test_monte_carlo_gradient_matches_central_differences_and_is_unbiased():
     key = jax.random.PRNGKey(11)
     e, de = Tn.progeny_and_slope(MODEL, Uniform(), LOG_R, method="mc", key=key, n=4096)
@@ -43,7 +42,6 @@ def test_monte_carlo_gradient_matches_central_differences_and_is_unbiased():
     assert abs(s.mean() - float(sq)) < 4.5 * s.std(ddof=1) / math.sqrt(s.size)
 
 
-@pytest.mark.usefixtures("runs_long")
 def test_optax_reaches_the_bisection_threshold():
     th = Q.threshold(MODEL, Uniform(), float(MODEL.R0) - 1.0, n=1024)
     tq = Tn.tune_threshold(MODEL, Uniform(), 1.0, th.log_r - 1.0, steps=150, lr=0.1, n_quad=1024)
@@ -58,7 +56,6 @@ def test_optax_monte_carlo_within_one_percent():
     assert abs(math.exp(tm.log_r - th.log_r) - 1.0) < 0.01
 
 
-@pytest.mark.usefixtures("runs_long")
 def test_optax_monte_carlo_small():
     """Fast twin of the slow test: fewer, smaller batches, a looser tolerance (its noise is larger)."""
     th = Q.threshold(MODEL, Uniform(), float(MODEL.R0) - 1.0, n=1024)

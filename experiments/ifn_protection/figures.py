@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdip.engine import effort
 from jaxdip.immune.costs import RadialCost
 
 
-@effort.filter_jit
+@eqx.filter_jit
 def _raster(model, control, t, rho):
     """The indicator of a control on a (t, |x|) grid (x along the first axis)."""
     key = jax.random.PRNGKey(0)

@@ -331,9 +331,5 @@ EXPERIMENT = Experiment(
     quick={"seeds": 16, "no_bias_duration": 2.0, "bias_seeds": 2, "bias_duration": 6.0, "lowpass_duration": 20.0,
            "reduced_duration": 10.0, "gamma_check_duration": 40.0},
     source="Aranovskiy et al., IEEE Access 2020: (7), (9)-(28), Tables 1-2, Figs. 3-6",
-    # The differentiators' switching amplifies last-bit differences into its quick numbers whatever changes
-    # them (quick results at balanced moved up to 1e-3 relative against full, inside their intervals; its
-    # 2-seed spread by 2.7 %); at fast they moved as much with a spread moved by 7 %. -O1 halves its compile.
-    quick_effort="balanced",
     quick_cost_s=18,  # estimated at balanced from its run alone
 )

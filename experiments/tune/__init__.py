@@ -36,7 +36,6 @@ import optax
 from jaxdip import checkpoint as ckpt
 from jaxdip import config as C
 from jaxdip import stats
-from jaxdip.engine import effort
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
 from jaxdip.runner.results import fmt_ci
 from experiments.tune.config import HELDOUT_OFFSET, TuneConfig
@@ -59,10 +58,10 @@ def run(cfg: TuneConfig, ctx: RunContext | None = None, progress: bool = True) -
     tune_seeds = np.arange(cfg.seeds)
     held_seeds = HELDOUT_OFFSET + np.arange(cfg.heldout_seeds)
     J_tune = tg.objective(tune_seeds, smooth=cfg.smoothing == "straight_through")
-    J_eval = effort.jit(tg.objective(tune_seeds, smooth=False))  # forward values are the same; no gradient needed
+    J_eval = jax.jit(tg.objective(tune_seeds, smooth=False))  # forward values are the same; no gradient needed
     held_obj = tg.objective(held_seeds, smooth=False, scenarios=cfg.scenario_spreads())
-    held = effort.jit(held_obj.per_seed)
-    held_div = effort.jit(held_obj.diverged) if held_obj.diverged is not None else None
+    held = jax.jit(held_obj.per_seed)
+    held_div = jax.jit(held_obj.diverged) if held_obj.diverged is not None else None
 
     res = tune(J_tune, tg.paper, key, steps=cfg.steps, lr=cfg.lr, spec=tg.spec, clip=cfg.clip,
                optimizer=optax.rprop(cfg.lr) if cfg.optimizer == "rprop" else None,
@@ -218,7 +217,6 @@ EXPERIMENT = Experiment(
     run=run,
     quick={"seeds": 4, "heldout_seeds": 16, "duration": 0.5, "steps": 6, "landscape_points": 5},
     source="the documents' hyperparameter values (CPX gamma = 150, paper §5) against gradient tuning",
-    quick_effort="fast",  # compiling dominates its quick run (measured)
     resumable=True,
     quick_cost_s=18,
 )

@@ -48,7 +48,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdip.engine import effort
 
 RTOL = 1e-8  # relative Riccati residual below which a solution counts as converged
 _PBH_TOL = 1e-6  # relative tolerances of the diagnostic PBH tests (they only name a failure already found)
@@ -123,7 +122,7 @@ def _care(A, B, Q, R, sign_iters, newton_iters):
 
 # jitted once per shape: an eager fori_loop compiles its body anew at every call (experiments solve many
 # Riccati equations while they set up, and each eager solve cost ~0.5 s of compilation)
-@effort.jit(static_argnums=(4, 5))
+@partial(jax.jit, static_argnums=(4, 5))
 def _care_solve(A, B, Q, R, sign_iters, newton_iters):
     n = A.shape[0]
     G = B @ jnp.linalg.solve(R, B.T)
@@ -181,7 +180,7 @@ def dare_checked(A, B, Q, R, iters: int = 40, *, rtol: float = RTOL) -> tuple[ja
     return X, riccati_status(A, B, Q, R, X, discrete=True, rtol=rtol)
 
 
-@effort.jit(static_argnums=3)
+@partial(jax.jit, static_argnums=3)
 def _sda(A, G, Q, iters):
     I = jnp.eye(A.shape[0])
 
@@ -199,7 +198,7 @@ def _sda(A, G, Q, iters):
     return X
 
 
-@effort.jit(static_argnums=5)
+@partial(jax.jit, static_argnums=5)
 def _dare_regularised(A, B, Q, R, G, iters):
     # The doubling needs (Q, A) detectable as well: its dual iterate G_k diverges on an unobservable mode
     # outside the unit circle, although the stabilising X exists. Q + eps I is detectable, its stabilising
@@ -309,7 +308,7 @@ def error_if_failed(X, code):
     return eqx.branched_error_if(X, code != RiccatiCode.OK, code, RiccatiCode.messages)
 
 
-_stats_jit = effort.jit(_stats, static_argnums=5)
+_stats_jit = jax.jit(_stats, static_argnums=5)
 
 
 def _host_check(A, B, Q, R, X, discrete: bool, rtol: float, hint: str) -> None:

@@ -22,7 +22,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdip.engine import effort
 from jaxdip.engine import metrics as _metrics
 from jaxdip.engine.roles import param
 from jaxdip.engine.simulate import Loop, Solution, State, init_state, simulate
@@ -123,7 +122,7 @@ def _m_finalize(f, key, state, n):
     return _metrics.finalize(f.metrics, state.metrics)
 
 
-@effort.filter_jit
+@eqx.filter_jit
 def _batch(method, fn, where, values, base, idx, args, n, detail=None, out_sharding=None):
     """vmap of ``method(fn, fold_in(base, i), arg_i, n)`` over the seed indices ``idx`` (and over the sweep).
     ``detail``: split each seed's output into (per seed, detail) and keep the detail of the batch's first seed.
@@ -252,7 +251,7 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
     where, values = (None, None) if sweep is None else sweep
     if where is not None:
         values = jax.tree_util.tree_map(jnp.asarray, values)
-    traced = effort.traced(fn, key, values)
+    traced = any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((fn, key, values)))
     progress = progress and not traced
 
     devices = jax.devices()

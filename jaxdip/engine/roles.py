@@ -16,7 +16,7 @@ index. A plant is continuous (``vector_field(x, u)``, integrated by RK4 sub-step
 discrete (``step(x, u)``); it names its states and inputs (``state_names``, ``input_names``) and may override
 ``equilibrium()``, the point the loop's state bound is measured from.
 
-This module imports only the engine's own modules (compile effort, RK4), so plants and sensors can subclass
+This module imports only the engine's own modules (RK4), so plants and sensors can subclass
 these roles without import cycles.
 """
 
@@ -30,7 +30,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from jaxdip.engine import effort
 from jaxdip.engine.integrate import rk4_zoh
 
 
@@ -122,7 +121,7 @@ def _discrete_map(plant, x, u):
     return plant.step(x, u)
 
 
-@effort.filter_jit
+@eqx.filter_jit
 def _jacobians(plant, x, u):
     # x and u are arguments, not constants made inside: XLA would fold them and round differently
     f = _vector_field if plant.continuous else _discrete_map

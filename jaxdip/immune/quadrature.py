@@ -25,10 +25,10 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from jaxdip.engine import effort
 from jaxdip.immune.controls import LevelSet
 from jaxdip.immune.model import Infection, mass_fraction
 
@@ -73,7 +73,7 @@ def _parts(control, model, t, cost):
     return m, jnp.zeros_like(m), H
 
 
-@effort.filter_jit
+@eqx.filter_jit
 def masses(model: Infection, control, cost, n: int = 4096) -> Masses:
     """int_A g and int_A h of a control with a ``profile``, n panels per segment between consecutive
     breakpoints (n rounded up to even): the value by Simpson's rule in a graded variable, the bracket from the

@@ -23,7 +23,6 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from jaxdip.engine import effort
 from jaxdip.engine.driver import monte_carlo
 from jaxdip.immune import quadrature as Q
 from jaxdip.immune.controls import LevelSet
@@ -60,8 +59,8 @@ def expected_progeny_mc(model: Infection, cost, log_r, key, n: int):
 
 
 # value and derivative in log r, compiled once each and shared by the gradient checks and the optimiser
-_quad_vg = effort.filter_jit(jax.value_and_grad(expected_progeny_quadrature, argnums=2))
-_mc_vg = effort.filter_jit(jax.value_and_grad(_progeny_mc, argnums=2))
+_quad_vg = eqx.filter_jit(jax.value_and_grad(expected_progeny_quadrature, argnums=2))
+_mc_vg = eqx.filter_jit(jax.value_and_grad(_progeny_mc, argnums=2))
 
 
 def progeny_and_slope(model: Infection, cost, log_r, *, method: str = "quadrature", key=None, n: int = 4096):

@@ -25,7 +25,6 @@ import jax
 from jaxdip import checkpoint
 from jaxdip import config as cfgmod
 from jaxdip import distributed, outdir, resources
-from jaxdip.engine import effort
 from jaxdip.runner.results import ResultError, check_writable, drop_missing
 from jaxdip.runner.scale import scale, scale_line
 
@@ -78,10 +77,6 @@ class Experiment:
     # False for the supporting runs of the fidelity readings (docs/fidelity.md): `jaxdip run` and
     # `reproduce --only` run them, a plain `reproduce` (the headline reproduction) leaves them out
     reproduce: bool = True
-    # compile effort of a --quick run (jaxdip.engine.effort), measured per experiment: "fast" where compiling
-    # dominates the quick run, "balanced" where running the compiled code weighs too, "full" (XLA's default, and
-    # every full run's) where the results amplify the last bits in which the levels differ, or not measured
-    quick_effort: str = "full"
     # True for experiments whose run checkpoints (``RunContext``) and so can continue with --resume
     resumable: bool = False
     # cold --quick wall time (s) in the parallel reproduce on a 2-core CPU at the quick compile effort: the
@@ -219,7 +214,7 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
     passed to ``run``) and, with ``resume``, continue from there; the checkpoint is removed once the folder is
     complete, if this run wrote it or resumed from it. ``stop_requested``
     is asked once more before the folder is moved into place, so an interrupt that a library swallowed still
-    leaves no folder behind. ``compile_effort``: how hard XLA optimises the programs (``jaxdip.engine.effort``;
+    leaves no folder behind. ``compile_effort``: the level this process compiles at (``jaxdip.xla_flags.effort()``;
     results agree across levels to the last bits), recorded in the provenance. ``quick``: ``cfg`` holds the
     experiment's ``--quick`` overrides; metrics.json's ``scale`` and the report's first line say so
     (``runner.scale``).
@@ -244,7 +239,7 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
         raise refused or outdir.OutputError("--out", f"process 0 cannot write {out_dir} (see its error)")
     try:
         t0 = time.perf_counter()
-        with effort.effort(compile_effort), checkpoint.owning(uuid.uuid4().hex, ctx.info) as owner:
+        with checkpoint.owning(uuid.uuid4().hex, ctx.info) as owner:
             outcome = exp.run(cfg, ctx)
         wall = time.perf_counter() - t0
         # a statistic over no seed is left out, never written as NaN or null; anything else non-finite is refused

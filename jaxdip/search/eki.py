@@ -28,7 +28,6 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from jaxdip.engine import effort
 
 
 class EKIState(NamedTuple):
@@ -192,7 +191,7 @@ def run_eki(eki: EKI, state: EKIState, iterations: int, *, chunk: int = 10, prog
         # the first chunk's state laid out as the chunks return it (whole on every device), so the second
         # chunk finds the program the first compiled instead of compiling it again
         state = jax.device_put(state, NamedSharding(mesh, PartitionSpec()))
-    advance = effort.jit(advance)
+    advance = jax.jit(advance)
 
     history = []
     done = int(state.iteration)

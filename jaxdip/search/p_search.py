@@ -18,7 +18,6 @@ import jax.numpy as jnp
 import jaxdip as jd
 from jaxdip.control.projection import RelaxedProjection
 from jaxdip.control.spd import P_v, P_Vs, orthonormalize
-from jaxdip.engine import effort
 
 
 def _loop(plant, controller, **kw):
@@ -158,7 +157,7 @@ def continuous_performance(plant, cfg: ContinuousSearch, n_x0: int = 1, penalize
     return G
 
 
-@effort.filter_jit
+@eqx.filter_jit
 def performances(plant, cfg: ContinuousSearch, member: BasisMember, key, n: int, penalize: bool = True):
     """``n`` independent evaluations G(member, k) (one initial state each), k in ``split(key, n)``: a vector."""
     G = continuous_performance(plant, cfg, 1, penalize)
@@ -184,7 +183,7 @@ def lowest_y1(eki, vs, key, n_states: int):
     return vs[jnp.argmin(score)]
 
 
-@effort.filter_jit
+@eqx.filter_jit
 def direction_search(eki, key, *, ensemble: int, init_var: float, iterations: int, restarts: int = 1,
                      select_states: int = 64, final: str = "mean"):
     """Procedure 1 over unit vectors v (P = P_v): one whole search as a pure function of its key; returns

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
-from jaxdip.engine import effort
 
 
 class Discrete(NamedTuple):
@@ -16,7 +16,7 @@ class Discrete(NamedTuple):
     W: jnp.ndarray  # int_0^h e^{A s} ds B
 
 
-@effort.jit
+@jax.jit
 def zoh(A, B, h) -> Discrete:
     """Exact ZOH discretisation from one matrix exponential of the augmented matrix [[A, B], [0, 0]] h.
 

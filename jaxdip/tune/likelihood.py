@@ -23,7 +23,6 @@ import jax
 import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
-from jaxdip.engine import effort
 from jaxdip.estimators.kf import KalmanFilter
 from jaxdip.estimators.recorded import log_likelihood
 from jaxdip.tune.transforms import unconstrained_spec, to_constrained, to_unconstrained
@@ -85,7 +84,7 @@ def fit_marginal_likelihood(build: Callable[[Any], LGSSMModel], theta0, ys, us=N
 
     # Hessian by central differences of the exact (forward-mode) gradient: accurate to ~1e-8 relative, and a
     # nested autodiff Hessian through the scan costs several times the compile time for no useful digit
-    vg = effort.jit(lambda v: (nll_u(v), jax.jacfwd(nll_u)(v)))
+    vg = jax.jit(lambda v: (nll_u(v), jax.jacfwd(nll_u)(v)))
     nll, g = vg(u_flat)
     eps = 1e-4
     n = u_flat.shape[0]

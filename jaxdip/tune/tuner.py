@@ -19,7 +19,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxdip import checkpoint as ckpt
-from jaxdip.engine import effort
 from jaxdip.progress import Progress
 from jaxdip.tune.transforms import unconstrained_spec, to_constrained, to_unconstrained
 
@@ -112,9 +111,9 @@ def tune(objective: Callable, init_params, key, *, steps: int = 100, lr: float =
     def j_of_u(u, k):
         return objective(to_constrained(spec, u), k)
 
-    value_and_grad = effort.jit(value_and_grad_fn(j_of_u, mode))
+    value_and_grad = jax.jit(value_and_grad_fn(j_of_u, mode))
 
-    @effort.jit
+    @jax.jit
     def apply(st: _State, loss, g):
         if zero_nonfinite_grads:
             g = jax.tree_util.tree_map(lambda x: jnp.where(jnp.isfinite(x), x, 0.0), g)
