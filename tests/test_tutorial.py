@@ -6,8 +6,6 @@ loop's); this test adds that every step ran and left the names the next one uses
 import pathlib
 import re
 
-import numpy as np
-
 TUTORIAL = pathlib.Path(__file__).resolve().parents[1] / "docs" / "tutorial.md"
 
 
@@ -28,7 +26,7 @@ def test_tutorial_runs_in_order(capsys):
         exec(compile(code, f"{TUTORIAL}:block{i}", "exec"), ns)
     printed = capsys.readouterr().out
     # step 2: optax moved gamma and lowered the cost; step 4: the sweep holds every scale and seed
-    assert float(ns["tuned"]) < float(ns["value"]) and float(ns["params"]) != float(np.log(150.0))
+    assert float(ns["tuned"]) < float(ns["value"]) and float(ns["params"]) < 0  # log gamma below log 1
     assert ns["J"].shape == (5, 64)
     for line in ("KF: RMS velocity error", "CPX: RMS velocity error", "d cost / d log gamma", "cart-pole",
                  "mean LQR cost by gain scale", "smoother", "CPX over the recording"):
