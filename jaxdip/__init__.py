@@ -21,13 +21,13 @@ __version__ = "0.1.0"
 # of the library (the engine, jaxdip.xla_flags before JAX starts, the CLI's argument parser) imports no other, and
 # no module depends on the package root: the layers (docs/architecture.md) hold for the imports Python runs too.
 _SUBMODULES = {"control": "jaxdip.control", "engine": "jaxdip.engine", "estimators": "jaxdip.estimators",
-               "plants": "jaxdip.plants", "sim": "jaxdip.sim", "sensors": "jaxdip.sim.sensors"}
+               "plants": "jaxdip.plants", "sim": "jaxdip.sim", "sensors": "jaxdip.sim.sensors", "stats": "jaxdip.stats"}
 _NAMES = {
     **dict.fromkeys((
         "RESULTS", "Actuator", "Aux", "Ball", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux",
         "Identity", "KeySchedule", "Loop", "Passthrough", "Plant", "Rollout", "Sample",
-        "Sensor", "Solution", "State", "init_state", "linearize", "metrics", "monte_carlo", "param", "simulate",
-        "split_lanes"), "jaxdip.engine"),
+        "Sensor", "Solution", "State", "Summary", "init_state", "linearize", "metrics", "monte_carlo", "param", "simulate",
+        "split_lanes", "summary"), "jaxdip.engine"),
     "Discrete": "jaxdip.sim.discretize", "zoh": "jaxdip.sim.discretize",
 }
 __all__ = sorted([*_SUBMODULES, *_NAMES])
