@@ -45,4 +45,6 @@ def __getattr__(name: str):
 
 
 def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+    # the public names only: not jax, the helpers above or what Python puts in every module (``__version__`` and
+    # the other dunders stay reachable as attributes)
+    return sorted(__all__)

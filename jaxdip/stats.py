@@ -13,6 +13,11 @@ from statistics import NormalDist
 
 import numpy as np
 
+from jaxdip._public import public_dir
+
+__all__ = ["Z95", "mean_ci", "wilson", "with_ci", "t_quantile", "t_interval"]
+__dir__ = public_dir(globals())
+
 Z95 = 1.959963984540054
 
 

@@ -13,6 +13,8 @@ from jaxdip.engine.simulate import (
 from jaxdip.engine.driver import Ball, Gaussian, Rollout, device_mesh, monte_carlo
 from jaxdip.engine.summary import MetricSummary, Summary, summary
 
+from jaxdip._public import public_dir
+
 __all__ = [
     "metrics", "Actuator", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux", "Identity",
     "Passthrough", "Plant", "Sensor", "linearize", "param", "RESULTS", "Aux",
@@ -20,3 +22,4 @@ __all__ = [
     "Sample", "Solution", "State", "init_state", "simulate", "Ball", "Rollout", "device_mesh", "monte_carlo",
     "Gaussian", "MetricSummary", "Summary", "summary",
 ]
+__dir__ = public_dir(globals())

@@ -19,7 +19,10 @@ import numpy as np
 from jaxdip.engine.simulate import RESULTS
 from jaxdip.stats import t_interval
 
+from jaxdip._public import public_dir
+
 __all__ = ["MetricSummary", "Summary", "summary"]
+__dir__ = public_dir(globals())
 
 
 class MetricSummary:

@@ -24,6 +24,12 @@ import jax.numpy as jnp
 
 from jaxdip.engine.roles import Plant, param
 
+from jaxdip._public import public_dir
+
+__all__ = ["cart_force", "cart_mass", "solve_sym3", "f_printed", "kinetic_energy", "potential_energy", "f_lagrangian",
+           "DIP"]
+__dir__ = public_dir(globals())
+
 STATE_NAMES = ("xc", "alpha", "theta", "xc_dot", "alpha_dot", "theta_dot")
 
 

@@ -15,6 +15,11 @@ import jax.numpy as jnp
 
 from jaxdip.engine.roles import DiscretePlant, param
 
+from jaxdip._public import public_dir
+
+__all__ = ["Linear", "Nonlinear"]
+__dir__ = public_dir(globals())
+
 STATE_NAMES = ("x1", "x2")
 
 

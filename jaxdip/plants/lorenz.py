@@ -18,6 +18,11 @@ import jax.numpy as jnp
 
 from jaxdip.engine.roles import Plant, param
 
+from jaxdip._public import public_dir
+
+__all__ = ["equilibria", "Lorenz"]
+__dir__ = public_dir(globals())
+
 STATE_NAMES = ("xL", "yL", "zL")
 
 

@@ -26,6 +26,12 @@ import jax.numpy as jnp
 
 from jaxdip.engine.roles import Plant, param
 
+from jaxdip._public import public_dir
+
+__all__ = ["REDUCED_STATE_NAMES", "PENDULUM_ANGLE_RESOLUTION", "WHEEL_ANGLE_RESOLUTION", "SAMPLING_HZ", "DT",
+           "K_TABLE2", "inertia", "mass_moment", "reduced_linear_model", "reduced_output_matrix", "reduce_state", "RWP"]
+__dir__ = public_dir(globals())
+
 STATE_NAMES = ("theta", "theta_dot", "theta_r", "theta_r_dot")
 REDUCED_STATE_NAMES = ("theta", "theta_dot", "theta_r_dot")
 
