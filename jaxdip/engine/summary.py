@@ -30,8 +30,8 @@ class MetricSummary:
     (seeds masked out), arrays of the metric's per-seed shape (with a sweep: leading sweep axes). Indexed by a
     state name (or an int) along its last axis where that axis has one entry per state: ``s["error"]["phi"]``."""
 
-    def __init__(self, mean, lo, hi, n, failed, names: Optional[tuple[str, ...]] = None):
-        self.mean, self.lo, self.hi, self.n, self.failed = mean, lo, hi, n, failed
+    def __init__(self, mean, lo, hi, n, failed, names: Optional[tuple[str, ...]] = None, label: str = "metric"):
+        self.mean, self.lo, self.hi, self.n, self.failed, self.label = mean, lo, hi, n, failed, label
         # names label the last axis only where it has one entry per name (a scalar metric has no states)
         self.names = names if names is not None and np.ndim(mean) >= 1 and np.shape(mean)[-1] == len(names) else None
 
@@ -45,22 +45,25 @@ class MetricSummary:
                 raise KeyError(f"this metric has no state axis to index by name (per-seed shape {np.shape(self.mean)})")
             if key not in self.names:
                 raise KeyError(f"no state {key!r}; states are {self.names}")
+            label = f"{self.label}[{key}]"
             key = self.names.index(key)
-        if np.ndim(self.mean) == 0:
+        elif np.ndim(self.mean) == 0:
             raise IndexError("a scalar metric has no components")
+        else:
+            label = f"{self.label}[{self.names[key] if self.names else key}]"
         pick = lambda a: a[..., key] if np.ndim(a) == np.ndim(self.mean) else a
-        return MetricSummary(pick(self.mean), pick(self.lo), pick(self.hi), pick(self.n), self.failed)
+        return MetricSummary(pick(self.mean), pick(self.lo), pick(self.hi), pick(self.n), self.failed, label=label)
 
     def _rows(self, label: str) -> list[str]:
         if np.ndim(self.mean) == 0:
             return [f"{label:<24} {float(self.mean):12.5g}   [{float(self.lo):.5g}, {float(self.hi):.5g}]   "
-                    f"n={int(self.n)}"]
+                    f"{int(self.n)} of {int(self.n) + int(np.sum(self.failed))} seeds"]
         if self.names is not None and np.ndim(self.mean) == 1:
             return [row for i, name in enumerate(self.names) for row in self[i]._rows(f"{label}[{name}]")]
         return [f"{label:<24} shape {np.shape(self.mean)}: mean {np.array2string(np.asarray(self.mean), precision=4)}"]
 
     def __repr__(self) -> str:
-        return "\n".join(self._rows("metric"))
+        return "\n".join(self._rows(self.label))
 
 
 class Summary(Mapping):
@@ -131,6 +134,6 @@ def summary(sol: Any, names: Any = None, *, result: Any = None, axis: int = 0, l
     out = {}
     for keys, leaf in leaves:
         mean, lo, hi, n = t_interval(leaf, ok, axis=axis, level=level)
-        out[_path(keys)] = MetricSummary(mean, lo, hi, n, failed, state_names)
+        out[_path(keys)] = MetricSummary(mean, lo, hi, n, failed, state_names, label=_path(keys))
     count = lambda c: int(np.sum(codes == c)) if codes.ndim == 1 else np.sum(codes == c, axis=axis)
     return Summary(out, seeds, failed if np.ndim(failed) else int(failed), {c.name: count(c) for c in RESULTS})
