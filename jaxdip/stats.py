@@ -1,8 +1,9 @@
 """Summary statistics over Monte Carlo seeds, with 95% intervals.
 
-Means use the normal approximation (mean +- 1.96 s / sqrt(n)), which is what "95% interval over seeds" means
-at the hundreds-to-thousands of seeds we run; fractions use the Wilson score interval, which stays inside
-[0, 1] and is honest at 0 or n successes.
+``mean_ci``, what the experiments report, uses the normal approximation (mean +- 1.96 s / sqrt(n)), which is what
+"95% interval over seeds" means at the hundreds-to-thousands of seeds they run; ``t_interval`` (``jd.summary``'s)
+uses Student's t quantile instead, the same there and honest at a handful of seeds; fractions use the Wilson
+score interval (``wilson``), which stays inside [0, 1] and is honest at 0 or n successes. Public as ``jd.stats``.
 """
 
 from __future__ import annotations
@@ -10,8 +11,10 @@ from __future__ import annotations
 import functools
 import math
 from statistics import NormalDist
+from typing import Optional
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from jaxdip._public import public_dir
 
@@ -101,7 +104,8 @@ def t_quantile(level: float, df: int) -> float:
     return 0.5 * (lo + hi)
 
 
-def t_interval(values, mask=None, *, axis: int = 0, level: float = 0.95):
+def t_interval(values: ArrayLike, mask: Optional[ArrayLike] = None, *, axis: int = 0,
+               level: float = 0.95) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Student's t interval along ``axis`` (the seeds): ``(mean, lo, hi, n)``, arrays of the other axes' shape, with
     mean +- t s / sqrt(n), s the sample standard deviation of the ``n`` entries that ``mask`` selects (all when
     None; ``mask`` broadcasts against ``values`` from the left, so a per-seed mask selects whole seeds). The mean is
