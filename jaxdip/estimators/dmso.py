@@ -43,6 +43,7 @@ from jaxdip.engine.roles import Estimator, param
 
 from jaxdip._public import public_dir
 
+# not listed: predict (jaxdip.estimators.kalman.predict is the one public predict; DMSO.step is the route here)
 __all__ = ["DMSOState", "tanh_basis", "selection_matrix", "update_weights", "advance", "DMSOAux", "DMSO"]
 __dir__ = public_dir(globals())
 
