@@ -6,7 +6,8 @@ wants float32 passes explicit float32 arrays; nothing in jaxdip silently downcas
 
 The public namespace is flat (``import jaxdip as jd``): the engine (``jd.simulate``, ``jd.monte_carlo``,
 ``jd.Loop``, ``jd.Rollout``, the roles ``jd.Plant``, ``jd.Sensor``, ... and ``jd.metrics``) and the
-subpackages ``jd.plants``, ``jd.sensors``, ``jd.estimators``, ``jd.control``. See docs/engine.md.
+subpackages ``jd.plants``, ``jd.sensors``, ``jd.estimators``, ``jd.control``, ``jd.stats``; ``jd.summary`` reduces a
+Monte Carlo result to means and intervals, ``jd.FunctionPlant`` makes a plant of a plain function. See docs/engine.md.
 """
 
 from importlib import import_module as _import_module
@@ -21,13 +22,14 @@ __version__ = "0.1.0"
 # of the library (the engine, jaxdip.xla_flags before JAX starts, the CLI's argument parser) imports no other, and
 # no module depends on the package root: the layers (docs/architecture.md) hold for the imports Python runs too.
 _SUBMODULES = {"control": "jaxdip.control", "engine": "jaxdip.engine", "estimators": "jaxdip.estimators",
-               "plants": "jaxdip.plants", "sim": "jaxdip.sim", "sensors": "jaxdip.sim.sensors"}
+               "plants": "jaxdip.plants", "sim": "jaxdip.sim", "sensors": "jaxdip.sim.sensors",
+               "stats": "jaxdip.stats"}
 _NAMES = {
     **dict.fromkeys((
         "RESULTS", "Actuator", "Aux", "Ball", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux",
-        "Identity", "KeySchedule", "Loop", "Passthrough", "Plant", "Rollout", "Sample",
-        "Sensor", "Solution", "State", "init_state", "linearize", "metrics", "monte_carlo", "param", "simulate",
-        "split_lanes"), "jaxdip.engine"),
+        "FunctionPlant", "Identity", "KeySchedule", "Loop", "Passthrough", "Plant", "Rollout", "Sample", "Sensor",
+        "Solution", "State", "Summary", "init_state", "linearize", "metrics", "monte_carlo", "param", "simulate",
+        "split_lanes", "summary"), "jaxdip.engine"),
     "Discrete": "jaxdip.sim.discretize", "zoh": "jaxdip.sim.discretize",
 }
 __all__ = sorted([*_SUBMODULES, *_NAMES])
@@ -45,4 +47,6 @@ def __getattr__(name: str):
 
 
 def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+    # the public names only: not jax, the helpers above or what Python puts in every module (``__version__`` and
+    # the other dunders stay reachable as attributes)
+    return sorted(__all__)

@@ -4,8 +4,11 @@ from jaxdip.control.feedback import ConstantInput, SaturatedFeedback, StateFeedb
 from jaxdip.control.riccati import (RiccatiCode, RiccatiError, care, care_checked, dare, dare_checked, dlqr,
                                    error_if_failed, lqr, lyap, riccati_status)
 
+from jaxdip._public import public_dir
+
 __all__ = ["ConstantInput", "SaturatedFeedback", "StateFeedback", "care", "dare", "dlqr", "lqr", "lyap",
            "care_checked", "dare_checked", "riccati_status", "error_if_failed", "RiccatiCode", "RiccatiError"]
+__dir__ = public_dir(globals())
 from jaxdip.control.power_series import PowerSeries  # noqa: E402
 from jaxdip.control.projection import RelaxedProjection  # noqa: E402
 

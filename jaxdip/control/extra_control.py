@@ -88,6 +88,12 @@ import jax.numpy as jnp
 
 from jaxdip.engine.roles import Controller, param
 
+from jaxdip._public import public_dir
+
+__all__ = ["N_IN1", "N_IN2", "VIRTUAL", "ExtraControlState", "model_coefficients", "desired_constants", "desired_state",
+           "network", "virtual_tilt", "extra_law", "inner_rate", "outer_rate", "ExtraControlAux", "ExtraControl"]
+__dir__ = public_dir(globals())
+
 N_IN1 = 10  # P1 = [1, x1, x2, x3, x4, e1, e2, x1d, x2d, u]
 N_IN2 = 12  # P2 = [1, x1, x2, x3, x4, e1, e2, ebar3, ebar4, x1d, x2d, u_nom]
 VIRTUAL = ("printed", "effective", "flat")

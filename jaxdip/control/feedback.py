@@ -8,6 +8,12 @@ import jax.numpy as jnp
 from jaxdip.engine.roles import Controller, param
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["StateFeedback", "ConstantInput", "SaturatedFeedback"]
+__dir__ = public_dir(globals())
+
+
 class StateFeedback(Controller):
     """u = u_ref - K (xhat - x_ref); x_ref and u_ref default to zero."""
 

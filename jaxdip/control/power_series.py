@@ -20,6 +20,12 @@ from jaxdip.control.riccati import care
 from jaxdip.engine.roles import Controller, linearize, param
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["third_order_term", "PowerSeries"]
+__dir__ = public_dir(globals())
+
+
 def third_order_term(f, x):
     """f_3(x) = (1/6) d^3/dt^3 f(t x) at t = 0, for f: R^n -> R^n (x is the expansion's displacement)."""
 

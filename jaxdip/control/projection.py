@@ -31,6 +31,13 @@ import jax.numpy as jnp
 from jaxdip.engine.roles import Controller, param
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["projection", "relaxed_discrete", "relaxed_continuous", "state_weight", "drift_and_input",
+           "RelaxedProjection", "projected_closed_loop", "relaxed_closed_form"]
+__dir__ = public_dir(globals())
+
+
 def _solve_gPg(P, g, rhs):
     g = g.reshape(P.shape[0], -1)
     gPg = g.T @ P @ g

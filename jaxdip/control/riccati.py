@@ -49,6 +49,12 @@ import jax.numpy as jnp
 import numpy as np
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["RTOL", "RiccatiError", "RiccatiCode", "lyap", "stein", "care", "care_checked", "dare", "dare_checked",
+           "lqr", "dlqr", "riccati_status", "error_if_failed"]
+__dir__ = public_dir(globals())
+
 RTOL = 1e-8  # relative Riccati residual below which a solution counts as converged
 _PBH_TOL = 1e-6  # relative tolerances of the diagnostic PBH tests (they only name a failure already found)
 _REG = 1e-6  # relative weight of the identity added to Q in the DARE fallback

@@ -14,6 +14,12 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["householder_basis", "P_v", "gram_schmidt_basis", "orthonormalize", "P_Vs", "surface_normal"]
+__dir__ = public_dir(globals())
+
+
 def householder_basis(v):
     """Orthonormal basis whose first column is v / ||v||, via the two reflections of (2.19)."""
     v = jnp.asarray(v, dtype=jnp.float64)

@@ -26,6 +26,11 @@ from jaxdip.control.riccati import dlqr
 from jaxdip.plants import twip
 from jaxdip.sim.discretize import zoh
 
+from jaxdip._public import public_dir
+
+__all__ = ["Q_THESIS", "R_THESIS", "TwipDesign", "twip_discrete", "twip_dlqr"]
+__dir__ = public_dir(globals())
+
 # (151)-(152): the weights of every simulation of §8.1
 Q_THESIS = (10.0, 10.0, 1e-5, 1e-4)
 R_THESIS = 1000.0

@@ -11,11 +11,16 @@ from jaxdip.engine.simulate import (
     RESULTS, Aux, KeySchedule, Loop, Sample, Solution, State, init_state, simulate,
 )
 from jaxdip.engine.driver import Ball, Gaussian, Rollout, device_mesh, monte_carlo
+from jaxdip.engine.function_plant import FunctionPlant
+from jaxdip.engine.summary import MetricSummary, Summary, summary
+
+from jaxdip._public import public_dir
 
 __all__ = [
     "metrics", "Actuator", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux", "Identity",
     "Passthrough", "Plant", "Sensor", "linearize", "param", "RESULTS", "Aux",
     "KeySchedule", "Loop", "split_lanes",
     "Sample", "Solution", "State", "init_state", "simulate", "Ball", "Rollout", "device_mesh", "monte_carlo",
-    "Gaussian",
+    "Gaussian", "FunctionPlant", "MetricSummary", "Summary", "summary",
 ]
+__dir__ = public_dir(globals())

@@ -27,6 +27,11 @@ from jaxdip.engine.roles import param
 from jaxdip.engine.simulate import Loop, Solution, State, init_state, simulate
 from jaxdip.progress import Progress
 
+from jaxdip._public import public_dir
+
+__all__ = ["AUTO_SHARD_MIN_SEEDS", "Ball", "Gaussian", "Rollout", "device_mesh", "monte_carlo"]
+__dir__ = public_dir(globals())
+
 # Sharding a batch over the host devices pays once it amortises the partitioned program's extra compile
 # (measured on dip-lqr: 2.5x faster at 4096 seeds on 2 cores); below this many seeds ``shard=None`` does not.
 AUTO_SHARD_MIN_SEEDS = 512

@@ -11,6 +11,12 @@ from __future__ import annotations
 import jax
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["rk4_step", "rk4_zoh"]
+__dir__ = public_dir(globals())
+
+
 def rk4_step(f, params, x, u, h):
     """One classical RK4 step of xdot = f(params, x, u) with u held."""
     k1 = f(params, x, u)

@@ -5,6 +5,12 @@ from __future__ import annotations
 import jax
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["split_lanes"]
+__dir__ = public_dir(globals())
+
+
 def split_lanes(key, n: int) -> tuple:
     """``jax.random.split(key, n)`` as a tuple of ``n`` keys, each computed on its own, so that the compiled
     program keeps only the keys a loop uses (a period's split into five feeds one sensor in most loops).

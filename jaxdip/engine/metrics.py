@@ -28,6 +28,12 @@ import jax.numpy as jnp
 
 from jaxdip.engine.roles import param
 
+from jaxdip._public import public_dir
+
+# not listed: init, update and finalize, the engine's own helpers over a pytree of reducers
+__all__ = ["Selector", "Reducer", "Sum", "Moments", "RMS", "MaxAbs", "TimeToBand", "Window"]
+__dir__ = public_dir(globals())
+
 Selector = Union[str, Callable]
 
 

@@ -33,6 +33,13 @@ import jax.numpy as jnp
 from jaxdip.engine.integrate import rk4_zoh
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["param", "Plant", "DiscretePlant", "linearize", "Sensor", "Estimator", "Controller", "Actuator", "Identity",
+           "Passthrough", "FanOutAux", "FanOut"]
+__dir__ = public_dir(globals())
+
+
 def _as_float_array(v):
     return jnp.asarray(v, dtype=jnp.result_type(float))
 

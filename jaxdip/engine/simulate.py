@@ -34,6 +34,12 @@ from jaxdip.engine.keys import split_lanes
 from jaxdip.engine.roles import Identity, _as_float_array, param
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["RESULTS", "KeySchedule", "Loop", "Aux", "Sample", "State", "Solution", "init_state", "simulate"]
+__dir__ = public_dir(globals())
+
+
 class RESULTS(enum.IntEnum):
     """Per-trajectory outcome codes (stored as int32 in ``Solution.result``)."""
 

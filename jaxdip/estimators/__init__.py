@@ -14,6 +14,8 @@ from jaxdip.estimators.ukf import UnscentedKalmanFilter
 from jaxdip.estimators.weighted_mhe import WeightedMHE
 from jaxdip.estimators.wrappers import Ahead, Delayed, DelayedMeasurement, FromTruth, InitialError, Prior
 
+from jaxdip._public import public_dir
+
 __all__ = [
     "kalman", "linearized", "proximal", "recorded", "bias_observers", "continuous", "homd", "luenberger",
     "CPX", "LinearizedCPX", "DMSO", "KalmanFilter", "ExtendedKalmanFilter", "UnscentedKalmanFilter", "LDF",
@@ -22,3 +24,4 @@ __all__ = [
     "AffineStep", "local_model", "ls_mhe_filter", "prox_ls", "prox_ls_svd",
     "kalman_filter", "log_likelihood", "rts_smoother",
 ]
+__dir__ = public_dir(globals())

@@ -30,6 +30,12 @@ import jax.scipy.linalg as jsl
 from jaxdip.estimators.kalman import guarded_cho_factor
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["dual_active_set"]
+__dir__ = public_dir(globals())
+
+
 def dual_active_set(G, lo, hi, K, M, R, X_u, c, iters: int):
     """Dual active-set iterations (Goldfarb and Idnani) for min 1/2 X^T H X - g^T X subject to
     lo <= G X + c <= hi, from the unconstrained minimiser X_u = H^{-1} g (module docstring), H = R^T R,

@@ -43,6 +43,13 @@ from jaxdip.estimators.continuous import SampledObserver
 from jaxdip.estimators.homd import spow
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["lowpass_rhs", "beta_z", "joint_bias", "joint_rhs", "joint_error_rhs", "LowpassHOMD", "LowpassMeasured",
+           "ReducedOrderMeasured", "JointObserver"]
+__dir__ = public_dir(globals())
+
+
 def _f(v):
     return jnp.asarray(v, dtype=jnp.float64)
 

@@ -27,6 +27,12 @@ from jaxdip.engine.roles import Estimator, param
 from jaxdip.sim.twip_sensors import complementary_update
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["ComplementaryFilter"]
+__dir__ = public_dir(globals())
+
+
 class ComplementaryFilter(Estimator):
     """(37) applied inside a measurement vector: channel ``angle_index`` (theta_a) is replaced by the filtered
     tilt, using channel ``rate_index`` (the gyro) as the rate; other channels pass unchanged. State:

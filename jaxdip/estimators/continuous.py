@@ -27,6 +27,11 @@ import jax.numpy as jnp
 
 from jaxdip.engine.roles import Estimator
 
+from jaxdip._public import public_dir
+
+__all__ = ["HOLDS", "integrate_interval", "SampledObserver"]
+__dir__ = public_dir(globals())
+
 HOLDS = ("foh", "zoh")
 
 

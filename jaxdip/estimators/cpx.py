@@ -65,6 +65,12 @@ from jaxdip.estimators.proximal import prox_from_qr, prox_from_svd, qr_factor, s
 from jaxdip.sim.discretize import Discrete
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["centered_matrix", "centered_vector", "CPXState", "CPXAux", "CPX", "LinearizedCPX"]
+__dir__ = public_dir(globals())
+
+
 def centered_matrix(step: AffineStep, C):
     """G = [C Phi^{-1}; C; C Phi] (thesis (1.30))."""
     return jnp.concatenate([C @ step.Phi_inv, C, C @ step.Phi], axis=0)

@@ -41,6 +41,13 @@ import jax.numpy as jnp
 from jaxdip.engine.roles import Estimator, param
 
 
+from jaxdip._public import public_dir
+
+# not listed: predict (jaxdip.estimators.kalman.predict is the one public predict; DMSO.step is the route here)
+__all__ = ["DMSOState", "tanh_basis", "selection_matrix", "update_weights", "advance", "DMSOAux", "DMSO"]
+__dir__ = public_dir(globals())
+
+
 class DMSOState(NamedTuple):
     xhat: jnp.ndarray  # xhat_k
     W: jnp.ndarray  # W_k (already updated with e_k)

@@ -38,6 +38,13 @@ from jaxdip.estimators.continuous import SampledObserver
 from jaxdip.plants import rwp
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["spow", "HOMDGains", "gains", "differentiator_rhs", "error_rhs", "a1", "pendulum_accel",
+           "wheel_current_gain", "wheel_accel", "rwp_homd_rhs", "observer_model", "HOMDObserver"]
+__dir__ = public_dir(globals())
+
+
 @jax.custom_jvp
 def spow(x, a):
     """⌈x⌋^a = |x|^a sgn(x), with finite derivatives in x and a everywhere (see the module docstring)."""

@@ -39,6 +39,12 @@ import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
+from jaxdip._public import public_dir
+
+__all__ = ["KFState", "GaussianAux", "sym", "guarded_cho_factor", "log_likelihood_of", "predict", "update", "condition",
+           "smoother_gain"]
+__dir__ = public_dir(globals())
+
 _LOG_2PI = 1.8378770664093453
 _PIVOT_RTOL = 1e-10  # guarded innovation solve: smallest Cholesky pivot^2 relative to max diag S (see above)
 

@@ -24,6 +24,12 @@ from jaxdip.estimators.kalman import GaussianAux, KFState, predict, update
 from jaxdip.estimators.linearized import local_model
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["KalmanFilter", "ExtendedKalmanFilter"]
+__dir__ = public_dir(globals())
+
+
 def _at(a, j):
     """A time-invariant matrix, or entry j of a stack over time."""
     return a if a.ndim == 2 else a[j]

@@ -18,6 +18,12 @@ from jaxdip.engine.roles import Estimator, param
 from jaxdip.sim.discretize import zoh
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["LDF"]
+__dir__ = public_dir(globals())
+
+
 def _discretise(w, zeta, dt):
     A = jnp.array([[0.0, 1.0], [-(w**2), -2.0 * zeta * w]])
     B = jnp.array([[0.0], [w**2]])

@@ -28,6 +28,12 @@ import jax.numpy as jnp
 
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["AffineStep", "lti_step", "expm_small", "local_model"]
+__dir__ = public_dir(globals())
+
+
 class AffineStep(NamedTuple):
     """x_{k+1} = Phi x_k + W u_k + b  and  x_k = Phi_inv (x_{k+1} - W u_k - b)."""
 

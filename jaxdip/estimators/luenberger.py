@@ -31,6 +31,13 @@ from jaxdip.estimators.continuous import SampledObserver
 from jaxdip.plants import rwp
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["full_linear_model", "decoupled_gain", "luenberger_rhs", "velocity_step_rise_time", "matched_omega",
+           "matched_gain", "LuenbergerObserver"]
+__dir__ = public_dir(globals())
+
+
 def full_linear_model(p: rwp.RWP):
     """(A4, B4, C4) of (9), input column from (2)-(3)."""
     a = homd.a1(p)

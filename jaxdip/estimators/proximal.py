@@ -44,6 +44,13 @@ import jax.scipy.linalg as jsl
 
 from jaxdip.engine.roles import Estimator, param
 
+from jaxdip._public import public_dir
+
+__all__ = ["stacked_system", "qr_factor", "prox_from_qr", "prox_ls", "SVDFactor", "jacobi_svd", "svd_factor",
+           "prox_from_svd", "prox_ls_svd", "horizon_stack", "lti_horizon_matrix", "MHETrace", "ls_mhe_filter",
+           "LSMHEState", "LSMHEAux", "LeastSquaresMHE"]
+__dir__ = public_dir(globals())
+
 # ---- the proximal step --------------------------------------------------------------------------------
 
 

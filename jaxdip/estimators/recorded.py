@@ -23,6 +23,12 @@ from jaxdip.engine.roles import Estimator
 from jaxdip.estimators.kalman import smoother_gain, sym
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["run", "inputs_before", "FilterResult", "SmootherResult", "kalman_filter", "log_likelihood", "rts_smoother"]
+__dir__ = public_dir(globals())
+
+
 def run(est: Estimator, ys, us_prev, x0, key: Optional[jax.Array] = None):
     """Feed samples j = 0..T-1 to ``est``: ``ys[j]`` = y_j and ``us_prev[j]`` = u_{j-1} (zeros for j = 0).
 

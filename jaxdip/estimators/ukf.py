@@ -29,6 +29,12 @@ import jax.numpy as jnp
 from jaxdip.engine.roles import Estimator, param
 from jaxdip.estimators.kalman import GaussianAux, KFState, condition, sym
 
+from jaxdip._public import public_dir
+
+__all__ = ["DEFAULT_ALPHA", "DEFAULT_BETA", "DEFAULT_KAPPA", "SigmaWeights", "sigma_weights", "sigma_points",
+           "unscented_transform", "ukf_predict", "ukf_update", "UnscentedKalmanFilter"]
+__dir__ = public_dir(globals())
+
 DEFAULT_ALPHA, DEFAULT_BETA, DEFAULT_KAPPA = 3.0**0.5, 2.0, 1.0
 
 

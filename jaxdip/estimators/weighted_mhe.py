@@ -75,6 +75,12 @@ from jaxdip.estimators.active_set import dual_active_set
 from jaxdip.sim.discretize import Discrete
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["WMHEState", "WMHEAux", "WeightedMHE"]
+__dir__ = public_dir(globals())
+
+
 class WMHEState(NamedTuple):
     factor: tuple  # (R^{-1} Q^T,) of the stacked matrix A = Q R; with constraints also R and (K, M)
     xbar: jax.Array  # prior of the next window's anchor state

@@ -33,6 +33,12 @@ import jax.numpy as jnp
 from jaxdip.engine.roles import Estimator, param
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["started_at", "FromTruth", "InitialError", "Prior", "Ahead", "Delayed", "DelayedMeasurement"]
+__dir__ = public_dir(globals())
+
+
 def started_at(est, x):
     """``est`` with the ``xhat0`` of its innermost estimator that has one replaced by ``x``."""
     if hasattr(est, "xhat0"):

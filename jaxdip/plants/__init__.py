@@ -7,4 +7,7 @@ from jaxdip.plants.lorenz import Lorenz
 from jaxdip.plants.rwp import RWP
 from jaxdip.plants.twip import TWIP
 
+from jaxdip._public import public_dir
+
 __all__ = ["DIP", "Lorenz", "RWP", "TWIP", "dip", "examples2d", "lorenz", "rwp", "twip"]
+__dir__ = public_dir(globals())

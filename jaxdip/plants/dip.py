@@ -24,6 +24,14 @@ import jax.numpy as jnp
 
 from jaxdip.engine.roles import Plant, param
 
+from jaxdip._public import public_dir
+
+# not listed: STATE_NAMES (the plant's state_names) and the equations whose names repeat in other plant modules
+# (f, energy, output_matrix): each stays reachable here, one name per concept holds for what is listed
+__all__ = ["cart_force", "cart_mass", "solve_sym3", "f_printed", "kinetic_energy", "potential_energy", "f_lagrangian",
+           "DIP"]
+__dir__ = public_dir(globals())
+
 STATE_NAMES = ("xc", "alpha", "theta", "xc_dot", "alpha_dot", "theta_dot")
 
 

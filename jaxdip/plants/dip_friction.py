@@ -18,6 +18,12 @@ from jaxdip.engine.roles import Plant, param
 from jaxdip.plants.dip import DIP, STATE_NAMES
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["volts_per_newton", "CartFriction"]
+__dir__ = public_dir(globals())
+
+
 def volts_per_newton(p: DIP):
     """The voltage change that changes the cart force by 1 N (at any cart velocity)."""
     return p.Rm * p.rmp / (p.Kg * p.Kt)

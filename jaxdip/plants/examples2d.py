@@ -15,6 +15,13 @@ import jax.numpy as jnp
 
 from jaxdip.engine.roles import DiscretePlant, param
 
+from jaxdip._public import public_dir
+
+# not listed: STATE_NAMES (the plant's state_names) and the equations whose names repeat in other plant modules
+# (f, energy, output_matrix): each stays reachable here, one name per concept holds for what is listed
+__all__ = ["Linear", "Nonlinear"]
+__dir__ = public_dir(globals())
+
 STATE_NAMES = ("x1", "x2")
 
 

@@ -18,6 +18,13 @@ import jax.numpy as jnp
 
 from jaxdip.engine.roles import Plant, param
 
+from jaxdip._public import public_dir
+
+# not listed: STATE_NAMES (the plant's state_names) and the equations whose names repeat in other plant modules
+# (f, energy, output_matrix): each stays reachable here, one name per concept holds for what is listed
+__all__ = ["equilibria", "Lorenz"]
+__dir__ = public_dir(globals())
+
 STATE_NAMES = ("xL", "yL", "zL")
 
 

@@ -26,6 +26,14 @@ import jax.numpy as jnp
 
 from jaxdip.engine.roles import Plant, param
 
+from jaxdip._public import public_dir
+
+# not listed: STATE_NAMES (the plant's state_names) and the equations whose names repeat in other plant modules
+# (f, energy, output_matrix): each stays reachable here, one name per concept holds for what is listed
+__all__ = ["REDUCED_STATE_NAMES", "PENDULUM_ANGLE_RESOLUTION", "WHEEL_ANGLE_RESOLUTION", "SAMPLING_HZ", "DT",
+           "K_TABLE2", "inertia", "mass_moment", "reduced_linear_model", "reduced_output_matrix", "reduce_state", "RWP"]
+__dir__ = public_dir(globals())
+
 STATE_NAMES = ("theta", "theta_dot", "theta_r", "theta_r_dot")
 REDUCED_STATE_NAMES = ("theta", "theta_dot", "theta_r_dot")
 

@@ -28,6 +28,13 @@ import jax.numpy as jnp
 
 from jaxdip.engine.roles import Plant, param
 
+from jaxdip._public import public_dir
+
+# not listed: STATE_NAMES (the plant's state_names) and the equations whose names repeat in other plant modules
+# (f, energy, output_matrix): each stays reachable here, one name per concept holds for what is listed
+__all__ = ["TABLES", "beta", "alpha", "accelerations", "linear_model_closed_form", "TWIP", "TWIPUnmodeled"]
+__dir__ = public_dir(globals())
+
 STATE_NAMES = ("x", "x_dot", "phi", "phi_dot")
 # Table 8.1 is the field defaults of ``TWIP``; Table 8.2 differs in Iw, ke, km, Mp, Mw and R
 TABLES = {

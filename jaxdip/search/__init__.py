@@ -2,4 +2,7 @@
 
 from jaxdip.search.eki import EKI, EKIState, ensemble_update, run_eki
 
+from jaxdip._public import public_dir
+
 __all__ = ["EKI", "EKIState", "ensemble_update", "run_eki"]
+__dir__ = public_dir(globals())

@@ -30,6 +30,12 @@ from jax.flatten_util import ravel_pytree
 
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["EKIState", "ensemble_update", "ensemble_update_resample", "sanitize", "EKI", "run_eki", "align_signs"]
+__dir__ = public_dir(globals())
+
+
 class EKIState(NamedTuple):
     members: jnp.ndarray  # (J, p) flattened members
     key: jnp.ndarray

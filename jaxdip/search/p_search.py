@@ -20,6 +20,14 @@ from jaxdip.control.projection import RelaxedProjection
 from jaxdip.control.spd import P_v, P_Vs, orthonormalize
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["discrete_performance", "BasisMember", "project_member", "member_P", "member_blocks", "ContinuousSearch",
+           "NoiseStream", "QuadraticFrom", "performance_loop", "rp_performance", "continuous_performance",
+           "performances", "iterate", "lowest_y1", "direction_search"]
+__dir__ = public_dir(globals())
+
+
 def _loop(plant, controller, **kw):
     # full-state feedback: the state is measured exactly and is the estimate
     return jd.Loop(plant=plant, sensor=jd.Identity(), estimator=jd.Passthrough(), controller=controller, **kw)

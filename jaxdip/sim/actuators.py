@@ -10,6 +10,13 @@ from jaxdip.engine.keys import split_lanes
 from jaxdip.engine.roles import Actuator, Sensor, param
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["saturate", "deadzone", "BACKLASH_LAWS", "backlash", "Saturation", "Deadzone", "OutputBacklash",
+           "InputBacklash", "Chain"]
+__dir__ = public_dir(globals())
+
+
 def saturate(u, u_min, u_max):
     return jnp.clip(u, u_min, u_max)
 

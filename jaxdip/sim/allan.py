@@ -28,6 +28,13 @@ import math
 import numpy as np
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["allan_variance", "avar_white", "avar_gauss_markov", "avar_differenced_quantised", "avar_stationary",
+           "avar_sampled_white_gauss_markov"]
+__dir__ = public_dir(globals())
+
+
 def allan_variance(y, m) -> np.ndarray:
     """Overlapping Allan variance of ``y`` (1-D, one sample per period) at the cluster sizes ``m`` (ints >= 1,
     each at most (len(y) - 1) / 2); returns one value per entry of ``m``."""

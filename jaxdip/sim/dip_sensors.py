@@ -23,6 +23,12 @@ import jax.numpy as jnp
 
 from jaxdip.sim import sensors
 
+from jaxdip._public import public_dir
+
+__all__ = ["ENCODER_COUNTS_PER_REV", "ANGLE_QUANTUM", "CART_ENCODER_PINION_RADIUS", "CART_QUANTUM", "DEFAULT_QUANTA",
+           "MEASURED", "output_matrix", "encoders"]
+__dir__ = public_dir(globals())
+
 ENCODER_COUNTS_PER_REV = 4096  # 1024 lines x 4 (quadrature)
 ANGLE_QUANTUM = 2.0 * math.pi / ENCODER_COUNTS_PER_REV  # rad per count
 CART_ENCODER_PINION_RADIUS = 0.01483  # m (IP02 position-encoder pinion)

@@ -9,6 +9,12 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["Discrete", "zoh"]
+__dir__ = public_dir(globals())
+
+
 class Discrete(NamedTuple):
     Phi: jnp.ndarray  # e^{A h}
     Phi_inv: jnp.ndarray  # e^{-A h}, exact rather than a numerical inverse

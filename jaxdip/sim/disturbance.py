@@ -16,6 +16,12 @@ import jax.numpy as jnp
 from jaxdip.engine.roles import Actuator, param
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["InputDisturbance"]
+__dir__ = public_dir(globals())
+
+
 class InputDisturbance(Actuator):
     """The input disturbance as an actuator: ``offset_std`` and ``white_std``, one entry per input (a scalar is
     broadcast to ``m`` inputs). The state is the per-trial offset d, drawn at ``init``; ``aux`` is d as well."""

@@ -19,6 +19,12 @@ from jaxdip.engine.keys import split_lanes
 from jaxdip.engine.roles import Sensor, param
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["gauss_markov_coeffs", "gauss_markov_stationary_std", "quantize", "WhiteNoise", "LinearSensor"]
+__dir__ = public_dir(globals())
+
+
 def gauss_markov_coeffs(sigma_b, tau, dt):
     a = jnp.exp(-dt / tau)
     q_std = jnp.sqrt(sigma_b**2 * tau / 2.0 * (1.0 - a**2))

@@ -32,6 +32,11 @@ import jax.numpy as jnp
 from jaxdip.engine.roles import Sensor, param
 from jaxdip.sim import sensors
 
+from jaxdip._public import public_dir
+
+__all__ = ["DEG", "TwipSensorState", "table_7_1", "complementary_update", "TwipSensors"]
+__dir__ = public_dir(globals())
+
 DEG = math.pi / 180.0
 
 

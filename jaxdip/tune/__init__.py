@@ -9,7 +9,10 @@ from jaxdip.tune.transforms import (Bounded, Log, Softplus, SPDFactor, Transform
 from jaxdip.tune.tuner import (SearchResult, TuneResult, default_optimizer, random_search, tune,
                                value_and_grad_fn)
 
+from jaxdip._public import public_dir
+
 __all__ = ["Bounded", "Log", "Softplus", "SPDFactor", "Transform", "Unconstrained", "to_constrained",
            "to_unconstrained", "unconstrained_spec", "SearchResult", "TuneResult", "default_optimizer",
            "random_search", "tune", "value_and_grad_fn", "Checkpointed", "Objective", "checkpointed",
            "mc_objective", "monte_carlo_at", "seed_runs"]
+__dir__ = public_dir(globals())

@@ -29,6 +29,12 @@ from jaxdip.tune.transforms import unconstrained_spec, to_constrained, to_uncons
 from jaxdip.tune.tuner import TuneResult, tune
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["LGSSMModel", "LikelihoodFit", "total_log_likelihood", "fit_marginal_likelihood"]
+__dir__ = public_dir(globals())
+
+
 class LGSSMModel(NamedTuple):
     """x_0 ~ N(m0, P0), x_{k+1} = Phi x_k + W u_k + w, y_k = C x_k + v (see ``jaxdip.estimators.recorded``)."""
 

@@ -29,6 +29,12 @@ import jax.numpy as jnp
 from jaxdip.engine.driver import monte_carlo
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["Objective", "seed_runs", "monte_carlo_at", "Checkpointed", "checkpointed", "mc_objective"]
+__dir__ = public_dir(globals())
+
+
 class Objective:
     """J(theta, key) = mean over seeds of ``per_seed(theta, key)``; ``diverged(theta, key)`` (optional) flags
     the seeds whose trajectories failed. A plain object rather than attributes stuck on a function, so what an

@@ -13,6 +13,13 @@ import jax
 import jax.numpy as jnp
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["Transform", "Unconstrained", "Log", "Softplus", "Bounded", "SPDFactor", "to_constrained",
+           "to_unconstrained", "unconstrained_spec"]
+__dir__ = public_dir(globals())
+
+
 class Transform:
     def forward(self, u):  # unconstrained -> constrained
         raise NotImplementedError

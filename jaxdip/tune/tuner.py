@@ -23,6 +23,12 @@ from jaxdip.progress import Progress
 from jaxdip.tune.transforms import unconstrained_spec, to_constrained, to_unconstrained
 
 
+from jaxdip._public import public_dir
+
+__all__ = ["TuneResult", "default_optimizer", "value_and_grad_fn", "tune", "SearchResult", "random_search"]
+__dir__ = public_dir(globals())
+
+
 class TuneResult(NamedTuple):
     theta: Any  # best theta seen (lowest J)
     loss: float  # J at the best theta (on the key used at that step)
