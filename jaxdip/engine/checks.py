@@ -18,8 +18,9 @@ import jax
 import numpy as np
 
 # Symmetry and definiteness are judged to rounding: a covariance computed as A A^T or assembled from a
-# config is symmetric to ~1e-16 relative, so 1e-9 relative never rejects one built honestly.
-_SYM_RTOL = 1e-9
+# config is symmetric to ~1e-16 relative (an inverse of an ill-conditioned one to ~1e-10), so 1e-6 relative
+# never rejects one built honestly and still catches a matrix that is not symmetric at all.
+_SYM_RTOL = 1e-6
 _EIG_RTOL = 1e-12
 
 
@@ -220,6 +221,25 @@ def check_physical(owner: Any, positive: Sequence[str] = (), nonnegative: Sequen
         check_nonnegative(owner, name, getattr(owner, name))
     for name in finite:
         check_finite(owner, name, getattr(owner, name))
+
+
+def check_lti(owner: Any, Phi: Any, W: Any, C: Any = None, Phi_inv: Any = None, prefix: str = "") -> tuple:
+    """A discrete LTI model: Phi (d, d), W (d, m), C (p, d), Phi_inv (d, d), finite; returns (d, m, p).
+    ``prefix`` names where the matrices sit ("model." for a ``Discrete`` argument)."""
+    d = check_square(owner, prefix + "Phi", Phi)
+    why = f"for a {d}-state model (Phi is {fmt_shape(shape_of(Phi))})"
+    check_shape(owner, prefix + "W", W, (d, None), why)
+    m = shape_of(W)[1]
+    p = None
+    if Phi_inv is not None:
+        check_shape(owner, prefix + "Phi_inv", Phi_inv, (d, d), why)
+    if C is not None:
+        check_shape(owner, "C", C, (None, d), why)
+        p = shape_of(C)[0]
+    for name, v in ((prefix + "Phi", Phi), (prefix + "W", W), ("C", C), (prefix + "Phi_inv", Phi_inv)):
+        if v is not None:
+            check_finite(owner, name, v)
+    return d, m, p
 
 
 def _first_bad(a: np.ndarray, bad: np.ndarray) -> str:
