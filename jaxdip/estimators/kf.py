@@ -77,6 +77,8 @@ class KalmanFilter(_Gaussian):
         self.Phi, self.C, self.Q, self.R, self.P0, self.jitter = Phi, C, Q, R, P0, jitter
         d = jnp.shape(Phi)[-1]
         W = jnp.zeros((d, 1)) if W is None else jnp.asarray(W)
+        if W.ndim <= 2:  # (d,) is one input; a stack over time (T, d, m) is checked once built
+            checks.check_shape(self, "W", W, (d, None) if W.ndim == 2 else (d,), f"for a {d}-state model")
         self.W = jnp.reshape(W, (d, -1)) if W.ndim <= 2 else W
         self.xhat0 = jnp.zeros(d) if xhat0 is None else xhat0
 
