@@ -48,6 +48,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.control.riccati_args import check_problem
 from jaxdip.engine import checks, effort
 
 RTOL = 1e-8  # relative Riccati residual below which a solution counts as converged
@@ -79,48 +80,6 @@ class _RNotPositiveDefinite(RiccatiError, checks.ArgumentError):
     """R not positive definite: an argument error, raised as the ``RiccatiError`` python-control users expect."""
 
 
-def _check_problem(owner: str, A, B, Q, R, values: bool = True) -> None:
-    """Shapes, dtypes and values of (A, B, Q, R) before anything is solved: A (n, n), B (n, m), Q (n, n)
-    symmetric PSD, R (m, m) symmetric positive definite, all finite (values only when concrete). Scalars and
-    vectors are read as ``jnp.atleast_2d`` reads them (the solvers' convention). ``values=False``: shapes and
-    dtypes only (the ``*_checked`` solvers report bad values as a code, never raise on them)."""
-    shapes = {}
-    for name, v in (("A", A), ("B", B), ("Q", Q), ("R", R)):
-        checks.check_real(owner, name, v)
-        shape = checks.shape_of(v)
-        if len(shape) > 2:
-            checks.fail(owner, f"{name} must be a matrix, got shape {checks.fmt_shape(shape)}")
-        shapes[name] = (1,) * (2 - len(shape)) + shape
-
-    given = {"A": A, "B": B, "Q": Q, "R": R}
-
-    def expect(name, shape, why):
-        got = shapes[name]
-        if tuple(got) != tuple(e if e is not None else g for e, g in zip(shape, got)):
-            original = checks.fmt_shape(checks.shape_of(given[name]))
-            checks.fail(owner, f"{name} must be {checks.fmt_shape(shape)} {why}, got {original}")
-
-    n = shapes["A"][0]
-    if shapes["A"][1] != n:
-        checks.fail(owner, f"A must be a square matrix, got {checks.fmt_shape(checks.shape_of(A))}")
-    a = f"(A is {checks.fmt_shape(shapes['A'])})"
-    expect("B", (n, None), f"for a {n}-state model {a}")
-    m = shapes["B"][1]
-    expect("Q", (n, n), f"for a {n}-state model {a}")
-    expect("R", (m, m), f"for {m} inputs (B is {checks.fmt_shape(shapes['B'])})")
-    if not values:
-        return
-    for name, v in (("A", A), ("B", B)):
-        checks.check_finite(owner, name, v)
-    if checks.is_concrete(Q):
-        checks.check_psd(owner, "Q", np.atleast_2d(np.asarray(Q, dtype=float)))
-    if checks.is_concrete(R):
-        try:
-            checks.check_psd(owner, "R", np.atleast_2d(np.asarray(R, dtype=float)), definite=True)
-        except checks.ArgumentError as e:
-            raise _RNotPositiveDefinite(f"{e}: R is not positive definite") from None
-
-
 def _f64(*arrs):
     return [jnp.atleast_2d(jnp.asarray(a, dtype=jnp.float64)) for a in arrs]
 
@@ -148,7 +107,7 @@ def care(A, B, Q, R, sign_iters: int = 60, newton_iters: int = 3, *, rtol: float
 
     With concrete inputs a failed solve raises ``RiccatiError``; traced calls are not checked (see
     ``care_checked``)."""
-    _check_problem("care", A, B, Q, R)
+    check_problem("care", A, B, Q, R, _RNotPositiveDefinite)
     A, B, Q, R = _f64(A, B, Q, R)
     X = _care(A, B, Q, R, sign_iters, newton_iters)
     _host_check(A, B, Q, R, X, False, rtol, "raise sign_iters or newton_iters")
@@ -158,7 +117,7 @@ def care(A, B, Q, R, sign_iters: int = 60, newton_iters: int = 3, *, rtol: float
 def care_checked(A, B, Q, R, sign_iters: int = 60, newton_iters: int = 3, *,
                  rtol: float = RTOL) -> tuple[jax.Array, jax.Array]:
     """``(X, code)``: the CARE solution and its ``RiccatiCode``; never raises, so it works under jit/vmap/grad."""
-    _check_problem("care_checked", A, B, Q, R, values=False)
+    check_problem("care_checked", A, B, Q, R, _RNotPositiveDefinite, values=False)
     A, B, Q, R = _f64(A, B, Q, R)
     X = _care(A, B, Q, R, sign_iters, newton_iters)
     return X, riccati_status(A, B, Q, R, X, discrete=False, rtol=rtol)
@@ -216,7 +175,7 @@ def _care_jvp(sign_iters, newton_iters, primals, tangents):
 def dare(A, B, Q, R, iters: int = 40, *, rtol: float = RTOL) -> jax.Array:
     """Stabilising solution X of X = A^T X A - A^T X B (R + B^T X B)^-1 B^T X A + Q (doubling algorithm;
     differentiable in A, B, Q, R). With concrete inputs a failed solve raises ``RiccatiError``."""
-    _check_problem("dare", A, B, Q, R)
+    check_problem("dare", A, B, Q, R, _RNotPositiveDefinite)
     A, B, Q, R = _f64(A, B, Q, R)
     X = _dare(A, B, Q, R, iters)
     _host_check(A, B, Q, R, X, True, rtol, "raise iters")
@@ -225,7 +184,7 @@ def dare(A, B, Q, R, iters: int = 40, *, rtol: float = RTOL) -> jax.Array:
 
 def dare_checked(A, B, Q, R, iters: int = 40, *, rtol: float = RTOL) -> tuple[jax.Array, jax.Array]:
     """``(X, code)``: the DARE solution and its ``RiccatiCode``; never raises, so it works under jit/vmap/grad."""
-    _check_problem("dare_checked", A, B, Q, R, values=False)
+    check_problem("dare_checked", A, B, Q, R, _RNotPositiveDefinite, values=False)
     A, B, Q, R = _f64(A, B, Q, R)
     X = _dare(A, B, Q, R, iters)
     return X, riccati_status(A, B, Q, R, X, discrete=True, rtol=rtol)
@@ -297,7 +256,7 @@ def lqr(A, B, Q, R, *, rtol: float = RTOL) -> tuple[jax.Array, jax.Array, jax.Ar
 
     Raises ``RiccatiError`` for concrete inputs without a stabilising solution, like python-control's ``lqr``;
     under jit use ``care_checked`` (or ``riccati_status`` on S) for a result code."""
-    _check_problem("lqr", A, B, Q, R)
+    check_problem("lqr", A, B, Q, R, _RNotPositiveDefinite)
     A, B, Q, R = _f64(A, B, Q, R)
     S = care(A, B, Q, R, rtol=rtol)
     K = jnp.linalg.solve(R, B.T @ S)
@@ -307,7 +266,7 @@ def lqr(A, B, Q, R, *, rtol: float = RTOL) -> tuple[jax.Array, jax.Array, jax.Ar
 
 def dlqr(A, B, Q, R, *, rtol: float = RTOL) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Discrete LQR: returns (K, S, E) with u_k = -K x_k (raises like ``lqr``; ``dare_checked`` under jit)."""
-    _check_problem("dlqr", A, B, Q, R)
+    check_problem("dlqr", A, B, Q, R, _RNotPositiveDefinite)
     A, B, Q, R = _f64(A, B, Q, R)
     S = dare(A, B, Q, R, rtol=rtol)
     K = jnp.linalg.solve(R + B.T @ S @ B, B.T @ S @ A)

@@ -180,9 +180,9 @@ class DIP(Plant):
 
     def __check_init__(self):
         checks.check_choice(self, "variant", self.variant, ("printed", "lagrangian"))
-        checks.check_physical(self, positive=("g", "I1", "I2", "Kg", "Km", "Kt", "l1", "l2", "L1", "L2", "Mc", "M1",
+        checks.check_physical(self, positive=("g", "I1", "I2", "Kg", "l1", "l2", "L1", "L2", "Mc", "M1",
                                               "M2", "Rm", "rmp"),
-                              nonnegative=("Bc", "B1", "B2", "Jm", "Mh", "Mw"))
+                              nonnegative=("Bc", "B1", "B2", "Jm", "Km", "Kt", "Mh", "Mw"))  # Kt = Km = 0: no motor
 
     def vector_field(self, x, u):
         return (f_printed if self.variant == "printed" else f_lagrangian)(self, x, u)

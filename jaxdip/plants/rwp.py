@@ -105,7 +105,7 @@ class RWP(Plant):
     input_names = ("I",)
 
     def __check_init__(self):
-        checks.check_physical(self, positive=("mp", "lp", "Jp", "mr", "lr", "Jr", "k", "g"))
+        checks.check_physical(self, positive=("mp", "lp", "Jp", "mr", "lr", "Jr", "g"), nonnegative=("k",))
 
     def vector_field(self, x, u):
         return f(self, x, u)

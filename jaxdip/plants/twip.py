@@ -118,7 +118,8 @@ class TWIP(Plant):
     input_names = ("V",)
 
     def __check_init__(self):
-        checks.check_physical(self, positive=("Ip", "Iw", "ke", "km", "l", "Mp", "Mw", "r", "R", "g"))
+        checks.check_physical(self, positive=("Ip", "Iw", "l", "Mp", "Mw", "r", "R", "g"),
+                              nonnegative=("ke", "km"))
 
     @classmethod
     def table(cls, which: str, **kw) -> "TWIP":
