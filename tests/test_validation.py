@@ -115,7 +115,7 @@ CASES = [
     ("ldf-omega", lambda d: LDF(np.array([1.0, -2.0, 3.0]), 0.9, n_pos=3, dt=DT), ArgumentError,
      r"^LDF: omega must be positive and finite, got -2 at index 1"),
     ("initial-error-std", lambda d: InitialError(kf(d), -0.1), ArgumentError, r"^InitialError: std must be >= 0"),
-    ("wrapper-inner", lambda d: FromTruth("kf"), ArgumentTypeError, r"^FromTruth: inner must be a jaxdip Estimator"),
+    ("wrapper-inner", lambda d: FromTruth("kf"), ArgumentTypeError, r"^FromTruth: inner must be an estimator \(init and step\), got str"),
     # sensors and actuators
     ("whitenoise-std-neg", lambda d: WhiteNoise(-0.1), ArgumentError, r"^WhiteNoise: std must be >= 0"),
     ("whitenoise-std-matrix", lambda d: WhiteNoise(np.ones((2, 2))), ArgumentError,

@@ -243,9 +243,12 @@ class FanOut(Estimator):
 
     def io_sizes(self) -> dict:
         # the controller sees the driving estimator's output; every estimator reads the same y and u
-        sizes = dict(self.estimators[self.drive].io_sizes())
+        def of(e):
+            return e.io_sizes() if callable(getattr(e, "io_sizes", None)) else {}
+
+        sizes = dict(of(self.estimators[self.drive]))
         for name, e in self.estimators.items():
-            for key, (size, why) in e.io_sizes().items():
+            for key, (size, why) in of(e).items():
                 if key == "out" or size == SAME:
                     continue
                 if key in sizes and sizes[key][0] != size:

@@ -32,8 +32,7 @@ import jax.numpy as jnp
 from jaxdip.engine import metrics as _metrics
 from jaxdip.engine.keys import split_lanes
 from jaxdip.engine import checks
-from jaxdip.engine.roles import (SAME, Actuator, Controller, Estimator, Identity, Plant, Sensor,
-                                  _as_float_array, param)
+from jaxdip.engine.roles import SAME, Identity, Plant, _as_float_array, param
 
 
 class RESULTS(enum.IntEnum):
@@ -101,6 +100,11 @@ class Loop(eqx.Module):
         _check_loop(self)
 
 
+def _sizes(c) -> dict:
+    sizes = getattr(c, "io_sizes", None)
+    return sizes() if callable(sizes) else {}
+
+
 def _part(role: str, c) -> str:
     return f"the {role} {type(c).__name__}"
 
@@ -112,10 +116,13 @@ def _check_loop(loop: Loop) -> None:
     if not isinstance(plant, Plant):
         raise checks.ArgumentTypeError(f"Loop: plant must be a jaxdip Plant (or DiscretePlant), "
                                        f"got {type(plant).__name__}")
-    for role, c, base in (("sensor", loop.sensor, Sensor), ("estimator", loop.estimator, Estimator),
-                          ("controller", loop.controller, Controller), ("actuator", loop.actuator, Actuator)):
-        if not isinstance(c, base):
-            raise checks.ArgumentTypeError(f"Loop: {role} must be a jaxdip {base.__name__}, got {type(c).__name__}")
+    # the other roles are duck-typed (``Identity`` is a full-state sensor as well as the ideal actuator): a part
+    # needs init and step
+    for role, c in (("sensor", loop.sensor), ("estimator", loop.estimator), ("controller", loop.controller),
+                    ("actuator", loop.actuator)):
+        if not (callable(getattr(c, "init", None)) and callable(getattr(c, "step", None))):
+            raise checks.ArgumentTypeError(f"Loop: {role} must be a component with init and step (a jaxdip "
+                                           f"{role.capitalize()}), got {type(c).__name__}")
     if isinstance(loop.dt, bool) or not isinstance(loop.dt, (int, float)) or not (0 < loop.dt < float("inf")):
         checks.fail("Loop", f"dt must be a positive finite number of seconds, got {loop.dt!r}")
     checks.check_int("Loop", "substeps", loop.substeps, 1)
@@ -138,14 +145,14 @@ def _check_loop(loop: Loop) -> None:
         b = f" ({why_b})" if why_b else ""
         checks.fail("Loop", f"{what_a} {size_a}{a} but {what_b} {size_b}{b}")
 
-    sens = loop.sensor.io_sizes()
+    sens = _sizes(loop.sensor)
     if "in" in sens and sens["in"][0] != n:
         mismatch(f"{_part('sensor', loop.sensor)} reads", f"{sens['in'][0]} states", sens["in"][1],
                  f"{pname} has", f"{n} states", "")
     p, p_why = sens.get("out", (None, ""))
     if p == SAME:
         p, p_why = n, "a full-state sensor"
-    est = loop.estimator.io_sizes()
+    est = _sizes(loop.estimator)
     if "in" in est and p is not None and est["in"][0] != p:
         mismatch(f"{_part('sensor', loop.sensor)} gives", f"{p} outputs", p_why,
                  f"{_part('estimator', loop.estimator)} expects", f"{est['in'][0]} measurements", est["in"][1])
@@ -155,14 +162,14 @@ def _check_loop(loop: Loop) -> None:
     nh, nh_why = est.get("out", (None, ""))
     if nh == SAME:
         nh, nh_why = (p, p_why) if p is not None else (est["in"] if "in" in est else (None, ""))
-    ctrl = loop.controller.io_sizes()
+    ctrl = _sizes(loop.controller)
     if "in" in ctrl and nh is not None and ctrl["in"][0] != nh:
         mismatch(f"{_part('estimator', loop.estimator)} gives", f"{nh} estimated states", nh_why,
                  f"{_part('controller', loop.controller)} expects", f"{ctrl['in'][0]} states", ctrl["in"][1])
     if "out" in ctrl and ctrl["out"][0] not in (SAME, m):
         mismatch(f"{_part('controller', loop.controller)} gives", f"{ctrl['out'][0]} inputs", ctrl["out"][1],
                  f"{pname} has", f"{m} inputs", "")
-    act = loop.actuator.io_sizes()
+    act = _sizes(loop.actuator)
     for key in ("in", "out"):
         if key in act and act[key][0] not in (SAME, m):
             mismatch(f"{_part('actuator', loop.actuator)} {'reads' if key == 'in' else 'gives'}",

@@ -45,8 +45,8 @@ def started_at(est, x):
 
 def _check_inner(self) -> None:
     # a wrapper around something that is not an estimator fails at the first step, deep inside the scan
-    if not isinstance(self.inner, Estimator):
-        raise checks.ArgumentTypeError(f"{type(self).__name__}: inner must be a jaxdip Estimator, "
+    if not (callable(getattr(self.inner, "init", None)) and callable(getattr(self.inner, "step", None))):
+        raise checks.ArgumentTypeError(f"{type(self).__name__}: inner must be an estimator (init and step), "
                                        f"got {type(self.inner).__name__}")
     if isinstance(getattr(self, "std", None), jax.Array):
         checks.check_scalar_or_vector(self, "std", self.std, why="(one std for every state, or one per state)")
@@ -55,7 +55,8 @@ def _check_inner(self) -> None:
 
 def _inner_sizes(self) -> dict:
     # a wrapper reads and hands on what its inner estimator does (a delay or another output of the same size)
-    return self.inner.io_sizes()
+    sizes = getattr(self.inner, "io_sizes", None)
+    return sizes() if callable(sizes) else {}
 
 
 class FromTruth(Estimator):

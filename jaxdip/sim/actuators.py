@@ -136,8 +136,9 @@ class Chain(Actuator):
 
     def __init__(self, *stages: Actuator):
         for i, st in enumerate(stages):
-            if not isinstance(st, Actuator):
-                raise checks.ArgumentTypeError(f"Chain: stage {i} must be a jaxdip Actuator, got {type(st).__name__}")
+            if not (callable(getattr(st, "init", None)) and callable(getattr(st, "step", None))):
+                raise checks.ArgumentTypeError(f"Chain: stage {i} must be an actuator (init and step), "
+                                               f"got {type(st).__name__}")
         self.stages = tuple(stages)
 
     def init(self, key, x0):
