@@ -170,6 +170,8 @@ CASES = [
      r"^dlqr: Q must be symmetric positive semidefinite"),
     ("care-checked-shape", lambda d: jd.control.care_checked(d["A"], d["B"], np.eye(6), np.eye(3)), ArgumentError,
      r"^care_checked: R must be \(1, 1\)"),
+    ("lyap-Q", lambda d: jd.control.lyap(d["A"], np.eye(4)), ArgumentError,
+     r"^lyap: Q must be \(6, 6\) for a 6-state model \(A is \(6, 6\)\), got \(4, 4\)"),
     # discretisation and linearisation
     ("zoh-h", lambda d: jd.zoh(d["A"], d["B"], -0.01), ArgumentError, r"^zoh: h must be positive"),
     ("zoh-B", lambda d: jd.zoh(d["A"], np.ones((4, 1)), DT), ArgumentError, r"^zoh: B must be \(6, m\) or \(6,\)"),

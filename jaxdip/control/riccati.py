@@ -86,7 +86,8 @@ def _f64(*arrs):
 
 def lyap(A, Q):
     """Solve A^T X + X A + Q = 0 (A Hurwitz) by the Kronecker form; fine for the small n of pendulums."""
-    n = A.shape[0]
+    n = checks.check_square("lyap", "A", A)
+    checks.check_shape("lyap", "Q", Q, (n, n), f"for a {n}-state model (A is {checks.fmt_shape(A.shape)})")
     I = jnp.eye(n)
     L = jnp.kron(I, A.T) + jnp.kron(A.T, I)
     x = jnp.linalg.solve(L, -Q.reshape(-1))
