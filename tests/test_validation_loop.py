@@ -36,14 +36,14 @@ CASES = [
     ("wrapped-estimator", lambda d: loop(d, estimator=FromTruth(kf(d))), ArgumentError,
      r"^Loop: the sensor WhiteNoise gives 6 outputs .* but the estimator FromTruth expects 3 measurements"),
     ("estimator-inputs", lambda d: loop(d, sensor=LinearSensor(d["C3"], DT), estimator=kf(d, W=np.zeros((6, 2)))),
-     ArgumentError, r"^Loop: the plant DIP has 1 inputs but the estimator KalmanFilter expects 2 inputs \(W is \(6, 2\)\)"),
+     ArgumentError, r"^Loop: the plant DIP has 1 input but the estimator KalmanFilter expects 2 inputs \(W is \(6, 2\)\)"),
     ("estimator-vs-controller", lambda d: loop(d, controller=jd.control.StateFeedback(np.ones((1, 4)))),
      ArgumentError, r"^Loop: the estimator Passthrough gives 6 estimated states .* but the controller StateFeedback "
                     r"expects 4 states \(K is \(1, 4\)\)$"),
     ("controller-vs-plant", lambda d: loop(d, controller=jd.control.StateFeedback(np.ones((2, 6)))), ArgumentError,
-     r"^Loop: the controller StateFeedback gives 2 inputs \(K is \(2, 6\)\) but the plant DIP has 1 inputs$"),
+     r"^Loop: the controller StateFeedback gives 2 inputs \(K is \(2, 6\)\) but the plant DIP has 1 input$"),
     ("actuator-vs-plant", lambda d: loop(d, actuator=Saturation(-np.ones(2), np.ones(2))), ArgumentError,
-     r"^Loop: the actuator Saturation reads 2 inputs \(u_min has 2 entries\) but the plant DIP has 1 inputs"),
+     r"^Loop: the actuator Saturation reads 2 inputs \(u_min has 2 entries\) but the plant DIP has 1 input"),
     ("fanout-disagree", lambda d: loop(d, sensor=LinearSensor(d["C3"], DT), estimator=jd.FanOut(
         {"kf": kf(d), "kf6": kf(d, C=np.eye(6), R=np.eye(6))}, drive="kf")), ArgumentError,
      r"^FanOut: estimators\['kf6'\] reads 6 values \(C is \(6, 6\)\) but estimators\['kf'\] reads 3"),
@@ -100,6 +100,7 @@ def test_a_right_loop_builds_and_runs(dip):  # noqa: F811
     assert int(sol.result) == 0 and np.all(np.isfinite(np.asarray(sol.final.x)))
     fan = jd.FanOut({"kf": kf(dip), "from_truth": FromTruth(kf(dip))}, drive="kf")
     loop(dip, sensor=LinearSensor(dip["C3"], DT), estimator=fan)
+    loop(dip, sensor=jd.Identity(), dt=np.float32(DT))  # Identity as a full-state sensor; a NumPy period
 
 
 def test_vmapped_gain_sweep_builds_inside_vmap(dip):  # noqa: F811

@@ -23,6 +23,7 @@ components keep stepping on the frozen state, as in the original loop.
 from __future__ import annotations
 
 import enum
+import numbers
 from typing import Any, Callable, NamedTuple, Optional
 
 import equinox as eqx
@@ -105,6 +106,10 @@ def _sizes(c) -> dict:
     return sizes() if callable(sizes) else {}
 
 
+def _count(k, noun: str) -> str:
+    return f"{k} {noun}" if k == 1 else f"{k} {noun}s"
+
+
 def _part(role: str, c) -> str:
     return f"the {role} {type(c).__name__}"
 
@@ -123,7 +128,7 @@ def _check_loop(loop: Loop) -> None:
         if not (callable(getattr(c, "init", None)) and callable(getattr(c, "step", None))):
             raise checks.ArgumentTypeError(f"Loop: {role} must be a component with init and step (a jaxdip "
                                            f"{role.capitalize()}), got {type(c).__name__}")
-    if isinstance(loop.dt, bool) or not isinstance(loop.dt, (int, float)) or not (0 < loop.dt < float("inf")):
+    if isinstance(loop.dt, bool) or not isinstance(loop.dt, numbers.Real) or not (0 < loop.dt < float("inf")):
         checks.fail("Loop", f"dt must be a positive finite number of seconds, got {loop.dt!r}")
     checks.check_int("Loop", "substeps", loop.substeps, 1)
     n, m = plant.n, plant.m
@@ -147,33 +152,33 @@ def _check_loop(loop: Loop) -> None:
 
     sens = _sizes(loop.sensor)
     if "in" in sens and sens["in"][0] != n:
-        mismatch(f"{_part('sensor', loop.sensor)} reads", f"{sens['in'][0]} states", sens["in"][1],
-                 f"{pname} has", f"{n} states", "")
+        mismatch(f"{_part('sensor', loop.sensor)} reads", _count(sens['in'][0], "state"), sens["in"][1],
+                 f"{pname} has", _count(n, "state"), "")
     p, p_why = sens.get("out", (None, ""))
     if p == SAME:
         p, p_why = n, "a full-state sensor"
     est = _sizes(loop.estimator)
     if "in" in est and p is not None and est["in"][0] != p:
-        mismatch(f"{_part('sensor', loop.sensor)} gives", f"{p} outputs", p_why,
-                 f"{_part('estimator', loop.estimator)} expects", f"{est['in'][0]} measurements", est["in"][1])
+        mismatch(f"{_part('sensor', loop.sensor)} gives", _count(p, "output"), p_why,
+                 f"{_part('estimator', loop.estimator)} expects", _count(est['in'][0], "measurement"), est["in"][1])
     if "u" in est and est["u"][0] != m:
-        mismatch(f"{pname} has", f"{m} inputs", "", f"{_part('estimator', loop.estimator)} expects",
-                 f"{est['u'][0]} inputs", est["u"][1])
+        mismatch(f"{pname} has", _count(m, "input"), "", f"{_part('estimator', loop.estimator)} expects",
+                 _count(est['u'][0], "input"), est["u"][1])
     nh, nh_why = est.get("out", (None, ""))
     if nh == SAME:
         nh, nh_why = (p, p_why) if p is not None else (est["in"] if "in" in est else (None, ""))
     ctrl = _sizes(loop.controller)
     if "in" in ctrl and nh is not None and ctrl["in"][0] != nh:
-        mismatch(f"{_part('estimator', loop.estimator)} gives", f"{nh} estimated states", nh_why,
-                 f"{_part('controller', loop.controller)} expects", f"{ctrl['in'][0]} states", ctrl["in"][1])
+        mismatch(f"{_part('estimator', loop.estimator)} gives", _count(nh, "estimated state"), nh_why,
+                 f"{_part('controller', loop.controller)} expects", _count(ctrl['in'][0], "state"), ctrl["in"][1])
     if "out" in ctrl and ctrl["out"][0] not in (SAME, m):
-        mismatch(f"{_part('controller', loop.controller)} gives", f"{ctrl['out'][0]} inputs", ctrl["out"][1],
-                 f"{pname} has", f"{m} inputs", "")
+        mismatch(f"{_part('controller', loop.controller)} gives", _count(ctrl['out'][0], "input"), ctrl["out"][1],
+                 f"{pname} has", _count(m, "input"), "")
     act = _sizes(loop.actuator)
     for key in ("in", "out"):
         if key in act and act[key][0] not in (SAME, m):
             mismatch(f"{_part('actuator', loop.actuator)} {'reads' if key == 'in' else 'gives'}",
-                     f"{act[key][0]} inputs", act[key][1], f"{pname} has", f"{m} inputs", "")
+                     _count(act[key][0], "input"), act[key][1], f"{pname} has", _count(m, "input"), "")
 
 
 class Aux(NamedTuple):
