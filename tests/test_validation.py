@@ -163,7 +163,7 @@ CASES = [
     ("lqr-A-square", lambda d: jd.control.lqr(np.ones((6, 5)), d["B"], np.eye(6), np.eye(1)), ArgumentError,
      r"^lqr: A must be a square matrix, got \(6, 5\)"),
     ("lqr-R-shape", lambda d: jd.control.lqr(d["A"], d["B"], np.eye(6), np.eye(2)), ArgumentError,
-     r"^lqr: R must be \(1, 1\) for 1 inputs"),
+     r"^lqr: R must be \(1, 1\) for 1 input \(B is \(6, 1\)\), got \(2, 2\)$"),
     ("lqr-A-dtype", lambda d: jd.control.lqr("A", d["B"], np.eye(6), np.eye(1)), ArgumentTypeError,
      r"^lqr: A must be real numbers"),
     ("dlqr-Q-psd", lambda d: jd.control.dlqr(d["model"].Phi, d["model"].W, NOT_PSD, np.eye(1)), ArgumentError,

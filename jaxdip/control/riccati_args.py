@@ -37,7 +37,7 @@ def check_problem(owner: str, A, B, Q, R, r_error: type = checks.ArgumentError, 
     expect("B", (n, None), f"for a {n}-state model {a}")
     m = shapes["B"][1]
     expect("Q", (n, n), f"for a {n}-state model {a}")
-    expect("R", (m, m), f"for {m} inputs (B is {checks.fmt_shape(shapes['B'])})")
+    expect("R", (m, m), f"for {m} input{'s' if m != 1 else ''} (B is {checks.fmt_shape(shapes['B'])})")
     if not values:
         return
     for name, v in (("A", A), ("B", B)):
