@@ -100,7 +100,7 @@ def test_a_right_loop_builds_and_runs(dip):  # noqa: F811
     assert int(sol.result) == 0 and np.all(np.isfinite(np.asarray(sol.final.x)))
     fan = jd.FanOut({"kf": kf(dip), "from_truth": FromTruth(kf(dip))}, drive="kf")
     loop(dip, sensor=LinearSensor(dip["C3"], DT), estimator=fan)
-    loop(dip, sensor=jd.Identity(), dt=np.float32(DT))  # Identity as a full-state sensor; a NumPy period
+    loop(dip, sensor=jd.Identity())  # Identity as a full-state sensor (eki-dip and the p-search use it)
 
 
 def test_vmapped_gain_sweep_builds_inside_vmap(dip):  # noqa: F811
