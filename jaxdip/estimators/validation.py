@@ -5,8 +5,7 @@ from __future__ import annotations
 from jaxdip.engine import checks
 
 
-def check_weighted_mhe_args(self, model, C, meas_weight, arrival_weight, proc_weight, gamma, xhat0, N, anchor,
-                            prior) -> int:
+def wmhe_args(self, model, C, meas_weight, arrival_weight, proc_weight, gamma, xhat0, N, anchor, prior) -> int:
     """``WeightedMHE.__init__``'s arguments, before any is converted; returns the state size d."""
     if not isinstance(model, tuple) or len(model) != 3:
         raise checks.ArgumentTypeError(f"WeightedMHE: model must be a Discrete(Phi, Phi_inv, W) (jd.zoh), "

@@ -154,8 +154,7 @@ class WeightedMHE(Estimator):
                  anchor: int = 0, xhat0=None, lower=None, upper=None, box_iters: Optional[int] = None,
                  prior: str = "smoothed", h: Optional[Callable] = None,
                  window_sqrt=None, A_c=None, b_c=None):
-        d = validation.check_weighted_mhe_args(self, model, C, meas_weight, arrival_weight, proc_weight, gamma,
-                                               xhat0, N, anchor, prior)
+        d = validation.wmhe_args(self, model, C, meas_weight, arrival_weight, proc_weight, gamma, xhat0, N, anchor, prior)
         self.prior = prior
         if (C is None) == (h is None):
             raise ValueError("give exactly one of C (linear output map) and h (nonlinear output map)")
