@@ -26,7 +26,7 @@ _SUBMODULES = {"control": "jaxdip.control", "engine": "jaxdip.engine", "estimato
                "stats": "jaxdip.stats"}
 _NAMES = {
     **dict.fromkeys((
-        "RESULTS", "Actuator", "Aux", "Ball", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux",
+        "RESULTS", "ArgumentError", "ArgumentTypeError", "Actuator", "Aux", "Ball", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux",
         "FunctionPlant", "Identity", "KeySchedule", "Loop", "Passthrough", "Plant", "Rollout", "Sample", "Sensor",
         "Solution", "State", "Summary", "init_state", "linearize", "metrics", "monte_carlo", "param", "simulate",
         "split_lanes", "summary"), "jaxdip.engine"),

@@ -17,7 +17,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.control.riccati import care
-from jaxdip.engine.roles import Controller, linearize, param
+from jaxdip.engine import checks
+from jaxdip.engine.roles import Controller, Plant, linearize, param
 
 
 from jaxdip._public import public_dir
@@ -55,6 +56,22 @@ class PowerSeries(Controller):
     B: jax.Array = param()
     R: jax.Array = param()
     plant: Any
+
+    def __check_init__(self):
+        if not isinstance(self.plant, Plant):
+            raise checks.ArgumentTypeError(f"PowerSeries: plant must be a jaxdip Plant, got {type(self.plant).__name__}")
+        n, m = self.plant.n, self.plant.m
+        why = f"for the plant {type(self.plant).__name__} ({n} states, {m} inputs)"
+        checks.check_covariance(self, "P", self.P, n, why)
+        checks.check_shape(self, "A", self.A, (n, n), why)
+        checks.check_shape(self, "B", self.B, (n, m), why)
+        checks.check_covariance(self, "R", self.R, m, why, definite=True)
+        checks.check_finite(self, "A", self.A)
+        checks.check_finite(self, "B", self.B)
+
+    def io_sizes(self) -> dict:
+        why = f"its plant model {type(self.plant).__name__}"
+        return {"in": (self.plant.n, why), "out": (self.plant.m, why)}
 
     @classmethod
     def design(cls, plant, Q, R) -> "PowerSeries":

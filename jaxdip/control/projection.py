@@ -28,7 +28,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from jaxdip.engine.roles import Controller, param
+from jaxdip.engine import checks
+from jaxdip.engine.roles import Controller, Plant, param
 
 
 from jaxdip._public import public_dir
@@ -104,8 +105,23 @@ class RelaxedProjection(Controller):
     projection_only: bool = eqx.field(default=False, static=True)
 
     def __check_init__(self):
-        if self.kind not in ("continuous", "discrete"):
-            raise ValueError(f"kind must be 'continuous' or 'discrete', got {self.kind!r}")
+        checks.check_choice(self, "kind", self.kind, ("continuous", "discrete"))
+        if not isinstance(self.model, Plant):
+            raise checks.ArgumentTypeError(f"RelaxedProjection: model must be a jaxdip Plant, "
+                                           f"got {type(self.model).__name__}")
+        n = self.model.n
+        why = f"for the model {type(self.model).__name__} ({n} states)"
+        # P is checked for its shape and finiteness only: published weights are symmetric to their printed digits
+        checks.check_shape(self, "P", self.P, (n, n), why)
+        checks.check_finite(self, "P", self.P)
+        if self.x_ref is not None:
+            checks.check_state_vector(self, "x_ref", self.x_ref, n, why)
+        checks.check_nonnegative(self, "gamma", self.gamma)
+        checks.check_nonnegative(self, "alpha", self.alpha)
+
+    def io_sizes(self) -> dict:
+        why = f"its model {type(self.model).__name__}"
+        return {"in": (self.model.n, why), "out": (self.model.m, why)}
 
     def step(self, state, xhat, key, k):
         m = self.model

@@ -48,6 +48,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.control.riccati_args import check_problem
+from jaxdip.engine import checks
 
 from jaxdip._public import public_dir
 
@@ -80,13 +82,18 @@ class RiccatiCode:
         return cls.messages[int(code)]
 
 
+class _RNotPositiveDefinite(RiccatiError, checks.ArgumentError):
+    """R not positive definite: an argument error, raised as the ``RiccatiError`` python-control users expect."""
+
+
 def _f64(*arrs):
     return [jnp.atleast_2d(jnp.asarray(a, dtype=jnp.float64)) for a in arrs]
 
 
 def lyap(A, Q):
     """Solve A^T X + X A + Q = 0 (A Hurwitz) by the Kronecker form; fine for the small n of pendulums."""
-    n = A.shape[0]
+    n = checks.check_square("lyap", "A", A)
+    checks.check_shape("lyap", "Q", Q, (n, n), f"for a {n}-state model (A is {checks.fmt_shape(A.shape)})")
     I = jnp.eye(n)
     L = jnp.kron(I, A.T) + jnp.kron(A.T, I)
     x = jnp.linalg.solve(L, -Q.reshape(-1))
@@ -107,6 +114,7 @@ def care(A, B, Q, R, sign_iters: int = 60, newton_iters: int = 3, *, rtol: float
 
     With concrete inputs a failed solve raises ``RiccatiError``; traced calls are not checked (see
     ``care_checked``)."""
+    check_problem("care", A, B, Q, R, _RNotPositiveDefinite)
     A, B, Q, R = _f64(A, B, Q, R)
     X = _care(A, B, Q, R, sign_iters, newton_iters)
     _host_check(A, B, Q, R, X, False, rtol, "raise sign_iters or newton_iters")
@@ -116,6 +124,7 @@ def care(A, B, Q, R, sign_iters: int = 60, newton_iters: int = 3, *, rtol: float
 def care_checked(A, B, Q, R, sign_iters: int = 60, newton_iters: int = 3, *,
                  rtol: float = RTOL) -> tuple[jax.Array, jax.Array]:
     """``(X, code)``: the CARE solution and its ``RiccatiCode``; never raises, so it works under jit/vmap/grad."""
+    check_problem("care_checked", A, B, Q, R, _RNotPositiveDefinite, values=False)
     A, B, Q, R = _f64(A, B, Q, R)
     X = _care(A, B, Q, R, sign_iters, newton_iters)
     return X, riccati_status(A, B, Q, R, X, discrete=False, rtol=rtol)
@@ -173,6 +182,7 @@ def _care_jvp(sign_iters, newton_iters, primals, tangents):
 def dare(A, B, Q, R, iters: int = 40, *, rtol: float = RTOL) -> jax.Array:
     """Stabilising solution X of X = A^T X A - A^T X B (R + B^T X B)^-1 B^T X A + Q (doubling algorithm;
     differentiable in A, B, Q, R). With concrete inputs a failed solve raises ``RiccatiError``."""
+    check_problem("dare", A, B, Q, R, _RNotPositiveDefinite)
     A, B, Q, R = _f64(A, B, Q, R)
     X = _dare(A, B, Q, R, iters)
     _host_check(A, B, Q, R, X, True, rtol, "raise iters")
@@ -181,6 +191,7 @@ def dare(A, B, Q, R, iters: int = 40, *, rtol: float = RTOL) -> jax.Array:
 
 def dare_checked(A, B, Q, R, iters: int = 40, *, rtol: float = RTOL) -> tuple[jax.Array, jax.Array]:
     """``(X, code)``: the DARE solution and its ``RiccatiCode``; never raises, so it works under jit/vmap/grad."""
+    check_problem("dare_checked", A, B, Q, R, _RNotPositiveDefinite, values=False)
     A, B, Q, R = _f64(A, B, Q, R)
     X = _dare(A, B, Q, R, iters)
     return X, riccati_status(A, B, Q, R, X, discrete=True, rtol=rtol)
@@ -252,6 +263,7 @@ def lqr(A, B, Q, R, *, rtol: float = RTOL) -> tuple[jax.Array, jax.Array, jax.Ar
 
     Raises ``RiccatiError`` for concrete inputs without a stabilising solution, like python-control's ``lqr``;
     under jit use ``care_checked`` (or ``riccati_status`` on S) for a result code."""
+    check_problem("lqr", A, B, Q, R, _RNotPositiveDefinite)
     A, B, Q, R = _f64(A, B, Q, R)
     S = care(A, B, Q, R, rtol=rtol)
     K = jnp.linalg.solve(R, B.T @ S)
@@ -261,6 +273,7 @@ def lqr(A, B, Q, R, *, rtol: float = RTOL) -> tuple[jax.Array, jax.Array, jax.Ar
 
 def dlqr(A, B, Q, R, *, rtol: float = RTOL) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Discrete LQR: returns (K, S, E) with u_k = -K x_k (raises like ``lqr``; ``dare_checked`` under jit)."""
+    check_problem("dlqr", A, B, Q, R, _RNotPositiveDefinite)
     A, B, Q, R = _f64(A, B, Q, R)
     S = dare(A, B, Q, R, rtol=rtol)
     K = jnp.linalg.solve(R + B.T @ S @ B, B.T @ S @ A)

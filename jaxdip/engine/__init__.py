@@ -2,6 +2,7 @@
 the ``monte_carlo`` driver. See docs/engine.md. Everything here is re-exported flat from ``jaxdip``."""
 
 from jaxdip.engine import metrics
+from jaxdip.engine.checks import ArgumentError, ArgumentTypeError
 from jaxdip.engine.keys import split_lanes
 from jaxdip.engine.roles import (
     Actuator, Controller, DiscretePlant, Estimator, FanOut, FanOutAux, Identity, Passthrough,
@@ -21,6 +22,6 @@ __all__ = [
     "Passthrough", "Plant", "Sensor", "linearize", "param", "RESULTS", "Aux",
     "KeySchedule", "Loop", "split_lanes",
     "Sample", "Solution", "State", "init_state", "simulate", "Ball", "Rollout", "device_mesh", "monte_carlo",
-    "Gaussian", "FunctionPlant", "MetricSummary", "Summary", "summary",
+    "Gaussian", "FunctionPlant", "MetricSummary", "Summary", "summary", "ArgumentError", "ArgumentTypeError",
 ]
 __dir__ = public_dir(globals())

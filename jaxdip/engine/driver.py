@@ -22,9 +22,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.engine import checks
 from jaxdip.engine import metrics as _metrics
 from jaxdip.engine.roles import param
-from jaxdip.engine.simulate import Loop, Solution, State, init_state, simulate
+from jaxdip.engine.simulate import Loop, Solution, State, _check_x0, init_state, simulate
 from jaxdip.progress import Progress
 
 from jaxdip._public import public_dir
@@ -43,6 +44,12 @@ class Ball(eqx.Module):
     center: jax.Array = param()
     radius: jax.Array = param(0.0)
 
+    def __check_init__(self):
+        checks.check_ndim(self, "center", self.center, (1,), "a vector (one entry per state)")
+        checks.check_finite(self, "center", self.center)
+        checks.check_ndim(self, "radius", self.radius, (0,), "a scalar")
+        checks.check_nonnegative(self, "radius", self.radius)
+
     def __call__(self, key):
         n = self.center.shape[0]
         k1, k2 = jax.random.split(key)
@@ -57,6 +64,14 @@ class Gaussian(eqx.Module):
 
     mean: jax.Array = param()
     std: jax.Array = param(0.0)
+
+    def __check_init__(self):
+        checks.check_ndim(self, "mean", self.mean, (1,), "a vector (one entry per state)")
+        checks.check_finite(self, "mean", self.mean)
+        if checks.shape_of(self.std) not in ((), checks.shape_of(self.mean)):
+            checks.fail(self, f"std must be a scalar or {checks.fmt_shape(checks.shape_of(self.mean))} like mean, "
+                        f"got {checks.fmt_shape(checks.shape_of(self.std))}")
+        checks.check_nonnegative(self, "std", self.std)
 
     def __call__(self, key):
         return self.mean + self.std * jax.random.normal(key, self.mean.shape)
@@ -77,10 +92,22 @@ class Rollout(eqx.Module):
     metrics: Any = None
 
     def __check_init__(self):
-        if self.steps < 1:
-            raise ValueError(f"steps must be >= 1, got {self.steps}")
+        if not isinstance(self.loop, Loop):
+            raise checks.ArgumentTypeError(f"Rollout: loop must be a jaxdip Loop, got {type(self.loop).__name__}")
+        checks.check_int(self, "steps", self.steps, 1)
+        checks.check_int(self, "save_every", self.save_every, 1)
         if self.save is not None and self.steps % self.save_every:
-            raise ValueError(f"steps={self.steps} is not a multiple of save_every={self.save_every}")
+            checks.fail(self, f"steps must be a multiple of save_every={self.save_every}, got {self.steps}")
+        if self.save is not None and not callable(self.save):
+            raise checks.ArgumentTypeError(f"Rollout: save must be a function of a Sample, got {self.save!r}")
+        if not callable(self.x0):
+            _check_x0("Rollout", self.loop, self.x0)
+        elif isinstance(self.x0, (Ball, Gaussian)):
+            size = self.x0.center.shape[0] if isinstance(self.x0, Ball) else self.x0.mean.shape[0]
+            n = self.loop.plant.n
+            if size != n:
+                checks.fail(self, f"x0 must draw ({n},) states for the plant {type(self.loop.plant).__name__}, "
+                            f"got a {type(self.x0).__name__} of ({size},)")
 
     def initial_state(self, key) -> jax.Array:
         if callable(self.x0):
@@ -244,13 +271,20 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
     Returns JAX arrays (no host conversion), so ``jax.grad`` of a function of the result works when the
     hyperparameters are traced; progress is then off.
     """
-    if n < 1:
-        raise ValueError(f"n must be >= 1, got {n}")
-    if offset < 0:
-        raise ValueError(f"offset must be >= 0, got {offset}")
-    if chunk is not None and chunk < 1:
-        raise ValueError(f"chunk must be >= 1, got {chunk}")
-    if isinstance(key, int):
+    checks.check_int("monte_carlo", "n", n, 1)
+    checks.check_int("monte_carlo", "offset", offset, 0)
+    if chunk is not None:
+        checks.check_int("monte_carlo", "chunk", chunk, 1)
+    if time_chunk is not None:
+        checks.check_int("monte_carlo", "time_chunk", time_chunk, 1)
+    if not callable(fn):
+        raise checks.ArgumentTypeError(f"monte_carlo: fn must be a function of a PRNG key, got {type(fn).__name__}")
+    if sweep is not None and (not isinstance(sweep, tuple) or len(sweep) != 2 or not callable(sweep[0])):
+        raise checks.ArgumentTypeError("monte_carlo: sweep must be a pair (where, values) with where a function, "
+                                       f"got {type(sweep).__name__}")
+    if isinstance(key, bool) or not (isinstance(key, (int, np.integer)) or hasattr(key, "dtype")):
+        raise checks.ArgumentTypeError(f"monte_carlo: key must be a PRNG key or an int seed, got {key!r}")
+    if isinstance(key, (int, np.integer)):
         key = jax.random.PRNGKey(key)
     fn = _float_leaves_to_arrays(fn)
     where, values = (None, None) if sweep is None else sweep

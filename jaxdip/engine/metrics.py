@@ -26,6 +26,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import param
 
 from jaxdip._public import public_dir
@@ -46,7 +47,16 @@ def _zeros(of: Selector, template, dtype=None):
     return jnp.zeros(s.shape, dtype or jnp.result_type(float))
 
 
+_SAMPLE_FIELDS = ("k", "t", "x", "y", "xhat", "u", "u_applied", "aux")  # the fields of ``simulate.Sample``
+
+
 class Reducer(eqx.Module):
+    def __check_init__(self):
+        # a misspelt field name would otherwise surface as an AttributeError deep inside the traced loop
+        of = getattr(self, "of", None)
+        if of is not None and not callable(of) and of not in _SAMPLE_FIELDS:
+            checks.fail(self, f"of must be a Sample field {_SAMPLE_FIELDS} or a function of the sample, got {of!r}")
+
     @abc.abstractmethod
     def init(self, template):
         ...
@@ -145,6 +155,9 @@ class TimeToBand(Reducer):
     of: Selector = eqx.field(static=True)
     band: jax.Array = param(0.0)
 
+    def __check_init__(self):
+        checks.check_nonnegative(self, "band", self.band)
+
     def init(self, template):
         z = _zeros(self.of, template, jnp.int32) - 1
         return (z, jnp.full((), -1, jnp.int32))
@@ -166,6 +179,12 @@ class Window(Reducer):
     reducer: Reducer
     start: int = eqx.field(default=0, static=True)
     stop: Optional[int] = eqx.field(default=None, static=True)
+
+    def __check_init__(self):
+        if not isinstance(self.reducer, Reducer):
+            raise checks.ArgumentTypeError(f"Window: reducer must be a metrics reducer, got {type(self.reducer).__name__}")
+        if self.stop is not None and not self.stop > self.start:
+            checks.fail(self, f"stop must be > start={self.start} (or None: to the end), got {self.stop}")
 
     def init(self, template):
         return self.reducer.init(template)

@@ -30,6 +30,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.integrate import rk4_zoh
 
 
@@ -119,6 +120,14 @@ def linearize(plant: Plant, x=None, u=None) -> tuple[jax.Array, jax.Array]:
     Defaults: the plant's equilibrium and a zero input. Compiled per plant structure, so repeated calls (a
     sweep over plant parameters) reuse one program.
     """
+    if not isinstance(plant, Plant):
+        raise checks.ArgumentTypeError(f"linearize: plant must be a jaxdip Plant, got {type(plant).__name__}")
+    for name, v, size, what in (("x", x, plant.n, "states"), ("u", u, plant.m, "inputs")):
+        if v is not None:
+            checks.check_real("linearize", name, v)
+            if name == "u" and checks.shape_of(v) == () and size == 1:
+                continue
+            checks.check_shape("linearize", name, v, (size,), f"for {type(plant).__name__} ({size} {what})")
     x = plant.equilibrium() if x is None else jnp.asarray(x, dtype=jnp.result_type(float))
     u = jnp.zeros(plant.m) if u is None else jnp.atleast_1d(jnp.asarray(u, dtype=jnp.result_type(float)))
     return _jacobians(plant, x, u)
@@ -139,10 +148,27 @@ def _jacobians(plant, x, u):
 
 # ---- sensors, estimators, controllers, actuators ------------------------------------------------------------
 
+# ``io_sizes()`` is what ``Loop`` checks its parts against each other with when it is built: a dict of the
+# sizes a component knows from its own fields, each as ``(size, why)`` ("C is (4, 6)"), under the keys
+#   "in"   the size of what it reads (a sensor: the plant state; an estimator: y; a controller: xhat;
+#          an actuator: u),
+#   "out"  the size of what it hands on (or ``SAME``: as large as what it reads),
+#   "u"    an estimator's input size u_{k-1}.
+# A size a component does not know is left out; the default knows none, so a user's component is never
+# rejected for not declaring them.
+SAME = "same"
+
+
+def _io_default(self) -> dict:
+    return {}
+
+
 
 class Sensor(eqx.Module):
     def init(self, key, x0):
         return ()
+
+    io_sizes = _io_default
 
     @abc.abstractmethod
     def step(self, state, x, key, k):
@@ -153,6 +179,8 @@ class Estimator(eqx.Module):
     def init(self, key, x0):
         return ()
 
+    io_sizes = _io_default
+
     @abc.abstractmethod
     def step(self, state, y, u_prev, key, k):
         """-> (state, xhat, aux)"""
@@ -162,6 +190,8 @@ class Controller(eqx.Module):
     def init(self, key, x0):
         return ()
 
+    io_sizes = _io_default
+
     @abc.abstractmethod
     def step(self, state, xhat, key, k):
         """-> (state, u, aux)"""
@@ -170,6 +200,8 @@ class Controller(eqx.Module):
 class Actuator(eqx.Module):
     def init(self, key, x0):
         return ()
+
+    io_sizes = _io_default
 
     @abc.abstractmethod
     def step(self, state, u, key, k):
@@ -182,12 +214,18 @@ class Identity(Actuator):
     def step(self, state, u, key, k):
         return state, u, None
 
+    def io_sizes(self) -> dict:
+        return {"out": (SAME, "the identity")}
+
 
 class Passthrough(Estimator):
     """The measurement is the estimate (full-state measurement)."""
 
     def step(self, state, y, u_prev, key, k):
         return state, y, None
+
+    def io_sizes(self) -> dict:
+        return {"out": (SAME, "the measurement is the estimate")}
 
 
 class FanOutAux(NamedTuple):
@@ -208,7 +246,23 @@ class FanOut(Estimator):
 
     def __check_init__(self):
         if self.drive not in self.estimators:
-            raise ValueError(f"drive={self.drive!r} is not one of the estimators {sorted(self.estimators)}")
+            checks.fail(self, f"drive must be one of the estimators {sorted(self.estimators)}, got {self.drive!r}")
+
+    def io_sizes(self) -> dict:
+        # the controller sees the driving estimator's output; every estimator reads the same y and u
+        def of(e):
+            return e.io_sizes() if callable(getattr(e, "io_sizes", None)) else {}
+
+        sizes = dict(of(self.estimators[self.drive]))
+        for name, e in self.estimators.items():
+            for key, (size, why) in of(e).items():
+                if key == "out" or size == SAME:
+                    continue
+                if key in sizes and sizes[key][0] != size:
+                    checks.fail(self, f"estimators[{name!r}] reads {size} {'inputs' if key == 'u' else 'values'} "
+                                f"({why}) but estimators[{self.drive!r}] reads {sizes[key][0]} ({sizes[key][1]})")
+                sizes.setdefault(key, (size, f"estimators[{name!r}]: {why}"))
+        return sizes
 
     def init(self, key, x0):
         return {name: e.init(key, x0) for name, e in self.estimators.items()}

@@ -23,6 +23,7 @@ components keep stepping on the frozen state, as in the original loop.
 from __future__ import annotations
 
 import enum
+import numbers
 from typing import Any, Callable, NamedTuple, Optional
 
 import equinox as eqx
@@ -31,7 +32,8 @@ import jax.numpy as jnp
 
 from jaxdip.engine import metrics as _metrics
 from jaxdip.engine.keys import split_lanes
-from jaxdip.engine.roles import Identity, _as_float_array, param
+from jaxdip.engine import checks
+from jaxdip.engine.roles import SAME, Identity, Plant, _as_float_array, param
 
 
 from jaxdip._public import public_dir
@@ -100,6 +102,89 @@ class Loop(eqx.Module):
     # draw inside the loop is not batched, and as hundreds of tiny unfused operations per period it cost 3.6x
     # the rest of the eki-dip search's period (docs/performance.md). Memory: steps x n numbers per key.
     noise_ahead: bool = eqx.field(default=False, static=True)
+
+    def __check_init__(self):
+        _check_loop(self)
+
+
+def _sizes(c) -> dict:
+    sizes = getattr(c, "io_sizes", None)
+    return sizes() if callable(sizes) else {}
+
+
+def _count(k, noun: str) -> str:
+    return f"{k} {noun}" if k == 1 else f"{k} {noun}s"
+
+
+def _part(role: str, c) -> str:
+    return f"the {role} {type(c).__name__}"
+
+
+def _check_loop(loop: Loop) -> None:
+    """The parts of a loop against each other (sizes each part knows from its fields: ``io_sizes``), and the
+    loop's own numbers. Run when the loop is built, before anything is traced."""
+    plant = loop.plant
+    if not isinstance(plant, Plant):
+        raise checks.ArgumentTypeError(f"Loop: plant must be a jaxdip Plant (or DiscretePlant), "
+                                       f"got {type(plant).__name__}")
+    # the other roles are duck-typed (``Identity`` is a full-state sensor as well as the ideal actuator): a part
+    # needs init and step
+    for role, c in (("sensor", loop.sensor), ("estimator", loop.estimator), ("controller", loop.controller),
+                    ("actuator", loop.actuator)):
+        if not (callable(getattr(c, "init", None)) and callable(getattr(c, "step", None))):
+            raise checks.ArgumentTypeError(f"Loop: {role} must be a component with init and step (a jaxdip "
+                                           f"{role.capitalize()}), got {type(c).__name__}")
+    if isinstance(loop.dt, bool) or not isinstance(loop.dt, numbers.Real) or not (0 < loop.dt < float("inf")):
+        checks.fail("Loop", f"dt must be a positive finite number of seconds, got {loop.dt!r}")
+    checks.check_int("Loop", "substeps", loop.substeps, 1)
+    n, m = plant.n, plant.m
+    pname = f"the plant {type(plant).__name__}"
+    for name, v in (("process_noise_std", loop.process_noise_std), ("state_bound", loop.state_bound),
+                    ("norm_bound", loop.norm_bound)):
+        if v is None:
+            continue
+        if checks.shape_of(v) not in ((), (n,)) and name != "norm_bound":
+            checks.fail("Loop", f"{name} must be a scalar or ({n},) for {pname} ({n} states), "
+                        f"got {checks.fmt_shape(checks.shape_of(v))}")
+        if name == "process_noise_std":
+            checks.check_nonnegative("Loop", name, v)
+        else:
+            checks.check_positive("Loop", name, v, allow_inf=True)
+
+    def mismatch(what_a, size_a, why_a, what_b, size_b, why_b):
+        a = f" ({why_a})" if why_a else ""
+        b = f" ({why_b})" if why_b else ""
+        checks.fail("Loop", f"{what_a} {size_a}{a} but {what_b} {size_b}{b}")
+
+    sens = _sizes(loop.sensor)
+    if "in" in sens and sens["in"][0] != n:
+        mismatch(f"{_part('sensor', loop.sensor)} reads", _count(sens['in'][0], "state"), sens["in"][1],
+                 f"{pname} has", _count(n, "state"), "")
+    p, p_why = sens.get("out", (None, ""))
+    if p == SAME:
+        p, p_why = n, "a full-state sensor"
+    est = _sizes(loop.estimator)
+    if "in" in est and p is not None and est["in"][0] != p:
+        mismatch(f"{_part('sensor', loop.sensor)} gives", _count(p, "output"), p_why,
+                 f"{_part('estimator', loop.estimator)} expects", _count(est['in'][0], "measurement"), est["in"][1])
+    if "u" in est and est["u"][0] != m:
+        mismatch(f"{pname} has", _count(m, "input"), "", f"{_part('estimator', loop.estimator)} expects",
+                 _count(est['u'][0], "input"), est["u"][1])
+    nh, nh_why = est.get("out", (None, ""))
+    if nh == SAME:
+        nh, nh_why = (p, p_why) if p is not None else (est["in"] if "in" in est else (None, ""))
+    ctrl = _sizes(loop.controller)
+    if "in" in ctrl and nh is not None and ctrl["in"][0] != nh:
+        mismatch(f"{_part('estimator', loop.estimator)} gives", _count(nh, "estimated state"), nh_why,
+                 f"{_part('controller', loop.controller)} expects", _count(ctrl['in'][0], "state"), ctrl["in"][1])
+    if "out" in ctrl and ctrl["out"][0] not in (SAME, m):
+        mismatch(f"{_part('controller', loop.controller)} gives", _count(ctrl['out'][0], "input"), ctrl["out"][1],
+                 f"{pname} has", _count(m, "input"), "")
+    act = _sizes(loop.actuator)
+    for key in ("in", "out"):
+        if key in act and act[key][0] not in (SAME, m):
+            mismatch(f"{_part('actuator', loop.actuator)} {'reads' if key == 'in' else 'gives'}",
+                     _count(act[key][0], "input"), act[key][1], f"{pname} has", _count(m, "input"), "")
 
 
 class Aux(NamedTuple):
@@ -197,6 +282,13 @@ def _step(loop: Loop, metrics, base, st: State, noise=None):
     return new, sample
 
 
+def _check_x0(owner: str, loop: Loop, x0) -> None:
+    checks.check_real(owner, "x0", x0)
+    n = loop.plant.n
+    checks.check_shape(owner, "x0", x0, (n,), f"for the plant {type(loop.plant).__name__} ({n} states)")
+    checks.check_finite(owner, "x0", x0)
+
+
 def init_state(loop: Loop, x0, key, metrics=None) -> State:
     """The state before period 0 of the trajectory with key ``key`` starting at ``x0``."""
     x0 = jnp.asarray(x0, dtype=jnp.result_type(float))
@@ -235,14 +327,16 @@ def simulate(loop: Loop, x0, key, steps: int, *, save: Optional[Callable] = None
 
     ``vmap`` over keys, x0, or any array leaf of ``loop``; ``jax.grad`` through it.
     """
-    if steps < 0:
-        raise ValueError(f"steps must be >= 0, got {steps}")
-    if save_every < 1:
-        raise ValueError(f"save_every must be >= 1, got {save_every}")
+    checks.check_int("simulate", "steps", steps, 0)
+    checks.check_int("simulate", "save_every", save_every, 1)
+    if not isinstance(loop, Loop):
+        raise checks.ArgumentTypeError(f"simulate: loop must be a jaxdip Loop, got {type(loop).__name__}")
+    if start is None:
+        _check_x0("simulate", loop, x0)
     st = init_state(loop, x0, key, metrics) if start is None else start
     base = loop.keys.base(key)
     if save is not None and steps % save_every:
-        raise ValueError(f"steps={steps} is not a multiple of save_every={save_every}")
+        checks.fail("simulate", f"steps must be a multiple of save_every={save_every}, got {steps}")
     ahead = None
     if loop.noise_ahead and loop.process_noise_std is not None:
         # period k's key as in the loop (so the numbers are those drawn inside it), all periods at once

@@ -23,7 +23,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from jaxdip.engine.roles import Estimator, param
+from jaxdip.engine import checks
+from jaxdip.engine.roles import SAME, Estimator, param
 from jaxdip.sim.twip_sensors import complementary_update
 
 
@@ -43,6 +44,16 @@ class ComplementaryFilter(Estimator):
     angle_index: int = eqx.field(default=2, static=True)
     rate_index: int = eqx.field(default=3, static=True)
     init_from_angle: bool = eqx.field(default=True, static=True)
+
+    def __check_init__(self):
+        checks.check_ndim(self, "alpha", self.alpha, (0,), "a scalar")
+        checks.check_finite(self, "alpha", self.alpha)
+        checks.check_positive(self, "dt", self.dt)
+        checks.check_int(self, "angle_index", self.angle_index, 0)
+        checks.check_int(self, "rate_index", self.rate_index, 0)
+
+    def io_sizes(self) -> dict:
+        return {"out": (SAME, "the measurement with the tilt filtered")}
 
     def init(self, key, x0):
         return jnp.zeros((), dtype=jnp.float64)

@@ -25,6 +25,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Estimator
 
 from jaxdip._public import public_dir
@@ -76,10 +77,13 @@ class SampledObserver(Estimator):
     n_y = 0
 
     def __check_init__(self):
-        if self.hold not in HOLDS:
-            raise ValueError(f"hold must be one of {HOLDS}, got {self.hold!r}")
-        if self.substeps < 1:
-            raise ValueError(f"substeps must be >= 1, got {self.substeps}")
+        checks.check_choice(self, "hold", self.hold, HOLDS)
+        checks.check_int(self, "substeps", self.substeps, 1)
+        checks.check_positive(self, "dt", self.dt)
+
+    def io_sizes(self) -> dict:
+        cls = type(self)
+        return {"in": (cls.n_y, f"{cls.__name__} reads {cls.n_y} values")} if cls.n_y else {}
 
     def init(self, key, x0):
         dtype = jnp.result_type(float)

@@ -59,7 +59,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from jaxdip.engine.roles import Estimator, param
+from jaxdip.engine import checks
+from jaxdip.engine.roles import Estimator, Plant, param
 from jaxdip.estimators.linearized import AffineStep, local_model, lti_step
 from jaxdip.estimators.proximal import prox_from_qr, prox_from_svd, qr_factor, svd_factor
 from jaxdip.sim.discretize import Discrete
@@ -96,6 +97,12 @@ class CPXAux(NamedTuple):
     ahead: jax.Array  # xtilde_{j+1} = Phi xhat_j + W u_{j-1} + b, the prediction with the input held
 
 
+def _lti_sizes(Phi, W, C, prefix: str = "") -> dict:
+    shape = checks.fmt_shape
+    return {"in": (C.shape[0], f"C is {shape(C.shape)}"), "out": (Phi.shape[0], f"{prefix}Phi is {shape(Phi.shape)}"),
+            "u": (W.shape[1], f"{prefix}W is {shape(W.shape)}")}
+
+
 class _Centred(Estimator):
     """The step shared by the centred estimators: subclasses give ``_model(xbar, ubar) -> AffineStep``,
     ``_factor()`` (the offline factor, or ()), ``_solve(factor, G, q, xprior)`` and ``n_inputs``."""
@@ -127,6 +134,17 @@ class CPX(_Centred):
     C: jax.Array = param()
     xhat0: jax.Array = param()
     keep: Optional[int] = eqx.field(default=None, static=True)
+
+    def __check_init__(self):
+        d, _, _ = checks.check_lti(self, self.model.Phi, self.model.W, self.C, self.model.Phi_inv, prefix="model.")
+        checks.check_state_vector(self, "xhat0", self.xhat0, d, f"for a {d}-state model")
+        checks.check_ndim(self, "gamma", self.gamma, (0,), "a scalar")
+        checks.check_positive(self, "gamma", self.gamma)
+        if self.keep is not None:
+            checks.check_int(self, "keep", self.keep, 1)
+
+    def io_sizes(self) -> dict:
+        return _lti_sizes(self.model.Phi, self.model.W, self.C, "model.")
 
     @property
     def n_inputs(self) -> int:
@@ -166,6 +184,26 @@ class LinearizedCPX(_Centred):
     keep: Optional[int] = eqx.field(default=None, static=True)
     svd: str = eqx.field(default="jacobi", static=True)
     expm_squarings: int = eqx.field(default=24, static=True)
+
+    def __check_init__(self):
+        if not isinstance(self.model, Plant):
+            raise checks.ArgumentTypeError(f"LinearizedCPX: model must be a jaxdip Plant, got {type(self.model).__name__}")
+        d = self.model.n
+        why = f"for the {d}-state model {type(self.model).__name__}"
+        checks.check_shape(self, "C", self.C, (None, d), why)
+        checks.check_finite(self, "C", self.C)
+        checks.check_state_vector(self, "xhat0", self.xhat0, d, why)
+        checks.check_ndim(self, "gamma", self.gamma, (0,), "a scalar")
+        checks.check_positive(self, "gamma", self.gamma)
+        checks.check_positive(self, "h", self.h)
+        checks.check_choice(self, "svd", self.svd, ("jacobi", "lapack"))
+        if self.keep is not None:
+            checks.check_int(self, "keep", self.keep, 1)
+
+    def io_sizes(self) -> dict:
+        why = f"C is {checks.fmt_shape(self.C.shape)}"
+        return {"in": (self.C.shape[0], why), "out": (self.model.n, f"model has {self.model.n} states"),
+                "u": (self.model.m, f"model has {self.model.m} inputs")}
 
     @property
     def n_inputs(self) -> int:

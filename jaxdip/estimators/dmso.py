@@ -38,6 +38,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Estimator, param
 
 
@@ -132,6 +133,23 @@ class DMSO(Estimator):
                    basis_offset=jnp.zeros(n) if basis_offset is None else f64(basis_offset),
                    W0=jnp.zeros((l, B.shape[1])) if W0 is None else f64(W0),
                    xhat0=jnp.zeros(n) if xhat0 is None else f64(xhat0), basis=basis)
+
+    def __check_init__(self):
+        n = checks.check_square(self, "F", self.F)
+        why = f"for an {n}-state model (F is {checks.fmt_shape(self.F.shape)})"
+        checks.check_shape(self, "G", self.G, (n, None), why)
+        checks.check_shape(self, "B", self.B, (n, None), why)
+        checks.check_shape(self, "K", self.K, (n, n), why)
+        checks.check_shape(self, "W0", self.W0, (None, self.B.shape[1]), f"(B is {checks.fmt_shape(self.B.shape)})")
+        checks.check_state_vector(self, "xhat0", self.xhat0, n, why)
+        for name in ("F", "G", "B", "K", "W0", "basis_scale", "basis_offset"):
+            checks.check_finite(self, name, getattr(self, name))
+        checks.check_nonnegative(self, "Gamma", self.Gamma)
+
+    def io_sizes(self) -> dict:
+        shape = checks.fmt_shape
+        return {"out": (self.F.shape[0], f"F is {shape(self.F.shape)}"),
+                "u": (self.G.shape[1], f"G is {shape(self.G.shape)}")}
 
     def init(self, key, x0):
         xhat0 = jnp.asarray(self.xhat0, dtype=jnp.float64)

@@ -19,7 +19,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from jaxdip.engine.roles import Estimator, param
+from jaxdip.engine import checks
+from jaxdip.engine.roles import Estimator, Plant, param
 from jaxdip.estimators.kalman import GaussianAux, KFState, predict, update
 from jaxdip.estimators.linearized import local_model
 
@@ -75,11 +76,38 @@ class KalmanFilter(_Gaussian):
     jitter: float = eqx.field(default=0.0, static=True)
 
     def __init__(self, Phi, W, C, Q, R, P0, xhat0=None, jitter: float = 0.0):
+        for name, v in (("Phi", Phi), ("W", W), ("C", C), ("Q", Q), ("R", R), ("P0", P0), ("xhat0", xhat0)):
+            if v is not None:
+                checks.check_real(self, name, v)
+        checks.check_square(self, "Phi", Phi, leading=True)
         self.Phi, self.C, self.Q, self.R, self.P0, self.jitter = Phi, C, Q, R, P0, jitter
         d = jnp.shape(Phi)[-1]
         W = jnp.zeros((d, 1)) if W is None else jnp.asarray(W)
+        if W.ndim <= 2:  # (d,) is one input; a stack over time (T, d, m) is checked once built
+            checks.check_shape(self, "W", W, (d, None) if W.ndim == 2 else (d,), f"for a {d}-state model")
         self.W = jnp.reshape(W, (d, -1)) if W.ndim <= 2 else W
         self.xhat0 = jnp.zeros(d) if xhat0 is None else xhat0
+
+    def __check_init__(self):
+        d = self.Phi.shape[-1]
+        why = f"for a {d}-state model"
+        checks.check_shape(self, "W", self.W, (d, None), why, leading=True)
+        checks.check_shape(self, "C", self.C, (None, d), why, leading=True)
+        p = self.C.shape[-2]
+        checks.check_covariance(self, "Q", self.Q, d, why, leading=True)
+        checks.check_covariance(self, "R", self.R, p, f"for {p} measurements (C is {checks.fmt_shape(self.C.shape)})",
+                                leading=True)
+        checks.check_covariance(self, "P0", self.P0, d, why)
+        checks.check_state_vector(self, "xhat0", self.xhat0, d, why)
+        for name in ("Phi", "W", "C"):
+            checks.check_finite(self, name, getattr(self, name))
+        checks.check_nonnegative(self, "jitter", self.jitter)
+
+    def io_sizes(self) -> dict:
+        shape = checks.fmt_shape
+        return {"in": (self.C.shape[-2], f"C is {shape(self.C.shape)}"),
+                "out": (self.Phi.shape[-1], f"Phi is {shape(self.Phi.shape)}"),
+                "u": (self.W.shape[-1], f"W is {shape(self.W.shape)}")}
 
     @property
     def n_inputs(self) -> int:
@@ -128,17 +156,58 @@ class ExtendedKalmanFilter(_Gaussian):
                  f: Optional[Callable] = None, C=None, h: Optional[Callable] = None, n_inputs: Optional[int] = None,
                  expm_squarings: int = 24, jitter: float = 0.0):
         if (f is None) == (model is None):
-            raise ValueError("give exactly one of f (a discrete map) and model (a continuous plant, with dt)")
+            checks.fail(self, "give exactly one of f (a discrete map) and model (a continuous plant, with dt), "
+                        f"got {'both' if f is not None else 'neither'}")
         if model is not None and dt is None:
-            raise ValueError("a continuous model needs the sample period dt")
+            checks.fail(self, "dt must be given with a continuous model (the sample period), got None")
         if (h is None) == (C is None):
-            raise ValueError("give exactly one of C (linear output) and h (nonlinear output)")
+            checks.fail(self, "give exactly one of C (linear output) and h (nonlinear output), "
+                        f"got {'both' if h is not None else 'neither'}")
+        for name, v in (("Q", Q), ("R", R), ("P0", P0), ("xhat0", xhat0), ("C", C)):
+            if v is not None:
+                checks.check_real(self, name, v)
+        checks.check_square(self, "P0", P0)
         self.Q, self.R, self.P0 = Q, R, P0
         self.xhat0 = jnp.zeros(jnp.shape(P0)[0]) if xhat0 is None else xhat0
         self.C = None if C is None else jnp.asarray(C, jnp.result_type(float))
         self.model, self.f, self.h, self.dt = model, f, h, dt
         self.n_inputs = (model.m if model is not None else 1) if n_inputs is None else n_inputs
         self.expm_squarings, self.jitter = expm_squarings, jitter
+
+    def __check_init__(self):
+        d = self.P0.shape[0]
+        why = f"for a {d}-state model (P0 is {checks.fmt_shape(self.P0.shape)})"
+        checks.check_covariance(self, "Q", self.Q, d, why)
+        checks.check_covariance(self, "P0", self.P0, d)
+        checks.check_state_vector(self, "xhat0", self.xhat0, d, why)
+        if self.C is not None:
+            checks.check_shape(self, "C", self.C, (None, d), why)
+            checks.check_finite(self, "C", self.C)
+            p = self.C.shape[0]
+            checks.check_covariance(self, "R", self.R, p, f"for {p} measurements (C is {checks.fmt_shape(self.C.shape)})")
+        else:
+            checks.check_square(self, "R", self.R)
+            checks.check_psd(self, "R", self.R)
+        if self.model is not None:
+            if not isinstance(self.model, Plant):
+                raise checks.ArgumentTypeError(f"ExtendedKalmanFilter: model must be a jaxdip Plant, "
+                                               f"got {type(self.model).__name__}")
+            if self.model.n != d:
+                checks.fail(self, f"model must have {d} states like P0, got {type(self.model).__name__} "
+                            f"with {self.model.n}")
+            checks.check_positive(self, "dt", self.dt)
+        checks.check_int(self, "n_inputs", self.n_inputs, 0)
+        checks.check_int(self, "expm_squarings", self.expm_squarings, 0)
+        checks.check_nonnegative(self, "jitter", self.jitter)
+
+    def io_sizes(self) -> dict:
+        sizes = {"out": (self.P0.shape[0], f"P0 is {checks.fmt_shape(self.P0.shape)}"),
+                 "u": (self.n_inputs, f"n_inputs={self.n_inputs}")}
+        if self.C is not None:
+            sizes["in"] = (self.C.shape[0], f"C is {checks.fmt_shape(self.C.shape)}")
+        else:
+            sizes["in"] = (self.R.shape[0], f"R is {checks.fmt_shape(self.R.shape)}")
+        return sizes
 
     def _transition(self, x, u, j):
         if self.model is None:

@@ -14,6 +14,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Estimator, param
 from jaxdip.sim.discretize import zoh
 
@@ -47,6 +48,17 @@ class LDF(Estimator):
         """The paper's settings: 100 pi rad/s for the cart, 20 pi rad/s for the angles, damping 0.9."""
         return cls(jnp.array([cart_cutoff, angle_cutoff, angle_cutoff], dtype=jnp.float64),
                    jnp.asarray(zeta, dtype=jnp.float64), n_pos=3, dt=dt)
+
+    def __check_init__(self):
+        checks.check_int(self, "n_pos", self.n_pos, 1)
+        checks.check_scalar_or_vector(self, "omega", self.omega, self.n_pos, f"(one cut-off per position, n_pos={self.n_pos})")
+        checks.check_scalar_or_vector(self, "zeta", self.zeta, self.n_pos, f"(n_pos={self.n_pos})")
+        checks.check_positive(self, "omega", self.omega)
+        checks.check_nonnegative(self, "zeta", self.zeta)
+        checks.check_positive(self, "dt", self.dt)
+
+    def io_sizes(self) -> dict:
+        return {"out": (2 * self.n_pos, f"n_pos={self.n_pos} positions and their rates")}
 
     def init(self, key, x0):
         zeta = jnp.broadcast_to(self.zeta, self.omega.shape)

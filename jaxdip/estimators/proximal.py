@@ -42,6 +42,7 @@ import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Estimator, param
 
 from jaxdip._public import public_dir
@@ -273,8 +274,17 @@ class LeastSquaresMHE(Estimator):
     N: int = eqx.field(static=True)
 
     def __check_init__(self):
-        if self.N < 1:
-            raise ValueError(f"horizon N must be >= 1, got {self.N}")
+        checks.check_int(self, "N", self.N, 1)
+        d, _, _ = checks.check_lti(self, self.Phi, self.W, self.C)
+        checks.check_state_vector(self, "xhat0", self.xhat0, d, f"for a {d}-state model")
+        checks.check_ndim(self, "gamma", self.gamma, (0,), "a scalar")
+        checks.check_positive(self, "gamma", self.gamma)
+
+    def io_sizes(self) -> dict:
+        shape = checks.fmt_shape
+        return {"in": (self.C.shape[0], f"C is {shape(self.C.shape)}"),
+                "out": (self.Phi.shape[0], f"Phi is {shape(self.Phi.shape)}"),
+                "u": (self.W.shape[1], f"W is {shape(self.W.shape)}")}
 
     def init(self, key, x0):
         G = lti_horizon_matrix(self.Phi, self.C, self.N)

@@ -26,6 +26,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Estimator, param
 from jaxdip.estimators.kalman import GaussianAux, KFState, condition, sym
 
@@ -100,9 +101,34 @@ class UnscentedKalmanFilter(Estimator):
 
     def __init__(self, f: Callable, h: Callable, Q, R, P0, xhat0=None, *, n_inputs: int = 1, alpha=DEFAULT_ALPHA,
                  beta=DEFAULT_BETA, kappa=DEFAULT_KAPPA):
+        for name, v in (("Q", Q), ("R", R), ("P0", P0), ("xhat0", xhat0)):
+            if v is not None:
+                checks.check_real(self, name, v)
+        if not callable(f) or not callable(h):
+            raise checks.ArgumentTypeError(f"UnscentedKalmanFilter: f and h must be functions, "
+                                           f"got {type(f).__name__} and {type(h).__name__}")
+        checks.check_square(self, "P0", P0)
         self.f, self.h, self.Q, self.R, self.P0 = f, h, Q, R, P0
         self.xhat0 = jnp.zeros(jnp.shape(P0)[0]) if xhat0 is None else xhat0
         self.alpha, self.beta, self.kappa, self.n_inputs = alpha, beta, kappa, n_inputs
+
+    def __check_init__(self):
+        d = self.P0.shape[0]
+        why = f"for a {d}-state model (P0 is {checks.fmt_shape(self.P0.shape)})"
+        checks.check_covariance(self, "Q", self.Q, d, why)
+        checks.check_covariance(self, "P0", self.P0, d)
+        checks.check_square(self, "R", self.R)
+        checks.check_psd(self, "R", self.R)
+        checks.check_state_vector(self, "xhat0", self.xhat0, d, why)
+        checks.check_int(self, "n_inputs", self.n_inputs, 0)
+        checks.check_positive(self, "alpha", self.alpha)
+        for name in ("beta", "kappa"):
+            checks.check_finite(self, name, getattr(self, name))
+
+    def io_sizes(self) -> dict:
+        return {"in": (self.R.shape[0], f"R is {checks.fmt_shape(self.R.shape)}"),
+                "out": (self.P0.shape[0], f"P0 is {checks.fmt_shape(self.P0.shape)}"),
+                "u": (self.n_inputs, f"n_inputs={self.n_inputs}")}
 
     def init(self, key, x0):
         x = jnp.asarray(self.xhat0, dtype=jnp.result_type(float))

@@ -70,6 +70,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 import numpy as np
 
+from jaxdip.estimators import validation
 from jaxdip.engine.roles import Estimator, param
 from jaxdip.estimators.active_set import dual_active_set
 from jaxdip.sim.discretize import Discrete
@@ -159,11 +160,7 @@ class WeightedMHE(Estimator):
                  anchor: int = 0, xhat0=None, lower=None, upper=None, box_iters: Optional[int] = None,
                  prior: str = "smoothed", h: Optional[Callable] = None,
                  window_sqrt=None, A_c=None, b_c=None):
-        d = jnp.shape(model[0])[0]
-        if not 0 <= anchor < N:
-            raise ValueError(f"the anchor must satisfy 0 <= anchor < N = {N}, got {anchor}")
-        if prior not in ("smoothed", "filtered"):
-            raise ValueError(f"prior must be 'smoothed' or 'filtered', got {prior!r}")
+        d = validation.wmhe_args(self, model, C, meas_weight, arrival_weight, proc_weight, gamma, xhat0, N, anchor, prior)
         self.prior = prior
         if (C is None) == (h is None):
             raise ValueError("give exactly one of C (linear output map) and h (nonlinear output map)")
@@ -188,6 +185,9 @@ class WeightedMHE(Estimator):
         if A_c is not None and (self.A_c.shape[1] != d or self.b_c.shape != (self.A_c.shape[0],)):
             raise ValueError(f"A_c must be (r, {d}) and b_c (r,), got {self.A_c.shape} and {self.b_c.shape}")
         self.N, self.anchor, self.box_iters = N, anchor, box_iters
+
+    __check_init__ = validation.check_weighted_mhe
+    io_sizes = validation.weighted_mhe_sizes
 
     @classmethod
     def from_noise(cls, model: Discrete, C, Q, R, N: int, arrival_cov=None, **kw) -> "WeightedMHE":

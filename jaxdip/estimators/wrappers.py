@@ -30,6 +30,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Estimator, param
 
 
@@ -48,10 +49,29 @@ def started_at(est, x):
     raise TypeError(f"{type(est).__name__} has no starting estimate xhat0 to set")
 
 
+def _check_inner(self) -> None:
+    # a wrapper around something that is not an estimator fails at the first step, deep inside the scan
+    if not (callable(getattr(self.inner, "init", None)) and callable(getattr(self.inner, "step", None))):
+        raise checks.ArgumentTypeError(f"{type(self).__name__}: inner must be an estimator (init and step), "
+                                       f"got {type(self.inner).__name__}")
+    if isinstance(getattr(self, "std", None), jax.Array):
+        checks.check_scalar_or_vector(self, "std", self.std, why="(one std for every state, or one per state)")
+        checks.check_nonnegative(self, "std", self.std)
+
+
+def _inner_sizes(self) -> dict:
+    # a wrapper reads and hands on what its inner estimator does (a delay or another output of the same size)
+    sizes = getattr(self.inner, "io_sizes", None)
+    return sizes() if callable(sizes) else {}
+
+
 class FromTruth(Estimator):
     """``inner`` started from the true initial state x0."""
 
     inner: Any
+
+    __check_init__ = _check_inner
+    io_sizes = _inner_sizes
 
     def init(self, key, x0):
         x0 = jnp.asarray(x0, dtype=jnp.result_type(float))
@@ -67,6 +87,9 @@ class InitialError(Estimator):
     inner: Any
     std: jax.Array = param()
 
+    __check_init__ = _check_inner
+    io_sizes = _inner_sizes
+
     def init(self, key, x0):
         x0 = jnp.asarray(x0, dtype=jnp.result_type(float))
         x = x0 + self.std * jax.random.normal(key, x0.shape)
@@ -81,6 +104,9 @@ class Prior(Estimator):
 
     inner: Any
 
+    __check_init__ = _check_inner
+    io_sizes = _inner_sizes
+
     def init(self, key, x0):
         return self.inner.init(key, x0)
 
@@ -94,6 +120,9 @@ class Ahead(Estimator):
 
     inner: Any
 
+    __check_init__ = _check_inner
+    io_sizes = _inner_sizes
+
     def init(self, key, x0):
         return self.inner.init(key, x0)
 
@@ -106,6 +135,9 @@ class Delayed(Estimator):
     """The output of ``inner`` held for one sample; the initial output is the x0 given to ``init``."""
 
     inner: Any
+
+    __check_init__ = _check_inner
+    io_sizes = _inner_sizes
 
     def init(self, key, x0):
         x0 = jnp.asarray(x0, dtype=jnp.result_type(float))
@@ -122,6 +154,9 @@ class DelayedMeasurement(Estimator):
 
     inner: Any
     y_init: jax.Array = param()
+
+    __check_init__ = _check_inner
+    io_sizes = _inner_sizes
 
     def init(self, key, x0):
         return self.inner.init(key, x0), self.y_init

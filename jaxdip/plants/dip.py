@@ -22,6 +22,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Plant, param
 
 from jaxdip._public import public_dir
@@ -186,8 +187,10 @@ class DIP(Plant):
     input_names = ("V",)
 
     def __check_init__(self):
-        if self.variant not in ("printed", "lagrangian"):
-            raise ValueError(f"unknown DIP variant {self.variant!r}; choose 'printed' or 'lagrangian'")
+        checks.check_choice(self, "variant", self.variant, ("printed", "lagrangian"))
+        checks.check_physical(self, positive=("g", "I1", "I2", "Kg", "l1", "l2", "L1", "L2", "Mc", "M1",
+                                              "M2", "Rm", "rmp"),
+                              nonnegative=("Bc", "B1", "B2", "Jm", "Km", "Kt", "Mh", "Mw"))  # Kt = Km = 0: no motor
 
     def vector_field(self, x, u):
         return (f_printed if self.variant == "printed" else f_lagrangian)(self, x, u)

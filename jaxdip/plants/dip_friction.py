@@ -14,6 +14,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Plant, param
 from jaxdip.plants.dip import DIP, STATE_NAMES
 
@@ -39,6 +40,12 @@ class CartFriction(Plant):
 
     state_names = STATE_NAMES
     input_names = ("V",)
+
+    def __check_init__(self):
+        if not isinstance(self.plant, DIP):
+            raise checks.ArgumentTypeError(f"CartFriction: plant must be a DIP, got {type(self.plant).__name__}")
+        checks.check_nonnegative(self, "coulomb", self.coulomb)
+        checks.check_positive(self, "v_smooth", self.v_smooth)
 
     def friction_force(self, x):
         return self.coulomb * jnp.tanh(x[3] / self.v_smooth)

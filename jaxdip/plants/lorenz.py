@@ -16,6 +16,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Plant, param
 
 from jaxdip._public import public_dir
@@ -56,6 +57,9 @@ class Lorenz(Plant):
 
     state_names = STATE_NAMES
     input_names = ("u_unused",)
+
+    def __check_init__(self):
+        checks.check_physical(self, finite=("sigma", "beta", "rho"))
 
     def vector_field(self, x, u):
         return f(self, x, u)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Plant, param
 
 from jaxdip._public import public_dir
@@ -110,6 +111,9 @@ class RWP(Plant):
 
     state_names = STATE_NAMES
     input_names = ("I",)
+
+    def __check_init__(self):
+        checks.check_physical(self, positive=("mp", "lp", "Jp", "mr", "lr", "Jr", "g"), nonnegative=("k",))
 
     def vector_field(self, x, u):
         return f(self, x, u)

@@ -26,6 +26,7 @@ import math
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Plant, param
 
 from jaxdip._public import public_dir
@@ -123,6 +124,10 @@ class TWIP(Plant):
     state_names = STATE_NAMES
     input_names = ("V",)
 
+    def __check_init__(self):
+        checks.check_physical(self, positive=("Ip", "Iw", "l", "Mp", "Mw", "r", "R", "g"),
+                              nonnegative=("ke", "km"))
+
     @classmethod
     def table(cls, which: str, **kw) -> "TWIP":
         """Table "8.1" (nominal: the parameters the estimators and the LQR design use) or "8.2" (perturbed: the
@@ -145,6 +150,9 @@ class TWIPUnmodeled(TWIP):
     g1: jax.Array = param(0.0)
     g2: jax.Array = param(0.0)
     freq: jax.Array = param(180.0 / math.pi)
+
+    def __check_init__(self):
+        checks.check_physical(self, finite=("g1", "g2", "freq"))
 
     def unmodeled(self, x):
         """(d1, d2) of (185)."""

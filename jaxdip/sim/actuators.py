@@ -6,6 +6,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.keys import split_lanes
 from jaxdip.engine.roles import Actuator, Sensor, param
 
@@ -48,11 +49,27 @@ def backlash(psi, u_prev, u, m, d_minus, d_plus, law: str = "standard"):
     return jnp.where(rising, up, jnp.where(falling, down, psi))
 
 
+def _vector_sizes(owner, *names: str) -> dict:
+    # an actuator with per-input numbers knows the input size; scalars fit any
+    for name in names:
+        v = getattr(owner, name)
+        if v.ndim == 1:
+            why = f"{name} has {v.shape[0]} entries"
+            return {"in": (v.shape[0], why), "out": (v.shape[0], why)}
+    return {}
+
+
 class Saturation(Actuator):
     """(157) as an engine actuator: u clipped to [u_min, u_max] (per input; +-inf: no limit)."""
 
     u_min: jax.Array = param()
     u_max: jax.Array = param()
+
+    def __check_init__(self):
+        checks.check_limits(self, "u_min", self.u_min, "u_max", self.u_max)
+
+    def io_sizes(self) -> dict:
+        return _vector_sizes(self, "u_min", "u_max")
 
     def step(self, state, u, key, k):
         return state, saturate(u, self.u_min, self.u_max), None
@@ -63,6 +80,12 @@ class Deadzone(Actuator):
 
     d_minus: jax.Array = param(0.0)
     d_plus: jax.Array = param(0.0)
+
+    def __check_init__(self):
+        checks.check_limits(self, "d_minus", self.d_minus, "d_plus", self.d_plus)
+
+    def io_sizes(self) -> dict:
+        return _vector_sizes(self, "d_minus", "d_plus")
 
     def step(self, state, u, key, k):
         return state, deadzone(u, self.d_minus, self.d_plus), None
@@ -119,6 +142,10 @@ class Chain(Actuator):
     stages: tuple
 
     def __init__(self, *stages: Actuator):
+        for i, st in enumerate(stages):
+            if not (callable(getattr(st, "init", None)) and callable(getattr(st, "step", None))):
+                raise checks.ArgumentTypeError(f"Chain: stage {i} must be an actuator (init and step), "
+                                               f"got {type(st).__name__}")
         self.stages = tuple(stages)
 
     def init(self, key, x0):

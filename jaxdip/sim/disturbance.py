@@ -13,6 +13,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Actuator, param
 
 
@@ -30,8 +31,22 @@ class InputDisturbance(Actuator):
     white_std: jax.Array = param()  # (m,) std of the per-period white disturbance
 
     def __init__(self, offset_std=0.0, white_std=0.0, m: int = 1):
+        checks.check_int(self, "m", m, 1)
+        for name, v in (("offset_std", offset_std), ("white_std", white_std)):
+            checks.check_real(self, name, v)
+            checks.check_scalar_or_vector(self, name, v, m, f"(one per input, m={m})")
         vec = lambda v: jnp.broadcast_to(jnp.asarray(v, dtype=jnp.float64), (m,))
         self.offset_std, self.white_std = vec(offset_std), vec(white_std)
+
+    def __check_init__(self):
+        for name in ("offset_std", "white_std"):
+            checks.check_nonnegative(self, name, getattr(self, name))
+
+    def io_sizes(self) -> dict:
+        if self.offset_std.ndim != 1:
+            return {}
+        why = f"offset_std is {checks.fmt_shape(self.offset_std.shape)}"
+        return {"in": (self.offset_std.shape[0], why), "out": (self.offset_std.shape[0], why)}
 
     def init(self, key, x0):
         return self.offset_std * jax.random.normal(key, self.offset_std.shape)

@@ -16,7 +16,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine.keys import split_lanes
-from jaxdip.engine.roles import Sensor, param
+from jaxdip.engine import checks
+from jaxdip.engine.roles import SAME, Sensor, param
 
 
 from jaxdip._public import public_dir
@@ -41,6 +42,22 @@ def quantize(y, quantum):
     return jnp.where(quantum > 0, safe * jnp.round(y / safe), y)
 
 
+def check_linear_sensor(sensor) -> None:
+    """The numbers of a ``LinearSensor``-like sensor (also ``TwipSensors``): finite C, noise levels >= 0, time
+    constants > 0, a positive period."""
+    checks.check_ndim(sensor, "C", sensor.C, (2,), "a (p, n) output matrix")
+    checks.check_finite(sensor, "C", sensor.C)
+    p = sensor.C.shape[0]
+    for name in ("white_std", "const_bias", "gm_sigma", "gm_tau", "quantum"):
+        checks.check_scalar_or_vector(sensor, name, getattr(sensor, name), p,
+                                      f"(one per output: C is {checks.fmt_shape(sensor.C.shape)})")
+    checks.check_finite(sensor, "const_bias", sensor.const_bias)
+    for name in ("white_std", "gm_sigma", "quantum"):
+        checks.check_nonnegative(sensor, name, getattr(sensor, name))
+    checks.check_positive(sensor, "gm_tau", sensor.gm_tau)
+    checks.check_positive(sensor, "dt", sensor.dt)
+
+
 class WhiteNoise(Sensor):
     """Full-state measurement with white Gaussian noise, y = x + std * xi (``std`` scalar or per state).
 
@@ -48,6 +65,17 @@ class WhiteNoise(Sensor):
     the two give identical measurements for the same key."""
 
     std: jax.Array = param()
+
+    def __check_init__(self):
+        checks.check_scalar_or_vector(self, "std", self.std, why="(one std for every state, or one per state)")
+        checks.check_nonnegative(self, "std", self.std)
+
+    def io_sizes(self) -> dict:
+        # full-state: y has the plant's size; a per-state std fixes that size
+        if self.std.ndim == 1:
+            why = f"std has {self.std.shape[0]} entries"
+            return {"in": (self.std.shape[0], why), "out": (self.std.shape[0], why)}
+        return {"out": (SAME, "a full-state sensor")}
 
     def step(self, state, x, key, k):
         k_white = split_lanes(key, 2)[0]
@@ -78,11 +106,26 @@ class LinearSensor(Sensor):
 
     def __init__(self, C, dt: float, white_std=0.0, const_bias=0.0, gm_sigma=0.0, gm_tau=1.0, quantum=0.0,
                  stationary_start: bool = True, straight_through: bool = False):
+        named = (("white_std", white_std), ("const_bias", const_bias), ("gm_sigma", gm_sigma), ("gm_tau", gm_tau),
+                 ("quantum", quantum))
+        for name, v in (("C", C),) + named:
+            checks.check_real(self, name, v)
+        checks.check_ndim(self, "C", C, (1, 2), "a (p, n) output matrix")
         C = jnp.atleast_2d(jnp.asarray(C, dtype=jnp.float64))
+        for name, v in named:
+            checks.check_scalar_or_vector(self, name, v, C.shape[0],
+                                          f"(one per output: C is {checks.fmt_shape(C.shape)})")
         vec = lambda v: jnp.broadcast_to(jnp.asarray(v, dtype=jnp.float64), (C.shape[0],))
         self.C, self.white_std, self.const_bias = C, vec(white_std), vec(const_bias)
         self.gm_sigma, self.gm_tau, self.quantum = vec(gm_sigma), vec(gm_tau), vec(quantum)
         self.dt, self.stationary_start, self.straight_through = dt, stationary_start, straight_through
+
+    def __check_init__(self):
+        check_linear_sensor(self)
+
+    def io_sizes(self) -> dict:
+        why = f"C is {checks.fmt_shape(self.C.shape)}"
+        return {"in": (self.C.shape[1], why), "out": (self.C.shape[0], why)}
 
     def init(self, key, x0):
         if not self.stationary_start:

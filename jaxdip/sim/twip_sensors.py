@@ -29,6 +29,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Sensor, param
 from jaxdip.sim import sensors
 
@@ -106,6 +107,15 @@ class TwipSensors(Sensor):
     stationary_start: bool = eqx.field(default=False, static=True)
     straight_through: bool = eqx.field(default=False, static=True)
     cf_init_from_angle: bool = eqx.field(default=True, static=True)
+
+    def __check_init__(self):
+        sensors.check_linear_sensor(self)
+        checks.check_shape(self, "C", self.C, (4, 4), "(the raw channels [p, unused, theta_a, gyro] of the 4 states)")
+        checks.check_ndim(self, "cf_alpha", self.cf_alpha, (0,), "a scalar")
+        checks.check_finite(self, "cf_alpha", self.cf_alpha)
+
+    def io_sizes(self) -> dict:
+        return {"in": (4, "the TWIP's 4 states"), "out": (4, "[p, v, theta_cf, gyro]")}
 
     @classmethod
     def table_7_1(cls, dt: float, **kw) -> "TwipSensors":
