@@ -48,7 +48,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdip.control.riccati_args import check_problem
+from jaxdip.control._riccati_args import check_problem
 from jaxdip.engine import checks
 
 from jaxdip._public import public_dir

@@ -17,6 +17,11 @@ from typing import Any, Optional, Sequence
 import jax
 import numpy as np
 
+from jaxdip._public import public_dir
+
+__all__ = ["ArgumentError", "ArgumentTypeError", "owner_name", "fail", "is_concrete", "shape_of", "fmt_shape", "check_real", "check_shape", "check_ndim", "check_square", "check_finite", "check_positive", "check_nonnegative", "check_psd", "check_int", "check_choice", "check_covariance", "check_state_vector", "check_scalar_or_vector", "check_limits", "check_physical", "check_lti"]
+__dir__ = public_dir(globals())
+
 # Symmetry and definiteness are judged to rounding: a covariance computed as A A^T or assembled from a
 # config is symmetric to ~1e-16 relative (an inverse of an ill-conditioned one to ~1e-10), so 1e-6 relative
 # never rejects one built honestly and still catches a matrix that is not symmetric at all.

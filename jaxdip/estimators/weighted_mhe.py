@@ -70,7 +70,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 import numpy as np
 
-from jaxdip.estimators import validation
+from jaxdip.estimators import _weighted_mhe_checks as validation
 from jaxdip.engine.roles import Estimator, param
 from jaxdip.estimators.active_set import dual_active_set
 from jaxdip.sim.discretize import Discrete
