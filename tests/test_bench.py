@@ -36,3 +36,20 @@ def test_numpy_and_scipy_loops_agree_on_a_noise_sequence():
     b = scipy_loop(K, noise, x0, 0.001, method="DOP853", rtol=1e-12, atol=1e-14)
     assert np.max(np.abs(a - b)) < 1e-12 and np.max(np.abs(a - x0)) > 1e-4
 
+
+
+def test_batch_sweep_rates_are_periods_over_time(tmp_path):
+    """The GPU/CPU sweep's rate is batch x periods / seconds of a call, for each batch asked, on a tiny budget."""
+    import json
+
+    import pytest
+
+    from jaxdip.bench import batch_sweep
+
+    out = tmp_path / "s.json"
+    assert batch_sweep.main(["1,3", "--out", str(out), "--budget", "0.01"]) == 0
+    res = json.loads(out.read_text())
+    assert res["x64"] is True and set(res["rates"]) == {"1", "3"}
+    for b, r in res["rates"].items():
+        assert r["periods"] >= 100
+        assert r["periods_per_s"] == pytest.approx(int(b) * r["periods"] / r["s"], rel=1e-12)
