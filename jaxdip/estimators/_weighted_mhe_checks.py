@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
+import numpy as np
+
 from jaxdip.engine import checks
 
 
@@ -54,3 +58,12 @@ def weighted_mhe_sizes(self) -> dict:
     if self.C is not None:
         sizes["in"] = (self.C.shape[0], f"C is {shape(self.C.shape)}")
     return sizes
+
+
+def bounded_coordinates(lower, upper) -> tuple:
+    """Indices with a finite lower or upper bound (all of them when the bounds are traced at construction)."""
+    try:
+        lo, hi = np.asarray(lower), np.asarray(upper)
+    except (TypeError, jax.errors.TracerArrayConversionError):
+        return tuple(range(jnp.shape(lower)[0]))
+    return tuple(int(i) for i in np.flatnonzero(np.isfinite(lo) | np.isfinite(hi)))

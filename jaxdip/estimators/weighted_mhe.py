@@ -70,13 +70,11 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 import numpy as np
 
-from jaxdip.estimators import _weighted_mhe_checks as validation
+from jaxdip._public import public_dir
 from jaxdip.engine.roles import Estimator, param
+from jaxdip.estimators import _weighted_mhe_checks as validation
 from jaxdip.estimators.active_set import dual_active_set
 from jaxdip.sim.discretize import Discrete
-
-
-from jaxdip._public import public_dir
 
 __all__ = ["WMHEState", "WMHEAux", "WeightedMHE"]
 __dir__ = public_dir(globals())
@@ -113,15 +111,6 @@ def _powers(Phi, Phi_inv, N: int, a: int):
     for i in range(a - 1, -1, -1):
         out[i] = Phi_inv @ out[i + 1]
     return out
-
-
-def _bounded_coordinates(lower, upper) -> tuple:
-    """Indices with a finite lower or upper bound (all of them when the bounds are traced at construction)."""
-    try:
-        lo, hi = np.asarray(lower), np.asarray(upper)
-    except (TypeError, jax.errors.TracerArrayConversionError):
-        return tuple(range(jnp.shape(lower)[0]))
-    return tuple(int(i) for i in np.flatnonzero(np.isfinite(lo) | np.isfinite(hi)))
 
 
 class WeightedMHE(Estimator):
@@ -176,7 +165,7 @@ class WeightedMHE(Estimator):
         self.lower = jnp.full(d, -jnp.inf) if lower is None else lower
         self.upper = jnp.full(d, jnp.inf) if upper is None else upper
         self.box = lower is not None or upper is not None
-        self.box_rows = _bounded_coordinates(self.lower, self.upper) if self.box else ()
+        self.box_rows = validation.bounded_coordinates(self.lower, self.upper) if self.box else ()
         if (A_c is None) != (b_c is None):
             raise ValueError("give both A_c and b_c (affine constraints A_c z <= b_c) or neither")
         fl = jnp.result_type(float)
