@@ -222,6 +222,19 @@ def riccati_keys(cfg) -> str:
     return ", ".join(keys) if keys else "the weights"
 
 
+def refused(cfg, e: Exception, exp_id: str, where: str = "") -> int:
+    """An ``ArgumentError`` raised while a run builds its scenario: a config value that passed the config's own
+    checks but not a component's (``ExtraControl: k1 must be >= 0 and finite, got -1``). One line, keyed by the
+    config key of the argument's name when the config has one (the component's own words follow), else by the
+    experiment."""
+    text = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+    names = {f.name for f in dataclasses.fields(cfg)} if dataclasses.is_dataclass(cfg) else set()
+    # "<owner>: <argument> must ...": the argument, without an index or attribute ("pend.alpha" -> "pend")
+    arg = text.split(": ", 1)[1].split(" ", 1)[0].split(".")[0].split("[")[0] if ": " in text else ""
+    key = f"{where}{arg}" if arg in names else exp_id
+    return error(key, text)
+
+
 EXTREME_DECADES = 12  # a value this many decades from 1 is named as the likely cause of a numerical failure
 
 
