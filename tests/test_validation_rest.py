@@ -120,7 +120,8 @@ CASES = [
     ("outbacklash-channel", lambda p: OutputBacklash(channel=-1), ArgumentError,
      r"^OutputBacklash: channel must be >= 0, got -1$"),
     # metrics.Window
-    ("window-start", lambda p: Window(RMS("x"), start=-1), ArgumentError, r"^Window: start must be >= 0, got -1$"),
+    ("window-stop", lambda p: Window(RMS("x"), start=5, stop=5), ArgumentError,
+     r"^Window: stop must be > start=5 \(or None: to the end\), got 5$"),
     ("window-start-type", lambda p: Window(RMS("x"), start=1.5), ArgumentTypeError,
      r"^Window: start must be an integer, got 1.5$"),
     ("window-stop-type", lambda p: Window(RMS("x"), stop="end"), ArgumentTypeError,
@@ -181,7 +182,7 @@ def test_the_normal_builds_raise_nothing(parts, no_trace):  # noqa: F811
              homd.HOMDObserver.build(DT, pend=homd.gains(5.0, 12.0, 1.0), wheel=[5, 12, 0.51]),
              lu.LuenbergerObserver.build(DT, L), InputBacklash(np.ones(1), -0.4 * np.ones(1), 0.4 * np.ones(1)),
              OutputBacklash(1.0, -0.01, 0.01, law="printed"), InputBacklash(), Window(RMS("x"), 0, 10),
-             Window(RMS("x"), start=3), fp(), fp(state_names="x", fn=lambda x, u: -x, discrete=True),
+             Window(RMS("x"), start=-40), fp(), fp(state_names="x", fn=lambda x, u: -x, discrete=True),
              fp(fn=lambda x, u, q: x, params={"l": 0.5, "n": np.arange(3)}), twip.TWIP(Mp=np.float32(2.0)),
              rwp.RWP(k=0)]
     assert all(b is not None for b in built)
