@@ -14,7 +14,7 @@ import numpy as np
 
 from jaxdip import xla_flags
 from jaxdip.cli_args import check_paths, parser, special_kind
-from jaxdip.cli_errors import emit, error, guarded, note, numerical, out_of_memory, refused, riccati_keys, warn
+from jaxdip.cli_errors import component_refusal, emit, error, guarded, note, numerical, out_of_memory, riccati_keys, warn
 from jaxdip.messages import listing, unknown
 from jaxdip.reproduce_pool import run_parallel
 
@@ -218,7 +218,7 @@ def cmd_run(args, argv=None) -> int:
         except RiccatiError as e:
             return error(riccati_keys(cfg), str(e))
         except ArgumentError as e:
-            return refused(cfg, e, exp.id)
+            return component_refusal(cfg, e, exp.id)
         except (np.linalg.LinAlgError, ArithmeticError, ValueError) as e:
             return numerical(cfg, e)
         except KeyboardInterrupt:
@@ -317,7 +317,7 @@ def cmd_reproduce(args, argv=None) -> int:
             except RiccatiError as e:
                 return error(exp_id, f"{riccati_keys(cfgs[exp_id])}: {e}")
             except ArgumentError as e:
-                return refused(cfgs[exp_id], e, exp_id, f"{exp_id}: ")
+                return component_refusal(cfgs[exp_id], e, exp_id, f"{exp_id}: ")
             except (np.linalg.LinAlgError, ArithmeticError, ValueError) as e:
                 return numerical(cfgs[exp_id], e, f"{exp_id}: ")
             except KeyboardInterrupt:

@@ -8,6 +8,8 @@
 - A closed pipe on standard output (``jaxdip list | head -1``) ends the command quietly (status 141, as a
   process killed by SIGPIPE); a terminal that cannot encode a character gets it escaped; a full disk or any
   other failed write, and running out of memory, end in one line (``guarded``).
+- A component's ``ArgumentError`` while a run builds its scenario (a config value that passed the config's checks
+  but not the component's) is a refusal like a config error: one line, status 2 (``component_refusal``).
 """
 
 from __future__ import annotations
@@ -222,7 +224,7 @@ def riccati_keys(cfg) -> str:
     return ", ".join(keys) if keys else "the weights"
 
 
-def refused(cfg, e: Exception, exp_id: str, where: str = "") -> int:
+def component_refusal(cfg, e: Exception, exp_id: str, where: str = "") -> int:
     """An ``ArgumentError`` raised while a run builds its scenario: a config value that passed the config's own
     checks but not a component's (``ExtraControl: k1 must be >= 0 and finite, got -1``). One line, keyed by the
     config key of the argument's name when the config has one (the component's own words follow), else by the

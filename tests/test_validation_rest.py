@@ -238,3 +238,20 @@ def test_extra_control_b_is_a_scalar_or_one_per_neuron(parts, no_trace):  # noqa
     msg = r"^ExtraControl: b must be a scalar or \(3,\) \(n_hidden=3\), got shape \(2,\)$"
     with pytest.raises(ArgumentError, match=msg):
         ec(parts, n_hidden=3, b=[1.0, 2.0])
+
+
+def test_reproduce_refuses_a_component_error_with_one_line_naming_the_experiment(tmp_path, capsys, monkeypatch):
+    from jaxdip import cli
+    from jaxdip import config as C
+
+    load = C.load
+
+    def bad_k1(cls, *a, **kw):  # the default config with a k1 the config accepts and ExtraControl does not
+        cfg = load(cls, *a, **kw)
+        return dataclasses.replace(cfg, k1=-1.0) if hasattr(cfg, "k1") else cfg
+
+    monkeypatch.setattr(C, "load", bad_k1)
+    code = cli.main(["reproduce", "--only", "twip-extra-control", "--quick", "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 2
+    assert err[-1] == "error: twip-extra-control: k1: ExtraControl: k1 must be >= 0 and finite, got -1"
