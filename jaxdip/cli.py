@@ -14,7 +14,7 @@ import numpy as np
 
 from jaxdip import xla_flags
 from jaxdip.cli_args import check_paths, parser, special_kind
-from jaxdip.cli_errors import emit, error, guarded, note, numerical, out_of_memory, riccati_keys, warn
+from jaxdip.cli_errors import component_refusal, emit, error, guarded, note, numerical, out_of_memory, riccati_keys, warn
 from jaxdip.messages import listing, unknown
 from jaxdip.reproduce_pool import run_parallel
 
@@ -189,6 +189,7 @@ def cmd_run(args, argv=None) -> int:
     from jaxdip.checkpoint import CheckpointError
     from jaxdip.config import ConfigError
     from jaxdip.control.riccati import RiccatiError
+    from jaxdip.engine.checks import ArgumentError
     from jaxdip.runner import run_experiment
     from jaxdip.runner.experiment import run_context
     from jaxdip.runner.results import ResultError
@@ -216,6 +217,8 @@ def cmd_run(args, argv=None) -> int:
             return error("--resume", str(e))
         except RiccatiError as e:
             return error(riccati_keys(cfg), str(e))
+        except ArgumentError as e:
+            return component_refusal(cfg, e, exp.id)
         except (np.linalg.LinAlgError, ArithmeticError, ValueError) as e:
             return numerical(cfg, e)
         except KeyboardInterrupt:
@@ -238,6 +241,7 @@ def cmd_reproduce(args, argv=None) -> int:
     from jaxdip import distributed, outdir
     from jaxdip.config import ConfigError
     from jaxdip.control.riccati import RiccatiError
+    from jaxdip.engine.checks import ArgumentError
     from jaxdip.runner import registry, run_experiment
     from jaxdip.outdir import OutputError
 
@@ -312,6 +316,8 @@ def cmd_reproduce(args, argv=None) -> int:
                 return error(e.key, e.why)
             except RiccatiError as e:
                 return error(exp_id, f"{riccati_keys(cfgs[exp_id])}: {e}")
+            except ArgumentError as e:
+                return component_refusal(cfgs[exp_id], e, exp_id, f"{exp_id}: ")
             except (np.linalg.LinAlgError, ArithmeticError, ValueError) as e:
                 return numerical(cfgs[exp_id], e, f"{exp_id}: ")
             except KeyboardInterrupt:

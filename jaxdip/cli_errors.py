@@ -8,6 +8,8 @@
 - A closed pipe on standard output (``jaxdip list | head -1``) ends the command quietly (status 141, as a
   process killed by SIGPIPE); a terminal that cannot encode a character gets it escaped; a full disk or any
   other failed write, and running out of memory, end in one line (``guarded``).
+- A component's ``ArgumentError`` while a run builds its scenario (a config value that passed the config's checks
+  but not the component's) is a refusal like a config error: one line, status 2 (``component_refusal``).
 """
 
 from __future__ import annotations
@@ -220,6 +222,19 @@ def riccati_keys(cfg) -> str:
     keys = [n for n in names if n in ("Q", "R", "Q_lqr", "R_lqr", "Qk", "Rk", "W", "V")
             or n.startswith(("Q_", "R_", "lqr_"))]
     return ", ".join(keys) if keys else "the weights"
+
+
+def component_refusal(cfg, e: Exception, exp_id: str, where: str = "") -> int:
+    """An ``ArgumentError`` raised while a run builds its scenario: a config value that passed the config's own
+    checks but not a component's (``ExtraControl: k1 must be >= 0 and finite, got -1``). One line, keyed by the
+    config key of the argument's name when the config has one (the component's own words follow), else by the
+    experiment."""
+    text = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+    names = {f.name for f in dataclasses.fields(cfg)} if dataclasses.is_dataclass(cfg) else set()
+    # "<owner>: <argument> must ...": the argument, without an index or attribute ("pend.alpha" -> "pend")
+    arg = text.split(": ", 1)[1].split(" ", 1)[0].split(".")[0].split("[")[0] if ": " in text else ""
+    key = f"{where}{arg}" if arg in names else exp_id
+    return error(key, text)
 
 
 EXTREME_DECADES = 12  # a value this many decades from 1 is named as the likely cause of a numerical failure

@@ -91,7 +91,7 @@ def test_summary_of_a_metrics_pytree_with_result_codes_and_a_sweep_axis():
     m, lo, hi, n = t_interval([1.0, 2.0, 3.0], [False, True, False])
     assert (m, n) == (2.0, 1) and np.isnan(lo) and np.isnan(hi)
     assert np.isnan(t_interval([1.0, 2.0], [False, False])[0])
-    with pytest.raises(ValueError, match="expected 40 seeds"):
+    with pytest.raises(ValueError, match="result must have 40 seeds along axis 1"):
         jd.summary({"v": values}, result=codes[:, :5], axis=1)
 
 

@@ -86,6 +86,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Controller, param
 
 from jaxdip._public import public_dir
@@ -218,6 +219,12 @@ def _law(p, s: ExtraControlState, xhat, k):
     return new, jnp.reshape(u, (1,)), xd
 
 
+_SCALARS = ("dt", "A1", "A2", "A3", "A4", "B1", "B2", "v_d", "x1d0", "k1", "k2", "u_max", "extra", "v_scale",
+            "a_virtual", "beta", "tau_d", "ff")
+_RATES = ("gamma11", "gamma12", "gamma21", "gamma22", "sigma11", "sigma12", "sigma21", "sigma22")
+_SCALARS = _SCALARS + _RATES
+
+
 class ExtraControlAux(NamedTuple):
     state: ExtraControlState  # after the sample: the adapted weights W11..W22, u_nom, u_e, F1hat, F2hat, xbar3
     xd: jnp.ndarray  # the desired state x_d(t_k) (182) the sample tracked
@@ -261,6 +268,27 @@ class ExtraControl(Controller):
     ff: jax.Array = param()  # 1: u_nom includes the desired input u_d of (183); 0: (84) literally, u = -K (x - x_d)
     n_hidden: int = eqx.field(default=10, static=True)
 
+    def __check_init__(self):
+        checks.check_int(self, "n_hidden", self.n_hidden, 1)
+        checks.check_shape(self, "K", self.K, (1, 4), "(the LQR gain of the 4-state TWIP model)")
+        for name in ("b1", "b2"):
+            checks.check_shape(self, name, getattr(self, name), (self.n_hidden,), f"(n_hidden={self.n_hidden})")
+        for name in _SCALARS:
+            checks.check_ndim(self, name, getattr(self, name), (0,), "a scalar")
+        checks.check_finite(self, "K", self.K)
+        for name in _SCALARS + ("b1", "b2"):
+            if name != "u_max":
+                checks.check_finite(self, name, getattr(self, name))
+        checks.check_positive(self, "dt", self.dt)
+        checks.check_positive(self, "u_max", self.u_max, allow_inf=True)  # inf: no saturation
+        # k1, k2 < 0 make the error dynamics s^2 + k s + 1 of (106) unstable; 0 is an ablation, not a mistake
+        for name in ("k1", "k2", "tau_d", "v_scale") + _RATES:
+            checks.check_nonnegative(self, name, getattr(self, name))
+        for name, where in (("a_virtual", "(93)"), ("B2", "(101)")):  # divided by in these laws
+            v = getattr(self, name)
+            if checks.is_concrete(v) and float(v) == 0.0:
+                checks.fail(self, f"{name} must be nonzero (it is inverted in {where}), got 0")
+
     @classmethod
     def design(cls, K, A, B, *, dt=0.01, v_d=0.1, x1d0=0.0, k1=2.5, k2=2.5, n_hidden=10, b=1.0, gamma=0.1,
                sigma=0.01, u_max=11.1, extra=1.0, v_scale=1.0, ff=1.0, tau_d=0.05, virtual="printed",
@@ -272,8 +300,20 @@ class ExtraControl(Controller):
         measures e1, e2 on the flat output (see the module doc). ``virtual_sign`` = -1 reverses the sign in front
         of the inverted gain in (93) (the reading "(93) carries a sign slip"; flipping the tilt's orientation does
         not do this: it reverses A2 and A2 - B1 A4 / B2 together)."""
-        if virtual not in VIRTUAL:
-            raise ValueError(f"virtual must be one of {VIRTUAL}, got {virtual!r}")
+        checks.check_choice(cls, "virtual", virtual, VIRTUAL)
+        checks.check_int(cls, "n_hidden", n_hidden, 1)
+        numbers = dict(dt=dt, v_d=v_d, x1d0=x1d0, k1=k1, k2=k2, gamma=gamma, sigma=sigma, u_max=u_max,
+                       extra=extra, v_scale=v_scale, ff=ff, tau_d=tau_d, virtual_sign=virtual_sign)
+        for name, v in numbers.items():  # before they become arrays below, so a string is named here
+            checks.check_real(cls, name, v)
+            checks.check_ndim(cls, name, v, (0,), "a scalar")
+        checks.check_real(cls, "b", b)
+        checks.check_scalar_or_vector(cls, "b", b, n_hidden, f"(n_hidden={n_hidden})")
+        for name, v, shape in (("K", K, (1, 4)), ("A", A, (4, 4)), ("B", B, (4, 1))):
+            checks.check_real(cls, name, v)
+            # K may come as (4,) or (1, 4): the law reshapes it
+            if not (name == "K" and checks.shape_of(v) == (4,)):
+                checks.check_shape(cls, name, v, shape, "(the 4-state TWIP model (79))")
         A1, A2, A3, A4, B1, B2 = model_coefficients(jnp.asarray(A), jnp.asarray(B))
         ones = jnp.ones(n_hidden)
         a_virtual = _f(virtual_sign) * (A2 if virtual == "printed" else A2 - B1 * A4 / B2)

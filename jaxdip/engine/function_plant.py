@@ -13,7 +13,9 @@ from typing import Any, Callable
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Plant
 
 from jaxdip._public import public_dir
@@ -22,14 +24,28 @@ __all__ = ["FunctionPlant"]
 __dir__ = public_dir(globals())
 
 
-def _names(names) -> tuple[str, ...]:
-    return (names,) if isinstance(names, str) else tuple(names)
+def _names(what: str) -> Callable[[Any], tuple]:
+    # a converter per field, so that a number where names go is refused naming the field (checked further in
+    # ``__check_init__``, which sees the tuple)
+    def convert(names) -> tuple:
+        if isinstance(names, str):
+            return (names,)
+        try:
+            return tuple(names)
+        except TypeError:
+            raise checks.ArgumentTypeError(f"FunctionPlant: {what} must be a string or a sequence of strings, "
+                                           f"got {names!r}") from None
+    return convert
 
 
 def _arrays(params):
     # numbers become arrays on construction, so they are traced (differentiable, sweepable) and never folded into
     # the compiled program as constants; eqx.tree_at and vmap may later put tracers here unchanged
-    return None if params is None else jax.tree_util.tree_map(lambda v: jnp.array(v, dtype=jnp.asarray(v).dtype), params)
+    if params is None:
+        return None
+    for path, v in jax.tree_util.tree_flatten_with_path(params)[0]:
+        checks.check_real("FunctionPlant", f"params{jax.tree_util.keystr(path)}", v)
+    return jax.tree_util.tree_map(lambda v: jnp.array(v, dtype=jnp.asarray(v).dtype), params)
 
 
 class FunctionPlant(Plant):
@@ -44,17 +60,28 @@ class FunctionPlant(Plant):
     """
 
     fn: Callable = eqx.field(static=True)
-    state_names: tuple[str, ...] = eqx.field(static=True, converter=_names)
+    state_names: tuple[str, ...] = eqx.field(static=True, converter=_names("state_names"))
     params: Any = eqx.field(default=None, converter=_arrays)
-    input_names: tuple[str, ...] = eqx.field(default=("u",), static=True, converter=_names)
+    input_names: tuple[str, ...] = eqx.field(default=("u",), static=True, converter=_names("input_names"))
     discrete: bool = eqx.field(default=False, static=True)
 
     def __check_init__(self):
         if not callable(self.fn):
-            raise TypeError(f"FunctionPlant: fn must be a function f(x, u), got {type(self.fn).__name__}")
+            raise checks.ArgumentTypeError(f"FunctionPlant: fn must be a function f(x, u), "
+                                           f"got {type(self.fn).__name__}")
+        if not isinstance(self.discrete, (bool, np.bool_)):
+            raise checks.ArgumentTypeError(f"FunctionPlant: discrete must be True or False, got {self.discrete!r}")
         for what, names in (("state_names", self.state_names), ("input_names", self.input_names)):
-            if not names or not all(isinstance(s, str) for s in names) or len(set(names)) != len(names):
-                raise ValueError(f"FunctionPlant: {what} must be distinct strings, one per {what[:-6]}, got {names}")
+            one = what[:-6]
+            if not names:
+                checks.fail(self, f"{what} must name at least one {one}, got {names}")
+            if not all(isinstance(s, str) for s in names):
+                raise checks.ArgumentTypeError(f"FunctionPlant: {what} must be strings, one per {one}, got {names}")
+            if not all(s.strip() for s in names):
+                checks.fail(self, f"{what} must be non-empty strings, got {names}")
+            if len(set(names)) != len(names):
+                dup = sorted({s for s in names if names.count(s) > 1})
+                checks.fail(self, f"{what} must be distinct, one per {one}, got {names} ({', '.join(dup)} repeated)")
 
     @property
     def continuous(self) -> bool:  # type: ignore[override]  # a field here, a class attribute on Plant

@@ -183,6 +183,11 @@ class Window(Reducer):
     def __check_init__(self):
         if not isinstance(self.reducer, Reducer):
             raise checks.ArgumentTypeError(f"Window: reducer must be a metrics reducer, got {type(self.reducer).__name__}")
+        # period indices are static (the window is part of the compiled program): Python integers. A negative
+        # start is allowed: ``start=n - tail`` with a tail longer than a short run counts every period
+        checks.check_int(self, "start", self.start)
+        if self.stop is not None:
+            checks.check_int(self, "stop", self.stop)
         if self.stop is not None and not self.stop > self.start:
             checks.fail(self, f"stop must be > start={self.start} (or None: to the end), got {self.stop}")
 

@@ -45,13 +45,45 @@ def _as_float_array(v):
     return jnp.asarray(v, dtype=jnp.result_type(float))
 
 
+class _ToFloatArray:
+    """``param``'s converter, told its field's name and class by ``_ParamField.__set_name__``: a string, an
+    object or a complex number is refused with an ``ArgumentTypeError`` naming both, not deep in JAX's converter
+    (the class is the one that declares the field, e.g. ``TWIP`` for ``TWIPUnmodeled``'s inherited constants)."""
+
+    def __init__(self):
+        self.owner, self.name = "param", "value"
+
+    def __call__(self, v):
+        checks.check_real(self.owner, self.name, v)
+        try:
+            return _as_float_array(v)
+        except (TypeError, ValueError) as e:  # a ragged list, an object with a dtype JAX cannot take
+            raise checks.ArgumentTypeError(f"{self.owner}: {self.name} must be real numbers, got "
+                                           f"{type(v).__name__} ({e})") from None
+
+
+class _ParamField(dataclasses.Field):
+    # Python calls __set_name__ on every attribute of a class body as the class is made: the only moment a
+    # field learns its own name and class, which a converter (called with the value alone) otherwise never knows
+    __slots__ = ()
+
+    def __set_name__(self, owner, name):
+        conv = self.metadata.get("converter")
+        if isinstance(conv, _ToFloatArray):
+            conv.owner, conv.name = owner.__name__, name
+        super().__set_name__(owner, name)
+
+
 def param(default: Any = dataclasses.MISSING, **kw):
     """A hyperparameter field: stored as a float array (float64 under jaxdip), so it is traced, not static.
 
     ``eqx.field(converter=...)`` runs on construction only; ``eqx.tree_at`` and ``vmap`` may put tracers or
-    batched arrays in the field unchanged.
+    batched arrays in the field unchanged. A value that is not real numbers (a string, a complex number) raises
+    ``ArgumentTypeError`` naming the class and the field.
     """
-    return eqx.field(default=default, converter=_as_float_array, **kw)
+    f = eqx.field(default=default, converter=_ToFloatArray(), **kw)
+    f.__class__ = _ParamField  # same slots, one more method: dataclasses still sees a Field
+    return f
 
 
 # ---- plants -------------------------------------------------------------------------------------------------

@@ -16,6 +16,7 @@ from typing import Any, Optional, Union
 import jax
 import numpy as np
 
+from jaxdip.engine import checks
 from jaxdip.engine.simulate import RESULTS
 from jaxdip.stats import t_interval
 
@@ -105,7 +106,7 @@ def _state_names(names) -> Optional[tuple[str, ...]]:
         return None
     names = getattr(names, "state_names", names)  # a plant, or the names themselves
     if isinstance(names, str) or not isinstance(names, Sequence) or not all(isinstance(s, str) for s in names):
-        raise TypeError(f"summary: names must be a plant or a sequence of state names, got {names!r}")
+        raise checks.ArgumentTypeError(f"summary: names must be a plant or a sequence of state names, got {names!r}")
     return tuple(names)
 
 
@@ -119,16 +120,26 @@ def summary(sol: Any, names: Any = None, *, result: Any = None, axis: int = 0, l
     """
     if result is None and hasattr(sol, "metrics") and hasattr(sol, "result"):
         sol, result = sol.metrics, sol.result
+    checks.check_int("summary", "axis", axis)
+    checks.check_real("summary", "level", level)
+    if checks.shape_of(level) != () or not 0.0 < float(level) < 1.0:
+        checks.fail("summary", f"level must be a number in (0, 1) (0.95: a 95% interval), got {level!r}")
     if sol is None:
-        raise ValueError("summary: the result has no metrics (pass metrics= to jd.Rollout or jd.simulate)")
+        checks.fail("summary", "the result has no metrics (pass metrics= to jd.Rollout or jd.simulate)")
     state_names = _state_names(names)
     leaves = jax.tree_util.tree_flatten_with_path(sol)[0]
     if not leaves:
-        raise ValueError("summary: the result has no metrics (pass metrics= to jd.Rollout or jd.simulate)")
+        checks.fail("summary", "the result has no metrics (pass metrics= to jd.Rollout or jd.simulate)")
+    for keys, leaf in leaves:
+        # a leaf that is not numbers (a label, an object) or has no seeds axis would fail inside NumPy
+        checks.check_real("summary", f"metric {_path(keys)!r}", leaf)
+        if not -len(checks.shape_of(leaf)) <= axis < len(checks.shape_of(leaf)):
+            checks.fail("summary", f"metric {_path(keys)!r} must have a seeds axis {axis} (a Monte Carlo result), "
+                                   f"got shape {checks.fmt_shape(checks.shape_of(leaf))}")
     seeds = np.shape(leaves[0][1])[axis]
     codes = np.zeros((seeds,), np.int32) if result is None else np.asarray(result)
     if codes.ndim == 0 or codes.shape[axis] != seeds:
-        raise ValueError(f"summary: result has shape {codes.shape}, expected {seeds} seeds along axis {axis}")
+        checks.fail("summary", f"result must have {seeds} seeds along axis {axis}, got shape {codes.shape}")
     ok = codes == RESULTS.ok
     failed = np.sum(~ok, axis=axis)
     out = {}

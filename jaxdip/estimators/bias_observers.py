@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.estimators import homd
 from jaxdip.estimators.continuous import SampledObserver
 from jaxdip.estimators.homd import spow
@@ -52,6 +53,31 @@ __dir__ = public_dir(globals())
 
 def _f(v):
     return jnp.asarray(v, dtype=jnp.float64)
+
+
+def _scalar(owner, name: str, v, positive: bool = False, nonnegative: bool = False) -> None:
+    if v is None or isinstance(v, (str, bytes)):
+        raise checks.ArgumentTypeError(f"{checks.owner_name(owner)}: {name} must be a number, got {v!r}")
+    checks.check_real(owner, name, v)
+    checks.check_ndim(owner, name, v, (0,), "a scalar")
+    checks.check_finite(owner, name, v)
+    if positive:
+        checks.check_positive(owner, name, v)
+    if nonnegative:
+        checks.check_nonnegative(owner, name, v)
+
+
+def _check_homd_parts(obs) -> None:
+    # the HOMD's gains and model, which LowpassHOMD and JointObserver take over from ``build``'s HOMDObserver
+    homd.check_gains(obs, "pend", obs.pend)
+    homd.check_gains(obs, "wheel", obs.wheel)
+    homd.check_observer_model(obs, obs.model)
+
+
+def _check_homd_arg(owner, h) -> None:
+    if not isinstance(h, homd.HOMDObserver):
+        raise checks.ArgumentTypeError(f"{checks.owner_name(owner)}: h must be a HOMDObserver (its gains, model "
+                                       f"and period are taken over), got {type(h).__name__}")
 
 
 # ---- low-pass (17) ----------------------------------------------------------------------------------------
@@ -168,8 +194,16 @@ class LowpassHOMD(SampledObserver):
     out = staticmethod(_lp_out)
     n_xi, n_y = 5, 2
 
+    def __check_init__(self):
+        _check_homd_parts(self)
+        _scalar(self, "gamma_d", self.gamma_d, nonnegative=True)  # 0: the bias estimate stays at d0
+        _scalar(self, "d0", self.d0)
+
     @classmethod
     def build(cls, h: homd.HOMDObserver, gamma_d=0.05, d0=0.0) -> "LowpassHOMD":
+        _check_homd_arg(cls, h)
+        _scalar(cls, "gamma_d", gamma_d)
+        _scalar(cls, "d0", d0)
         return _on_homd(cls, h, _f(gamma_d), _f(d0))
 
 
@@ -189,8 +223,14 @@ class LowpassMeasured(SampledObserver):
     out = staticmethod(_lpm_out)
     n_xi, n_y = 1, 4
 
+    def __check_init__(self):
+        _scalar(self, "gamma_d", self.gamma_d, nonnegative=True)
+        _scalar(self, "d0", self.d0)
+
     @classmethod
     def build(cls, dt: float, gamma_d=0.05, d0=0.0, **kw) -> "LowpassMeasured":
+        _scalar(cls, "gamma_d", gamma_d)
+        _scalar(cls, "d0", d0)
         return cls(dt, _f(gamma_d), _f(d0), **kw)
 
 
@@ -211,8 +251,14 @@ class ReducedOrderMeasured(SampledObserver):
     out = staticmethod(_ro_out)
     n_xi, n_y = 1, 4
 
+    def __check_init__(self):
+        homd.check_observer_model(self, self.model)
+        # (22): e3' = -L0 a1 cos(y) e3 converges only for L0 > 0 (with a1 > 0, |y| < pi/2)
+        _scalar(self, "L0", self.L0, positive=True)
+
     @classmethod
     def build(cls, dt: float, model, L0=0.01, **kw) -> "ReducedOrderMeasured":
+        _scalar(cls, "L0", L0)
         return cls(dt, homd.observer_model(model), _f(L0), **kw)
 
 
@@ -230,6 +276,12 @@ class JointObserver(SampledObserver):
     out = staticmethod(_joint_out)
     n_xi, n_y = 5, 2
 
+    def __check_init__(self):
+        _check_homd_parts(self)
+        _scalar(self, "L0", self.L0, positive=True)
+
     @classmethod
     def build(cls, h: homd.HOMDObserver, L0=0.01) -> "JointObserver":
+        _check_homd_arg(cls, h)
+        _scalar(cls, "L0", L0)
         return _on_homd(cls, h, _f(L0))

@@ -34,6 +34,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.estimators.continuous import SampledObserver
 from jaxdip.plants import rwp
 
@@ -41,7 +42,8 @@ from jaxdip.plants import rwp
 from jaxdip._public import public_dir
 
 __all__ = ["spow", "HOMDGains", "gains", "differentiator_rhs", "error_rhs", "a1", "pendulum_accel",
-           "wheel_current_gain", "wheel_accel", "rwp_homd_rhs", "observer_model", "HOMDObserver"]
+           "wheel_current_gain", "wheel_accel", "rwp_homd_rhs", "observer_model", "HOMDObserver", "as_gains",
+           "check_gains", "check_observer_model"]
 __dir__ = public_dir(globals())
 
 
@@ -82,6 +84,39 @@ class HOMDGains(NamedTuple):
 def gains(k1=5.0, k2=12.0, alpha=0.9) -> HOMDGains:
     f = lambda v: jnp.asarray(v, dtype=jnp.float64)  # noqa: E731
     return HOMDGains(f(k1), f(k2), f(alpha))
+
+
+def as_gains(owner, name: str, g) -> HOMDGains:
+    """``g`` (HOMDGains, or a sequence (k1, k2, alpha)) as HOMDGains, checked by ``check_gains``."""
+    if not isinstance(g, HOMDGains):
+        if isinstance(g, (str, bytes)) or not hasattr(g, "__len__") or len(g) != 3:
+            checks.fail(owner, f"{name} must be the three gains (k1, k2, alpha), got {g!r}")
+        for f, v in zip(HOMDGains._fields, g):
+            checks.check_real(owner, f"{name}.{f}", v)
+        g = gains(*g)
+    check_gains(owner, name, g)
+    return g
+
+
+def check_gains(owner, name: str, g) -> None:
+    """Scalar gains with k1, k2 > 0 and alpha in (0.5, 1]: the exponent 2 alpha - 1 of (10)/(12) must be positive
+    (below 0.5 the correction term is singular at zero error) and alpha = 1 is the linear differentiator."""
+    if not isinstance(g, HOMDGains):
+        raise checks.ArgumentTypeError(f"{checks.owner_name(owner)}: {name} must be HOMDGains (k1, k2, alpha), "
+                                       f"got {type(g).__name__}")
+    for f, v in zip(HOMDGains._fields, g):
+        checks.check_ndim(owner, f"{name}.{f}", v, (0,), "a scalar")
+    checks.check_positive(owner, f"{name}.k1", g.k1)
+    checks.check_positive(owner, f"{name}.k2", g.k2)
+    if checks.is_concrete(g.alpha) and not 0.5 < float(g.alpha) <= 1.0:
+        checks.fail(owner, f"{name}.alpha must be in (0.5, 1], got {float(g.alpha):.6g}")
+
+
+def check_observer_model(owner, model) -> None:
+    """``model`` is an RWP (its constants are the observer's model terms a1, k/J, ...)."""
+    if not isinstance(model, rwp.RWP):
+        raise checks.ArgumentTypeError(f"{checks.owner_name(owner)}: model must be an RWP (the observer's model "
+                                       f"of the plant), got {type(model).__name__}")
 
 
 def differentiator_rhs(g: HOMDGains, xhat, y, accel):
@@ -161,7 +196,12 @@ class HOMDObserver(SampledObserver):
     out = staticmethod(_out)
     n_xi, n_y = 4, 2
 
+    def __check_init__(self):
+        check_gains(self, "pend", self.pend)
+        check_gains(self, "wheel", self.wheel)
+        check_observer_model(self, self.model)
+
     @classmethod
     def build(cls, dt: float, pend=(5.0, 12.0, 0.9), wheel=(5.0, 12.0, 0.9), model: rwp.RWP | None = None,
               **kw) -> "HOMDObserver":
-        return cls(dt, gains(*pend), gains(*wheel), observer_model(model), **kw)
+        return cls(dt, as_gains(cls, "pend", pend), as_gains(cls, "wheel", wheel), observer_model(model), **kw)

@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.engine import checks
 from jaxdip.estimators import homd
 from jaxdip.estimators.continuous import SampledObserver
 from jaxdip.plants import rwp
@@ -151,6 +152,13 @@ class LuenbergerObserver(SampledObserver):
     out = staticmethod(_out)
     n_xi, n_y = 4, 2
 
+    def __check_init__(self):
+        checks.check_real(self, "L", self.L)
+        checks.check_shape(self, "L", self.L, (4, 2), "(4 observer states, 2 measurements [theta, theta_r])")
+        checks.check_finite(self, "L", self.L)
+        homd.check_observer_model(self, self.model)
+
     @classmethod
     def build(cls, dt: float, L, model: rwp.RWP | None = None, **kw) -> "LuenbergerObserver":
+        checks.check_real(cls, "L", L)
         return cls(dt, jnp.asarray(L, dtype=jnp.float64), homd.observer_model(model), **kw)

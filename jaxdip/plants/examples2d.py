@@ -13,6 +13,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import DiscretePlant, param
 
 from jaxdip._public import public_dir
@@ -34,6 +35,11 @@ class Linear(DiscretePlant):
     state_names = STATE_NAMES
     input_names = ("u",)
 
+    def __check_init__(self):
+        checks.check_shape(self, "A", self.A, (2, 2), "(the 2-state example)")
+        checks.check_shape(self, "B", self.B, (2, 1), "(2 states, 1 input)")
+        checks.check_physical(self, finite=("A", "B"))
+
     def step(self, x, u):
         return self.A @ x + self.B @ jnp.reshape(u, (-1,))
 
@@ -51,6 +57,11 @@ class Nonlinear(DiscretePlant):
 
     state_names = STATE_NAMES
     input_names = ("u",)
+
+    def __check_init__(self):
+        for name in ("a", "w", "c", "d", "e", "g0", "g1"):
+            checks.check_ndim(self, name, getattr(self, name), (0,), "a scalar")
+        checks.check_physical(self, finite=("a", "w", "c", "d", "e", "g0", "g1"))
 
     def drift(self, x):
         """f(x) of §2.7.2."""

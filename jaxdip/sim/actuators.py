@@ -91,6 +91,16 @@ class Deadzone(Actuator):
         return state, deadzone(u, self.d_minus, self.d_plus), None
 
 
+def _check_backlash(owner) -> None:
+    # (161) with slope m > 0 (a gear ratio) and a dead band d_minus <= d_plus (both 0: no backlash)
+    checks.check_limits(owner, "d_minus", owner.d_minus, "d_plus", owner.d_plus)
+    a, b = checks.shape_of(owner.m), checks.shape_of(owner.d_minus)
+    if a and b and a != b:
+        checks.fail(owner, f"m must be a scalar or have the shape of d_minus {checks.fmt_shape(b)}, "
+                           f"got {checks.fmt_shape(a)}")
+    checks.check_positive(owner, "m", owner.m)
+
+
 class OutputBacklash(Sensor):
     """Full-state measurement y = x with the backlash (161) on channel ``channel`` (starting engaged at zero).
 
@@ -102,6 +112,14 @@ class OutputBacklash(Sensor):
     d_plus: jax.Array = param(0.0)
     channel: int = eqx.field(default=2, static=True)
     law: str = eqx.field(default="standard", static=True)  # ``backlash``'s law: "standard" or "printed"
+
+    def __check_init__(self):
+        checks.check_int(self, "channel", self.channel, 0)
+        checks.check_choice(self, "law", self.law, BACKLASH_LAWS)
+        # one measured channel: one slope and one dead band (scalars, or arrays of one entry)
+        for name in ("m", "d_minus", "d_plus"):
+            checks.check_scalar_or_vector(self, name, getattr(self, name), 1, f"(the one channel {self.channel})")
+        _check_backlash(self)
 
     def init(self, key, x0):
         z = jnp.zeros(1)
@@ -123,6 +141,10 @@ class InputBacklash(Actuator):
     m: jax.Array = param(1.0)
     d_minus: jax.Array = param(0.0)
     d_plus: jax.Array = param(0.0)
+
+    def __check_init__(self):
+        checks.check_scalar_or_vector(self, "m", self.m, why="(one for every input, or one per input)")
+        _check_backlash(self)
 
     def init(self, key, x0):
         z = jnp.zeros(jnp.shape(self.m) or (1,))
