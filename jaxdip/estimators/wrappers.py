@@ -24,7 +24,7 @@ Every wrapper's ``aux`` is ``inner``'s aux of the current sample.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -99,36 +99,33 @@ class InitialError(Estimator):
         return self.inner.step(state, y, u_prev, key, k)
 
 
-class Prior(Estimator):
+class _AuxOutput(Estimator):
+    """``inner`` unchanged, its output replaced by one field of its aux (named by the subclass's ``field``)."""
+
+    inner: Any
+    field: ClassVar[str]
+
+    __check_init__ = _check_inner
+    io_sizes = _inner_sizes
+
+    def init(self, key, x0):
+        return self.inner.init(key, x0)
+
+    def step(self, state, y, u_prev, key, k):
+        state, _, aux = self.inner.step(state, y, u_prev, key, k)
+        return state, getattr(aux, self.field), aux
+
+
+class Prior(_AuxOutput):
     """The output of ``inner`` is its one-step prediction x_{j|j-1} (``aux.prior``)."""
 
-    inner: Any
-
-    __check_init__ = _check_inner
-    io_sizes = _inner_sizes
-
-    def init(self, key, x0):
-        return self.inner.init(key, x0)
-
-    def step(self, state, y, u_prev, key, k):
-        state, _, aux = self.inner.step(state, y, u_prev, key, k)
-        return state, aux.prior, aux
+    field = "prior"
 
 
-class Ahead(Estimator):
+class Ahead(_AuxOutput):
     """The output of ``inner`` is its prediction of the next state with the input held (``aux.ahead``)."""
 
-    inner: Any
-
-    __check_init__ = _check_inner
-    io_sizes = _inner_sizes
-
-    def init(self, key, x0):
-        return self.inner.init(key, x0)
-
-    def step(self, state, y, u_prev, key, k):
-        state, _, aux = self.inner.step(state, y, u_prev, key, k)
-        return state, aux.ahead, aux
+    field = "ahead"
 
 
 class Delayed(Estimator):
