@@ -34,7 +34,7 @@ __dir__ = public_dir(globals())
 def sample_posterior(key: jax.Array, est: Estimator, ys, us=None, n_samples: int = 1, *, mask=None,
                      nan_missing: bool = False, D=None) -> jax.Array:
     """``n_samples`` draws (n, T, d) of the state path x_0..T-1 given ``ys`` (T, p) by FFBS (module doc)."""
-    checks.check_int(est, "n_samples", n_samples, 1)
+    checks.check_int("sample_posterior", "n_samples", n_samples, 1)
     filt = kalman_filter(est, ys, us, mask=mask, nan_missing=nan_missing, D=D)
     T, d = filt.mean.shape
     us_ = jnp.zeros((T, 1), filt.mean.dtype) if us is None else jnp.asarray(us, filt.mean.dtype).reshape(T, -1)
