@@ -193,5 +193,5 @@ def test_bad_mask_and_feedthrough_arguments_are_refused():
         kalman_filter(kf, ys, mod["us"], mask=np.ones((T, P + 1), bool))
     with pytest.raises(ArgumentError, match="needs the inputs"):
         kalman_filter(kf, ys, None, D=mod["Dm"])
-    with pytest.raises(ArgumentError, match="R"):
+    with pytest.raises(ArgumentError, match="R as a vector"):
         _kf(dict(mod, R=np.ones(P + 1)))

@@ -50,6 +50,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
 from jaxdip._public import public_dir
+from jaxdip.engine.checks import ArgumentError
 
 __all__ = ["KFState", "GaussianAux", "sym", "as_covariance", "guarded_cho_factor", "log_likelihood_of", "predict",
            "mask_measurement", "update", "condition", "smoother_gain"]
@@ -77,13 +78,17 @@ def sym(P):
     return 0.5 * (P + P.T)
 
 
-def as_covariance(R, p: int) -> jax.Array:
+def as_covariance(R, p) -> jax.Array:
     """R as a full (p, p) matrix: a scalar r is r I, a vector (p,) the diagonal, a matrix (or a stack over time,
-    (T, p, p)) is returned as it is. Shapes are checked by the caller (``checks.check_covariance``)."""
+    (T, p, p)) is returned as it is. ``p``: an int, or a function returning it (called for a scalar R only).
+    Shapes are checked by the caller (``checks.check_covariance``)."""
     R = jnp.asarray(R, dtype=jnp.result_type(float))
     if R.ndim == 0:
-        return R * jnp.eye(p, dtype=R.dtype)
+        return R * jnp.eye(p() if callable(p) else p, dtype=R.dtype)
     if R.ndim == 1:
+        if isinstance(p, int) and R.shape[0] != p:
+            raise ArgumentError(f"R as a vector (the diagonal of R) must have {p} entries, one per measurement, "
+                                f"got {R.shape[0]}")
         return jnp.diag(R)
     return R
 

@@ -191,7 +191,7 @@ class ExtendedKalmanFilter(_Gaussian):
         self.C = None if C is None else jnp.asarray(C, jnp.result_type(float))
         if C is not None:
             checks.check_ndim(self, "C", C, (2,), "a (p, n) output matrix")
-        self.R = as_covariance(R, output_size(C, h, self.xhat0))
+        self.R = as_covariance(R, lambda: output_size(C, h, self.xhat0))
         self.nan_missing = nan_missing
         self.model, self.f, self.h, self.dt = model, f, h, dt
         self.n_inputs = (model.m if model is not None else 1) if n_inputs is None else n_inputs

@@ -114,7 +114,7 @@ class UnscentedKalmanFilter(Estimator):
         checks.check_square(self, "P0", P0)
         self.f, self.h, self.Q, self.P0 = f, h, Q, P0
         self.xhat0 = jnp.zeros(jnp.shape(P0)[0]) if xhat0 is None else xhat0
-        self.R, self.nan_missing = as_covariance(R, output_size(None, h, self.xhat0)), nan_missing
+        self.R, self.nan_missing = as_covariance(R, lambda: output_size(None, h, self.xhat0)), nan_missing
         self.alpha, self.beta, self.kappa, self.n_inputs = alpha, beta, kappa, n_inputs
 
     def __check_init__(self):
