@@ -96,8 +96,8 @@ def _assert_matches(sm, ref, tol=1e-12):
         for got_m, got_P, (m_ref, P_ref) in ((fi.mean, fi.cov, filt_ref[k]), (fi.pred_mean, fi.pred_cov, pred_ref[k]),
                                              (sm.mean, sm.cov, smooth_ref[k])):
             scale = max(1.0, np.abs(P_ref).max())
-            np.testing.assert_allclose(got_m[k], m_ref, rtol=0, atol=tol * 10 * scale)
-            np.testing.assert_allclose(got_P[k], P_ref, rtol=0, atol=tol * 10 * scale)
+            np.testing.assert_allclose(got_m[k], m_ref, rtol=0, atol=tol * scale)
+            np.testing.assert_allclose(got_P[k], P_ref, rtol=0, atol=tol * scale)
     assert abs(float(fi.log_likelihood) - ll_ref) <= tol * max(1.0, abs(ll_ref))
 
 

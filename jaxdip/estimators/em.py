@@ -127,7 +127,8 @@ def em_step(kf: KalmanFilter, ys, us=None, *, mask=None, nan_missing: bool = Fal
     ys, us, obs = _batched(kf, ys, us, mask, nan_missing)
     if "C" in update and not bool(jnp.all(obs)):
         raise checks.ArgumentError("EM updates C only from fully observed data (no mask, no NaN)")
-    return _mstep(kf, ys, us, obs, D, tuple(update))
+    update = tuple(update)
+    return jax.jit(lambda m: _mstep(m, ys, us, obs, D, update))(kf)
 
 
 def fit_em(kf: KalmanFilter, ys, us=None, *, mask=None, nan_missing: bool = False, D=None,
