@@ -97,3 +97,25 @@ def test_em_step_one_sequence_is_a_batch_of_one_and_bad_arguments_are_refused():
         em_step(kf, ys, mask=np.zeros(ys.shape, bool), update=("C",))
     with pytest.raises(ArgumentTypeError, match="KalmanFilter"):
         em_step(object(), ys)
+
+
+@pytest.mark.slow
+def test_em_reaches_the_likelihood_fitters_optimum():
+    import optax
+
+    from jaxdip.tune.likelihood import LGSSMModel, fit_marginal_likelihood
+
+    ys = _simulate(0, 4, 150)
+    mask = np.random.default_rng(1).random(ys.shape) < 0.8
+    mask[:, 10] = False
+    res = fit_em(_kf(np.eye(2), np.eye(2)), ys, mask=mask, tol=1e-13, max_iter=2000)
+
+    def build(theta):
+        return LGSSMModel(Phi=PHI, C=C, Q=_chol(theta["q"]), R=_chol(theta["r"]), m0=jnp.zeros(2), P0=jnp.eye(2))
+
+    fit = fit_marginal_likelihood(build, {"q": jnp.zeros(3), "r": jnp.zeros(3)}, ys, mask=mask,
+                                  optimizer=optax.lbfgs(), tol=1e-9, max_iter=500)
+    print(f"EM {res.iterations} iterations; L-BFGS fitter {fit.iterations} iterations, {fit.status}")
+    assert fit.status == "converged"
+    for got, ref in ((res.model.Q, _chol(fit.theta["q"])), (res.model.R, _chol(fit.theta["r"]))):
+        np.testing.assert_allclose(got, ref, rtol=1e-4, atol=1e-4 * float(np.abs(ref).max()))
