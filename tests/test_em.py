@@ -91,6 +91,13 @@ def test_em_step_one_sequence_is_a_batch_of_one_and_bad_arguments_are_refused():
     b, ll_b = em_step(kf, ys)
     np.testing.assert_allclose(a.Q, b.Q, rtol=1e-14)
     assert float(ll_a) == pytest.approx(float(log_likelihood(kf, ys[0])), rel=1e-12)
+    # feedthrough: fitting y with D u is fitting y - D u without it
+    us = np.random.default_rng(4).normal(size=(30, 1))
+    Dm = np.array([[0.5], [-1.0]])
+    c, ll_c = em_step(kf, ys[0] + us @ Dm.T, us, D=Dm)
+    np.testing.assert_allclose(c.R, a.R, rtol=1e-12)
+    np.testing.assert_allclose(c.Q, a.Q, rtol=1e-12)
+    assert float(ll_c) == pytest.approx(float(ll_a), rel=1e-12)
     with pytest.raises(ArgumentError, match="update"):
         em_step(kf, ys, update=("P0",))
     with pytest.raises(ArgumentError, match="C only"):

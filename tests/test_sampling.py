@@ -5,7 +5,7 @@ import pytest
 
 import jax
 
-from jaxdip.engine.checks import ArgumentError
+from jaxdip.engine.checks import ArgumentError, ArgumentTypeError
 from jaxdip.estimators.kf import KalmanFilter
 from jaxdip.estimators.recorded import rts_smoother
 from jaxdip.estimators.sampling import sample_posterior
@@ -51,3 +51,5 @@ def test_ffbs_is_reproducible_and_checks_its_count():
     np.testing.assert_array_equal(a, b)
     with pytest.raises(ArgumentError, match="n_samples"):
         sample_posterior(jax.random.PRNGKey(3), kf, ys, us, 0)
+    with pytest.raises(ArgumentTypeError, match="transition_jacobian"):
+        sample_posterior(jax.random.PRNGKey(3), object(), ys, us, 2)

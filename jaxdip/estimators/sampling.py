@@ -35,6 +35,9 @@ def sample_posterior(key: jax.Array, est: Estimator, ys, us=None, n_samples: int
                      nan_missing: bool = False, D=None) -> jax.Array:
     """``n_samples`` draws (n, T, d) of the state path x_0..T-1 given ``ys`` (T, p) by FFBS (module doc)."""
     checks.check_int("sample_posterior", "n_samples", n_samples, 1)
+    if not hasattr(est, "transition_jacobian"):
+        raise checks.ArgumentTypeError(f"sample_posterior needs an estimator with transition_jacobian "
+                                       f"(KalmanFilter, ExtendedKalmanFilter), got {type(est).__name__}")
     filt = kalman_filter(est, ys, us, mask=mask, nan_missing=nan_missing, D=D)
     T, d = filt.mean.shape
     us_ = jnp.zeros((T, 1), filt.mean.dtype) if us is None else jnp.asarray(us, filt.mean.dtype).reshape(T, -1)
