@@ -195,3 +195,20 @@ def test_bad_mask_and_feedthrough_arguments_are_refused():
         kalman_filter(kf, ys, None, D=mod["Dm"])
     with pytest.raises(ArgumentError, match="R as a vector"):
         _kf(dict(mod, R=np.ones(P + 1)))
+
+
+def test_masking_is_exact_at_tiny_variances():
+    # a missing component's fill follows the observed scale: with a fill of 1 next to variances of 1e-12 the
+    # guarded factorisation would perturb the observed block (67% error in P, measured)
+    s = 1e-12
+    mod, ys = _model(0, False)
+    mod = dict(mod, Q=mod["Q"] * s, R=mod["R"] * s, P0=mod["P0"] * s, m0=mod["m0"] * np.sqrt(s),
+               us=mod["us"] * np.sqrt(s))
+    obs = _random_mask(np.random.default_rng(10))
+    filt_ref, _, smooth_ref, ll_ref = _reference(mod, ys * np.sqrt(s), obs)
+    sm = rts_smoother(_kf(mod), ys * np.sqrt(s), mod["us"], mask=obs, D=mod["Dm"])
+    for k in range(T):
+        for got, (m_ref, P_ref) in ((sm.filtered, filt_ref[k]), (sm, smooth_ref[k])):
+            np.testing.assert_allclose(got.cov[k], P_ref, rtol=0, atol=1e-12 * np.abs(P_ref).max())
+            np.testing.assert_allclose(got.mean[k], m_ref, rtol=0, atol=1e-12 * np.sqrt(np.abs(P_ref).max()))
+    assert abs(float(sm.filtered.log_likelihood) - ll_ref) <= 1e-12 * abs(ll_ref)
