@@ -7,8 +7,14 @@ other starting estimates are the wrappers of ``jaxdip.estimators.wrappers`` (``P
 ``DelayedMeasurement`` feeds y_{j-1}, ``FromTruth``/``InitialError`` start from the true x_0).
 
 Run over recorded data, the same step is the offline filter (``jaxdip.estimators.recorded.kalman_filter``); for
-that use every matrix of ``KalmanFilter`` may also be a stack over time (leading axis T: ``Phi[j]``, ``W[j]``,
-``Q[j]`` drive x_j -> x_{j+1}; ``C[j]``, ``R[j]`` read y_j).
+that use every matrix of ``KalmanFilter`` may also be a stack over time (leading axis T, natural indexing:
+x_{j+1} = Phi[j] x_j + W[j] u_j + w_j, w_j ~ N(0, Q[j]); y_j = C[j] x_j + v_j, v_j ~ N(0, R[j]); entry T-1 of
+Phi, W, Q is never used).
+
+Missing measurements. With ``nan_missing=True`` a NaN component of y_j is missing: it is removed exactly
+(``jaxdip.estimators.kalman.mask_measurement``), and a y_j that is all NaN makes sample j a pure prediction.
+``R`` may be a scalar (r I), a vector (the diagonal) or a full matrix (``kalman.as_covariance``); a stack over
+time is full, (T, p, p).
 """
 
 from __future__ import annotations
@@ -21,13 +27,13 @@ import jax.numpy as jnp
 
 from jaxdip.engine import checks
 from jaxdip.engine.roles import Estimator, Plant, param
-from jaxdip.estimators.kalman import GaussianAux, KFState, predict, update
+from jaxdip.estimators.kalman import GaussianAux, KFState, as_covariance, predict, update
 from jaxdip.estimators.linearized import local_model
 
 
 from jaxdip._public import public_dir
 
-__all__ = ["KalmanFilter", "ExtendedKalmanFilter"]
+__all__ = ["KalmanFilter", "ExtendedKalmanFilter", "output_size"]
 __dir__ = public_dir(globals())
 
 
@@ -54,7 +60,8 @@ class _Gaussian(Estimator):
         F, x_next = self._transition(state.x, u, j)
         xp, Pp = _first_or(k, state, *predict(state.x, state.P, F, x_next, _at(self.Q, j)))
         H, yhat = self._output(xp, k)
-        x, P, ll = update(xp, Pp, y, H, yhat, _at(self.R, k), self.jitter)
+        observed = ~jnp.isnan(y) if self.nan_missing else None
+        x, P, ll = update(xp, Pp, y, H, yhat, _at(self.R, k), self.jitter, observed)
         return KFState(x, P), x, GaussianAux(P, xp, Pp, ll)
 
     def transition_jacobian(self, x, u, j):
@@ -64,7 +71,8 @@ class _Gaussian(Estimator):
 
 class KalmanFilter(_Gaussian):
     """KF for x_{k+1} = Phi x_k + W u_k + w, y_k = C x_k + v, w ~ (0, Q), v ~ (0, R) (module doc for the
-    timing). ``jitter`` (static): see ``kalman.update``."""
+    timing). ``jitter`` (static): see ``kalman.update``; ``nan_missing`` (static): NaN components of y are
+    missing (module doc)."""
 
     Phi: jax.Array = param()
     W: jax.Array = param()
@@ -74,13 +82,16 @@ class KalmanFilter(_Gaussian):
     P0: jax.Array = param()
     xhat0: jax.Array = param()
     jitter: float = eqx.field(default=0.0, static=True)
+    nan_missing: bool = eqx.field(default=False, static=True)
 
-    def __init__(self, Phi, W, C, Q, R, P0, xhat0=None, jitter: float = 0.0):
+    def __init__(self, Phi, W, C, Q, R, P0, xhat0=None, jitter: float = 0.0, nan_missing: bool = False):
         for name, v in (("Phi", Phi), ("W", W), ("C", C), ("Q", Q), ("R", R), ("P0", P0), ("xhat0", xhat0)):
             if v is not None:
                 checks.check_real(self, name, v)
         checks.check_square(self, "Phi", Phi, leading=True)
-        self.Phi, self.C, self.Q, self.R, self.P0, self.jitter = Phi, C, Q, R, P0, jitter
+        checks.check_ndim(self, "C", C, (2, 3), "a (p, n) output matrix (or a (T, p, n) stack over time)")
+        self.Phi, self.C, self.Q, self.P0, self.jitter = Phi, C, Q, P0, jitter
+        self.R, self.nan_missing = as_covariance(R, jnp.shape(C)[-2]), nan_missing
         d = jnp.shape(Phi)[-1]
         W = jnp.zeros((d, 1)) if W is None else jnp.asarray(W)
         if W.ndim <= 2:  # (d,) is one input; a stack over time (T, d, m) is checked once built
@@ -122,6 +133,13 @@ class KalmanFilter(_Gaussian):
         return C, C @ x
 
 
+def output_size(C, h: Optional[Callable], xhat0) -> int:
+    """p: the rows of C, or the size of h(xhat0) (by shape evaluation, nothing computed)."""
+    if C is not None:
+        return int(jnp.shape(C)[-2])
+    return int(jax.eval_shape(h, jnp.asarray(xhat0, jnp.result_type(float))).shape[0])
+
+
 def _plant_vector_field(plant, x, u):
     # module-level, so every filter of one plant structure traces the same function
     return plant.vector_field(x, u)
@@ -136,7 +154,7 @@ class ExtendedKalmanFilter(_Gaussian):
     ``expm_squarings``: see ``linearized.expm_small``), the mean propagated by the same local affine model (the
     exponential-Euler step, exact for linear dynamics: the EKF of a linear model is the KF). The output is
     linear (array ``C``) or a map ``h(x)`` (static), linearised at the prediction. ``jitter``: see
-    ``kalman.update``.
+    ``kalman.update``; ``R`` and ``nan_missing``: as in ``KalmanFilter``.
     """
 
     Q: jax.Array = param()
@@ -151,10 +169,11 @@ class ExtendedKalmanFilter(_Gaussian):
     n_inputs: int = eqx.field(static=True)
     expm_squarings: int = eqx.field(static=True)
     jitter: float = eqx.field(static=True)
+    nan_missing: bool = eqx.field(default=False, static=True)
 
     def __init__(self, Q, R, P0, xhat0=None, *, model=None, dt: Optional[float] = None,
                  f: Optional[Callable] = None, C=None, h: Optional[Callable] = None, n_inputs: Optional[int] = None,
-                 expm_squarings: int = 24, jitter: float = 0.0):
+                 expm_squarings: int = 24, jitter: float = 0.0, nan_missing: bool = False):
         if (f is None) == (model is None):
             checks.fail(self, "give exactly one of f (a discrete map) and model (a continuous plant, with dt), "
                         f"got {'both' if f is not None else 'neither'}")
@@ -167,9 +186,13 @@ class ExtendedKalmanFilter(_Gaussian):
             if v is not None:
                 checks.check_real(self, name, v)
         checks.check_square(self, "P0", P0)
-        self.Q, self.R, self.P0 = Q, R, P0
+        self.Q, self.P0 = Q, P0
         self.xhat0 = jnp.zeros(jnp.shape(P0)[0]) if xhat0 is None else xhat0
         self.C = None if C is None else jnp.asarray(C, jnp.result_type(float))
+        if C is not None:
+            checks.check_ndim(self, "C", C, (2,), "a (p, n) output matrix")
+        self.R = as_covariance(R, lambda: output_size(C, h, self.xhat0))
+        self.nan_missing = nan_missing
         self.model, self.f, self.h, self.dt = model, f, h, dt
         self.n_inputs = (model.m if model is not None else 1) if n_inputs is None else n_inputs
         self.expm_squarings, self.jitter = expm_squarings, jitter

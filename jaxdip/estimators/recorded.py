@@ -10,22 +10,34 @@ and likelihood are that run for a Kalman-type estimator (``KalmanFilter``, ``Ext
 the predicted ones x_k | y_0..k-1 and log p(y_0..T-1) = sum_k log N(y_k; yhat_k, S_k) (the prediction-error
 decomposition); ``rts_smoother`` adds x_k | y_0..T-1 (for a nonlinear transition the usual extended RTS
 smoother, with the transition Jacobians at the filtered means).
+
+Missing data. ``mask`` (None, or a boolean (T,) or (T, p) array, True = observed) and ``nan_missing`` (NaN
+entries of ys are missing too) remove measurements exactly: the filter runs with those entries set to NaN and
+the estimator's ``nan_missing`` on (``jaxdip.estimators.kalman.mask_measurement``), so the filtered and smoothed
+moments and the likelihood are those of the observed entries only; a fully missing step is a prediction.
+
+Feedthrough. ``D`` ((p, m), or (T, p, m) over time) adds D_k u_k to the measurement, y_k = h(x_k) + D_k u_k + v_k:
+the recorded y_k - D_k u_k is filtered. It belongs to recorded data: in a closed loop y_k is read before u_k is
+decided, so an engine estimator has no u_k to feed through.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
 
+from jaxdip.engine import checks
 from jaxdip.engine.roles import Estimator
 from jaxdip.estimators.kalman import smoother_gain, sym
 
 
 from jaxdip._public import public_dir
 
-__all__ = ["run", "inputs_before", "FilterResult", "SmootherResult", "kalman_filter", "log_likelihood", "rts_smoother"]
+__all__ = ["run", "inputs_before", "observed_mask", "FilterResult", "SmootherResult", "kalman_filter", "log_likelihood",
+           "rts_smoother"]
 __dir__ = public_dir(globals())
 
 
@@ -60,6 +72,47 @@ def inputs_before(us, T: int, dtype=None):
     return jnp.concatenate([jnp.zeros_like(us[:1]), us[:-1]])
 
 
+def observed_mask(ys, mask=None, nan_missing: bool = False) -> Optional[jax.Array]:
+    """The (T, p) boolean array of observed entries of ``ys`` (T, p) from ``mask`` ((T,) or (T, p), True =
+    observed) and, with ``nan_missing``, the non-NaN entries; None when neither is given (all observed)."""
+    if mask is None and not nan_missing:
+        return None
+    observed = jnp.ones(ys.shape, dtype=bool)
+    if mask is not None:
+        mask = jnp.asarray(mask)
+        if mask.dtype != jnp.bool_:
+            raise checks.ArgumentTypeError(f"mask must be a boolean array (True = observed), got dtype {mask.dtype}")
+        if mask.shape not in ((ys.shape[0],), ys.shape):
+            raise checks.ArgumentError(f"mask must have shape ({ys.shape[0]},) or {checks.fmt_shape(ys.shape)} like "
+                                       f"ys, got {checks.fmt_shape(mask.shape)}")
+        observed = observed & (mask[:, None] if mask.ndim == 1 else mask)
+    if nan_missing:
+        observed = observed & ~jnp.isnan(ys)
+    return observed
+
+
+def _prepared(est: Estimator, ys, us, mask, nan_missing: bool, D):
+    """(est, ys) with the feedthrough taken off ys and the missing entries set to NaN for a missing-aware est."""
+    ys = jnp.asarray(ys, dtype=jnp.result_type(float))
+    if ys.ndim != 2:
+        raise checks.ArgumentError(f"ys must be (T, p), got shape {checks.fmt_shape(ys.shape)}")
+    if D is not None:
+        if us is None:
+            raise checks.ArgumentError("D (feedthrough) needs the inputs us, got us=None")
+        D = jnp.asarray(D, ys.dtype)
+        u = jnp.asarray(us, ys.dtype).reshape(ys.shape[0], -1)
+        ys = ys - (jnp.einsum("tpm,tm->tp", D, u) if D.ndim == 3 else u @ D.T)
+    observed = observed_mask(ys, mask, nan_missing)
+    if observed is None:
+        return est, ys
+    if not hasattr(est, "nan_missing"):
+        raise checks.ArgumentTypeError(f"mask / nan_missing need a Kalman-type estimator (KalmanFilter, "
+                                       f"ExtendedKalmanFilter, UnscentedKalmanFilter), got {type(est).__name__}")
+    if not est.nan_missing:
+        est = dataclasses.replace(est, nan_missing=True)
+    return est, jnp.where(observed, ys, jnp.nan)
+
+
 class FilterResult(NamedTuple):
     mean: jax.Array  # (T, d) E[x_k | y_0..k]
     cov: jax.Array  # (T, d, d)
@@ -73,31 +126,34 @@ class SmootherResult(NamedTuple):
     mean: jax.Array  # (T, d) E[x_k | y_0..T-1]
     cov: jax.Array  # (T, d, d)
     filtered: FilterResult
+    cross_cov: Optional[jax.Array] = None  # (T-1, d, d) Cov(x_{k+1}, x_k | y_0..T-1) = Ps_{k+1} G_k^T
+    gain: Optional[jax.Array] = None  # (T-1, d, d) the smoother gains G_k
 
 
-def kalman_filter(est: Estimator, ys, us=None) -> FilterResult:
+def kalman_filter(est: Estimator, ys, us=None, *, mask=None, nan_missing: bool = False, D=None) -> FilterResult:
     """The Kalman-type estimator ``est`` over a whole sequence ``ys`` (T, p); ``us[k]`` (T, m) drives
-    x_k -> x_{k+1} (None: no input)."""
-    ys = jnp.asarray(ys, dtype=jnp.result_type(float))
+    x_k -> x_{k+1} (None: no input). ``mask``, ``nan_missing``, ``D``: module doc."""
+    est, ys = _prepared(est, ys, us, mask, nan_missing, D)
     _, mean, aux = run(est, ys, inputs_before(us, ys.shape[0], ys.dtype), jnp.asarray(est.xhat0, ys.dtype))
     ll = aux.log_likelihood
     return FilterResult(mean, aux.cov, aux.prior, aux.prior_cov, jnp.sum(ll), ll)
 
 
-def log_likelihood(est: Estimator, ys, us=None) -> jax.Array:
-    """log p(y_0..T-1) of the model of ``est``."""
-    return kalman_filter(est, ys, us).log_likelihood
+def log_likelihood(est: Estimator, ys, us=None, *, mask=None, nan_missing: bool = False, D=None) -> jax.Array:
+    """log p(y_0..T-1) of the model of ``est`` (of the observed entries only, with a mask)."""
+    return kalman_filter(est, ys, us, mask=mask, nan_missing=nan_missing, D=D).log_likelihood
 
 
-def rts_smoother(est: Estimator, ys, us=None) -> SmootherResult:
+def rts_smoother(est: Estimator, ys, us=None, *, mask=None, nan_missing: bool = False, D=None) -> SmootherResult:
     """Rauch-Tung-Striebel smoother (extended for a nonlinear transition) after ``kalman_filter``:
 
         G_k  = P_k F_k^T (P-_{k+1})^{-1}
         ms_k = m_k + G_k (ms_{k+1} - m-_{k+1}),     Ps_k = P_k + G_k (Ps_{k+1} - P-_{k+1}) G_k^T.
 
-    ``est`` needs ``transition_jacobian(x, u, k)`` (the KF and the EKF have it).
+    ``est`` needs ``transition_jacobian(x, u, k)`` (the KF and the EKF have it). ``mask``, ``nan_missing``,
+    ``D``: module doc.
     """
-    filt = kalman_filter(est, ys, us)
+    filt = kalman_filter(est, ys, us, mask=mask, nan_missing=nan_missing, D=D)
     T = filt.mean.shape[0]
     us_ = jnp.zeros((T, 1), filt.mean.dtype) if us is None else jnp.asarray(us, filt.mean.dtype).reshape(T, -1)
     Fs = jax.vmap(est.transition_jacobian)(filt.mean, us_, jnp.arange(T))
@@ -108,11 +164,11 @@ def rts_smoother(est: Estimator, ys, us=None) -> SmootherResult:
         G = smoother_gain(P, F, Pp_next)
         ms = m + G @ (ms_next - mp_next)
         Ps = sym(P + G @ (Ps_next - Pp_next) @ G.T)
-        return (ms, Ps), (ms, Ps)
+        return (ms, Ps), (ms, Ps, Ps_next @ G.T, G)
 
     last = (filt.mean[-1], filt.cov[-1])
     inputs = (filt.mean[:-1], filt.cov[:-1], Fs[:-1], filt.pred_mean[1:], filt.pred_cov[1:])
-    _, (ms, Ps) = jax.lax.scan(body, last, inputs, reverse=True)
+    _, (ms, Ps, cross, gains) = jax.lax.scan(body, last, inputs, reverse=True)
     ms = jnp.concatenate([ms, last[0][None]])
     Ps = jnp.concatenate([Ps, last[1][None]])
-    return SmootherResult(ms, Ps, filt)
+    return SmootherResult(ms, Ps, filt, cross, gains)

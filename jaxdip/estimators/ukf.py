@@ -28,7 +28,8 @@ import jax.numpy as jnp
 
 from jaxdip.engine import checks
 from jaxdip.engine.roles import Estimator, param
-from jaxdip.estimators.kalman import GaussianAux, KFState, condition, sym
+from jaxdip.estimators.kalman import GaussianAux, KFState, as_covariance, condition, sym
+from jaxdip.estimators.kf import output_size
 
 from jaxdip._public import public_dir
 
@@ -74,10 +75,11 @@ def ukf_predict(m, P, f: Callable, u, Q, sw: SigmaWeights):
     return mp, sym(Pp + Q)
 
 
-def ukf_update(m, P, y, h: Callable, R, sw: SigmaWeights):
-    """Condition N(m, P) on y = h(x) + v: (mean, cov, log N(y; yhat, S))."""
+def ukf_update(m, P, y, h: Callable, R, sw: SigmaWeights, observed=None):
+    """Condition N(m, P) on y = h(x) + v: (mean, cov, log N(y; yhat, S)); ``observed`` as in
+    ``kalman.update``."""
     yhat, Pyy, Pxy = unscented_transform(h, m, P, sw)
-    return condition(m, P, y, yhat, Pyy, Pxy, R)
+    return condition(m, P, y, yhat, Pyy, Pxy, R, observed)
 
 
 class UnscentedKalmanFilter(Estimator):
@@ -85,7 +87,8 @@ class UnscentedKalmanFilter(Estimator):
 
     Same timing and ``aux`` (a ``GaussianAux``) as ``KalmanFilter``: sample j brings y_j and u_{j-1}; from j = 1
     on the filter predicts with u_{j-1}, then updates with y_j; (xhat0, P0) is the prior of x_0 before y_0.
-    ``h``, ``f`` static (compared by identity); ``alpha``, ``beta``, ``kappa`` array fields (traced).
+    ``h``, ``f`` static (compared by identity); ``alpha``, ``beta``, ``kappa`` array fields (traced). ``R`` and
+    ``nan_missing``: as in ``KalmanFilter``.
     """
 
     Q: jax.Array = param()
@@ -98,9 +101,10 @@ class UnscentedKalmanFilter(Estimator):
     f: Callable = eqx.field(static=True)
     h: Callable = eqx.field(static=True)
     n_inputs: int = eqx.field(static=True)
+    nan_missing: bool = eqx.field(default=False, static=True)
 
     def __init__(self, f: Callable, h: Callable, Q, R, P0, xhat0=None, *, n_inputs: int = 1, alpha=DEFAULT_ALPHA,
-                 beta=DEFAULT_BETA, kappa=DEFAULT_KAPPA):
+                 beta=DEFAULT_BETA, kappa=DEFAULT_KAPPA, nan_missing: bool = False):
         for name, v in (("Q", Q), ("R", R), ("P0", P0), ("xhat0", xhat0)):
             if v is not None:
                 checks.check_real(self, name, v)
@@ -108,8 +112,9 @@ class UnscentedKalmanFilter(Estimator):
             raise checks.ArgumentTypeError(f"UnscentedKalmanFilter: f and h must be functions, "
                                            f"got {type(f).__name__} and {type(h).__name__}")
         checks.check_square(self, "P0", P0)
-        self.f, self.h, self.Q, self.R, self.P0 = f, h, Q, R, P0
+        self.f, self.h, self.Q, self.P0 = f, h, Q, P0
         self.xhat0 = jnp.zeros(jnp.shape(P0)[0]) if xhat0 is None else xhat0
+        self.R, self.nan_missing = as_covariance(R, lambda: output_size(None, h, self.xhat0)), nan_missing
         self.alpha, self.beta, self.kappa, self.n_inputs = alpha, beta, kappa, n_inputs
 
     def __check_init__(self):
@@ -140,5 +145,6 @@ class UnscentedKalmanFilter(Estimator):
         xp, Pp = ukf_predict(state.x, state.P, self.f, u_prev, self.Q, sw)
         first = k == 0
         xp, Pp = jnp.where(first, state.x, xp), jnp.where(first, state.P, Pp)
-        x, P, ll = ukf_update(xp, Pp, y, self.h, self.R, sw)
+        observed = ~jnp.isnan(y) if self.nan_missing else None
+        x, P, ll = ukf_update(xp, Pp, y, self.h, self.R, sw, observed)
         return KFState(x, P), x, GaussianAux(P, xp, Pp, ll)

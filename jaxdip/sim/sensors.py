@@ -7,6 +7,9 @@ white of spectral density sigma_b^2. It is discretised exactly over the sample p
 
 so its stationary variance is sigma_b^2 tau / 2 and its autocorrelation decays as exp(-|s| / tau) at any dt.
 Q is a uniform quantiser with step ``quantum`` (0 disables it), the encoders' discretisation.
+
+``Dropout`` wraps any sensor and loses samples (a dropped packet, a missed read): a lost reading is NaN, which
+the Kalman-type estimators treat as missing with ``nan_missing=True``.
 """
 
 from __future__ import annotations
@@ -15,6 +18,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from typing import Any, Optional
+
 from jaxdip.engine.keys import split_lanes
 from jaxdip.engine import checks
 from jaxdip.engine.roles import SAME, Sensor, param
@@ -22,7 +27,8 @@ from jaxdip.engine.roles import SAME, Sensor, param
 
 from jaxdip._public import public_dir
 
-__all__ = ["gauss_markov_coeffs", "gauss_markov_stationary_std", "quantize", "WhiteNoise", "LinearSensor"]
+__all__ = ["gauss_markov_coeffs", "gauss_markov_stationary_std", "quantize", "WhiteNoise", "LinearSensor", "Dropout",
+           "DROPOUT_STREAM"]
 __dir__ = public_dir(globals())
 
 
@@ -144,3 +150,57 @@ class LinearSensor(Sensor):
         a, q_std = gauss_markov_coeffs(self.gm_sigma, self.gm_tau, self.dt)
         bias = a * state + q_std * jax.random.normal(k_bias, state.shape)
         return bias, y, bias
+
+
+DROPOUT_STREAM = 0x44524F50  # fold_in(key, DROPOUT_STREAM) draws the losses; the wrapped sensor gets key itself
+
+
+class Dropout(Sensor):
+    """``sensor`` with lost samples: a lost reading is NaN (the whole y, or each component on its own with
+    ``per_component``).
+
+    Random losses: each period (each component) is lost with probability ``p`` (an array field), drawn from
+    ``fold_in(key, DROPOUT_STREAM)`` of the period's sensor key; the wrapped sensor steps with the key itself, so
+    it reads exactly what it reads unwrapped. Deterministic losses: ``pattern``, a boolean (L,) or (L, p) array
+    with True = delivered, repeats with period L (period k uses ``pattern[k % L]``); with a pattern ``p`` is
+    ignored. ``aux`` is (the wrapped sensor's aux, the boolean (p,) delivered mask)."""
+
+    sensor: Any
+    p: jax.Array = param()
+    pattern: Optional[jax.Array] = None
+    per_component: bool = eqx.field(default=False, static=True)
+
+    def __init__(self, sensor, p=0.0, *, pattern=None, per_component: bool = False):
+        if not isinstance(sensor, Sensor):
+            raise checks.ArgumentTypeError(f"Dropout: sensor must be a jaxdip Sensor, got {type(sensor).__name__}")
+        checks.check_real(self, "p", p)
+        self.sensor, self.p, self.per_component = sensor, jnp.asarray(p, dtype=jnp.float64), per_component
+        if pattern is not None:
+            pattern = jnp.asarray(pattern)
+            if pattern.dtype != jnp.bool_ or pattern.ndim not in (1, 2) or pattern.shape[0] == 0:
+                raise checks.ArgumentError(f"Dropout: pattern must be a non-empty boolean (L,) or (L, p) array "
+                                           f"(True = delivered), got {pattern.dtype} {checks.fmt_shape(pattern.shape)}")
+        self.pattern = pattern
+
+    def __check_init__(self):
+        checks.check_ndim(self, "p", self.p, (0,), "a probability")
+        checks.check_nonnegative(self, "p", self.p)
+        if checks.is_concrete(self.p) and float(self.p) > 1.0:
+            checks.fail(self, f"p must be a probability in [0, 1], got {float(self.p)}")
+
+    def io_sizes(self) -> dict:
+        return self.sensor.io_sizes()
+
+    def init(self, key, x0):
+        return self.sensor.init(key, x0)
+
+    def step(self, state, x, key, k):
+        state, y, aux = self.sensor.step(state, x, key, k)
+        if self.pattern is not None:
+            row = self.pattern[k % self.pattern.shape[0]]
+            delivered = jnp.broadcast_to(row, jnp.shape(y))
+        else:
+            shape = jnp.shape(y) if self.per_component else ()
+            lost = jax.random.uniform(jax.random.fold_in(key, DROPOUT_STREAM), shape) < self.p
+            delivered = jnp.broadcast_to(~lost, jnp.shape(y))
+        return state, jnp.where(delivered, y, jnp.nan), (aux, delivered)
