@@ -50,6 +50,8 @@ FACTORIES = {
     E.LinearizedCPX: lambda: (E.LinearizedCPX(0.5, lorenz.Lorenz(), lorenz.output_matrix(), X0, h=0.001), 2, 1, 3),
     E.LeastSquaresMHE: lambda: (E.LeastSquaresMHE(1.0, PHI, W, C, X0, N=3), 2, 1, 3),
     E.WeightedMHE: lambda: (E.WeightedMHE.from_noise(Discrete(PHI, np.linalg.inv(PHI), W), C, Q, R, N=3), 2, 1, 3),
+    E.TimeVaryingMHE: lambda: (E.TimeVaryingMHE(np.linalg.inv(R), np.linalg.inv(Q), np.eye(3), f=lambda x, u: PHI @ x
+                                                + W @ u + 0.01 * jnp.sin(x), C=C, N=1, xhat0=X0), 2, 1, 3),
     E.LDF: lambda: (E.LDF(np.array([30.0, 20.0]), 0.9, n_pos=2, dt=DT), 2, 1, 4),
     E.DMSO: lambda: (DMSO.thesis(np.eye(4) + 0.01 * np.eye(4, k=1), 0.01 * np.ones((4, 1)),
                                  np.asarray(selection_matrix(4, (1, 3))), K=0.5 * np.eye(4), Gamma=0.1), 4, 1, 4),

@@ -182,7 +182,7 @@ class TimeVaryingMHE(Estimator):
 
     def stacked(self, xbar, ybuf, ubuf, Cbuf, Phibuf, Wbuf, cbuf):
         """(A, b) of min ||A Z - b||^2 in Z = (z_0 .. z_N): rows arrival, measurements i = 0..N, process i < N."""
-        d, p, N, a = self.proc_weight.shape[0], self.meas_weight.shape[0], self.N, self.anchor
+        d, N, a = self.proc_weight.shape[0], self.N, self.anchor
         dt = ybuf.dtype
         Sa = _sqrt_weight(self.arrival_weight) / jnp.sqrt(jnp.asarray(self.gamma, dt))
         Sv, Sw = _sqrt_weight(self.meas_weight), _sqrt_weight(self.proc_weight)

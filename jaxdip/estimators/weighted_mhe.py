@@ -33,9 +33,10 @@ two kinds (static ``prior``):
   It has already used y_{j-N+a} .. y_{j-1}, which the new window uses again.
 * "filtered": the estimator's own one-step prediction of x_{j-N+a} made before y_{j-N+a} arrived,
   xhat_{j-N+a|j-N+a-1} = Phi xhat_{j-N+a-1} + W u (a buffer of the last N + 1 predictions). With a = 0 no
-  measurement is counted twice; Wa = P^{-1} (P the stationary a-priori KF covariance), Wv = R^{-1} and
-  Ww = Q^{-1} then make the window's estimate of x_j the Kalman filter's once the filter is stationary: the
-  prior summarises the data before the window exactly as the filter's prior does. Measured on the linearised
+  measurement is counted twice; with Wa = P^{-1} (P the stationary a-priori KF covariance), Wv = R^{-1},
+  Ww = Q^{-1}, gamma = 1, no active constraint, each window is the stationary (fixed-gain) Kalman filter run from
+  the window's prior, so the estimate *converges* to that filter's: the difference obeys d_j =
+  [(I - K C) Phi]^{N+1} d_{j-N-1} (the first N estimates are propagations), tested. Measured on the linearised
   DIP the smoothed prior with the same weights had 1.67x the KF's velocity RMS error (the double-counted
   measurements are weighed as if new), the filtered one matches it (tests/test_weighted_mhe.py).
 Before the first full window (j < N) the estimate is the model's propagation of xhat_0, and the smoothed prior
