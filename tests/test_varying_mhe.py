@@ -34,6 +34,24 @@ def test_equals_the_lti_weighted_mhe(N, anchor):
     assert np.abs(np.asarray(a.xhat)).max() > 0.1
     np.testing.assert_allclose(b.xhat, a.xhat, rtol=0, atol=1e-10)
     np.testing.assert_array_equal(b.aux.window[N:, -1], b.xhat[N:])  # the estimate is the window's last state
+    np.testing.assert_allclose(b.aux.window, a.aux.window, rtol=0, atol=1e-10)
+
+
+def test_hard_model_window_follows_the_model():
+    """WeightedMHE's hard-model window (the unknown is z_a): its rows obey z_{i+1} = Phi z_i + W u_i, its anchor
+    row is the solved z_a and its last row the estimate."""
+    m = zoh(A_C, B_C, 0.1)
+    N, a = 3, 1
+    est = WeightedMHE(m, C, np.eye(2), np.eye(3), 0.5, N=N, anchor=a)
+    rng = np.random.default_rng(5)
+    ys, us = rng.normal(size=(12, 2)), rng.normal(size=(12, 1))
+    r = jd.run_estimator(est, ys, us, x0=np.zeros(3))
+    Z, Phi, W = np.asarray(r.aux.window), np.asarray(m.Phi), np.asarray(m.W)
+    for j in range(N, 12):
+        u_win = us[j - N:j]  # u_{j-N} .. u_{j-1}
+        np.testing.assert_allclose(Z[j, 1:], Z[j, :-1] @ Phi.T + u_win @ W.T, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(Z[j, -1], r.xhat[j], rtol=0, atol=1e-12)
+    assert not Z[:N].any() and np.abs(Z[N:]).max() > 0.1
 
 
 def _tv_model(rng, T, d=3, p=2, m=1):

@@ -45,7 +45,7 @@ from jaxdip.engine.roles import Estimator, param
 from jaxdip.estimators._weighted_mhe_checks import bounded_coordinates
 from jaxdip.estimators.active_set import dual_active_set
 
-__all__ = ["TVMHEState", "TVMHEAux", "TimeVaryingMHE"]
+__all__ = ["TVMHEState", "TVMHEAux", "TimeVaryingMHE", "window_matrix", "window_vector"]
 __dir__ = public_dir(globals())
 
 
@@ -77,6 +77,28 @@ def _at(stack, k, ndim: int):
 
 def _sqrt_weight(Wt):
     return jnp.linalg.cholesky(Wt).T
+
+
+def window_matrix(Sa, Sv, Sw, Cs, Phis, anchor: int) -> jax.Array:
+    """The stacked matrix of the window problem in Z = (z_0 .. z_N), the weights by their square roots (S^T S =
+    weight; Sa already scaled by 1/sqrt(gamma)): rows arrival (Sa on z_anchor), measurements Sv C_i z_i
+    (i = 0..N), process Sw (z_{i+1} - Phi_i z_i) (i < N). Shared with the full form of ``WeightedMHE``."""
+    N, d = len(Phis), Sa.shape[0]
+    n = d * (N + 1)
+    dt = Sa.dtype
+    arr = jnp.zeros((d, n), dt).at[:, anchor * d:(anchor + 1) * d].set(Sa)
+    meas = jsl.block_diag(*[Sv @ Cs[i] for i in range(N + 1)])
+    proc = jnp.zeros((N * d, n), dt)
+    for i in range(N):
+        proc = proc.at[i * d:(i + 1) * d, i * d:(i + 1) * d].set(-Sw @ Phis[i])
+        proc = proc.at[i * d:(i + 1) * d, (i + 1) * d:(i + 2) * d].set(Sw)
+    return jnp.concatenate([arr, meas, proc], axis=0)
+
+
+def window_vector(Sa, Sv, xbar, ys, white_drives) -> jax.Array:
+    """The right-hand side of ``window_matrix``'s rows: Sa xbar, Sv y_i, and the process rows' known drive
+    Sw (W_i u_i + c_i), given whitened (``white_drives`` (N, d)) so each caller keeps its own product order."""
+    return jnp.concatenate([Sa @ xbar, (ys @ Sv.T).reshape(-1), white_drives.reshape(-1)])
 
 
 class TimeVaryingMHE(Estimator):
@@ -182,20 +204,11 @@ class TimeVaryingMHE(Estimator):
 
     def stacked(self, xbar, ybuf, ubuf, Cbuf, Phibuf, Wbuf, cbuf):
         """(A, b) of min ||A Z - b||^2 in Z = (z_0 .. z_N): rows arrival, measurements i = 0..N, process i < N."""
-        d, N, a = self.proc_weight.shape[0], self.N, self.anchor
         dt = ybuf.dtype
         Sa = _sqrt_weight(self.arrival_weight) / jnp.sqrt(jnp.asarray(self.gamma, dt))
         Sv, Sw = _sqrt_weight(self.meas_weight), _sqrt_weight(self.proc_weight)
-        n = d * (N + 1)
-        arr = jnp.zeros((d, n), dt).at[:, a * d:(a + 1) * d].set(Sa)
-        meas = jsl.block_diag(*[Sv @ Cbuf[i] for i in range(N + 1)])
-        proc = jnp.zeros((N * d, n), dt)
-        for i in range(N):
-            proc = proc.at[i * d:(i + 1) * d, i * d:(i + 1) * d].set(-Sw @ Phibuf[i])
-            proc = proc.at[i * d:(i + 1) * d, (i + 1) * d:(i + 2) * d].set(Sw)
         drive = jnp.einsum("idm,im->id", Wbuf, ubuf) + cbuf
-        b = jnp.concatenate([Sa @ xbar, (ybuf @ Sv.T).reshape(-1), (drive @ Sw.T).reshape(-1)])
-        return jnp.concatenate([arr, meas, proc], axis=0), b
+        return window_matrix(Sa, Sv, Sw, Cbuf, Phibuf, self.anchor), window_vector(Sa, Sv, xbar, ybuf, drive @ Sw.T)
 
     @property
     def constrained(self) -> bool:
