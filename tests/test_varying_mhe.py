@@ -61,41 +61,49 @@ def _tv_model(rng, T, d=3, p=2, m=1):
     return Phi, rng.normal(size=(T, d, m)), rng.normal(size=(T, p, d))
 
 
-def _numpy_tv_mhe(Phi, W, C, Wv, Ww, Wa, gamma, N, a, x0, ys, us):
-    """Every sample's estimate by the normal equations H Z = g of its window, assembled term by term, with the
-    filtered prior chain (predictions from the previous unconstrained estimates). Returns (xhat, windows, priors)."""
-    T, d = len(ys), x0.shape[0]
-    xcur, xchain, preds = x0.copy(), x0.copy(), []
-    out, windows, priors = [], [], []
-    for k in range(T):
+def _numpy_window(Phis, drives, Cs, ys, Wv, Ww, Wa, gamma, a, xbar):
+    """min over Z of the window cost, by its normal equations H Z = g assembled term by term."""
+    N, d = len(Phis), xbar.shape[0]
+    H, g = np.zeros(((N + 1) * d,) * 2), np.zeros((N + 1) * d)
+    blk = lambda i: slice(i * d, (i + 1) * d)
+    H[blk(a), blk(a)] += Wa / gamma
+    g[blk(a)] += Wa @ xbar / gamma
+    for i in range(N + 1):
+        H[blk(i), blk(i)] += Cs[i].T @ Wv @ Cs[i]
+        g[blk(i)] += Cs[i].T @ Wv @ ys[i]
+    for i in range(N):
+        F, dr = Phis[i], drives[i]
+        H[blk(i), blk(i)] += F.T @ Ww @ F
+        H[blk(i), blk(i + 1)] -= F.T @ Ww
+        H[blk(i + 1), blk(i)] -= Ww @ F
+        H[blk(i + 1), blk(i + 1)] += Ww
+        g[blk(i)] -= F.T @ Ww @ dr
+        g[blk(i + 1)] += Ww @ dr
+    return np.linalg.solve(H, g).reshape(N + 1, d)
+
+
+def _numpy_mhe(transition, output, weights, N, a, x0, ys, us):
+    """The estimator in NumPy. transition(x, u, k) -> (Phi, W, c) of x_k -> x_{k+1} linearised at x;
+    output(y, x, k) -> (C, y') of sample k at the prediction x. The filtered prior chain runs on the previous
+    unconstrained estimates. Returns (xhat, windows, priors)."""
+    xcur, xchain = x0.copy(), x0.copy()
+    preds, trans, outs, est, windows, priors = [], [], [], [], [], []
+    for k in range(len(ys)):
         if k > 0:
-            xcur = Phi[k - 1] @ xcur + W[k - 1] @ us[k - 1]
-            xchain = Phi[k - 1] @ xchain + W[k - 1] @ us[k - 1]
+            F, Wk, c = transition(xchain, us[k - 1], k - 1)
+            xcur, xchain = F @ xcur + Wk @ us[k - 1] + c, F @ xchain + Wk @ us[k - 1] + c
+            trans.append((F, Wk @ us[k - 1] + c))  # trans[t]: x_t -> x_{t+1}
         preds.append(xchain)
+        outs.append(output(ys[k], xchain, k))
         if k >= N:
             t0 = k - N
-            H, g = np.zeros(((N + 1) * d,) * 2), np.zeros((N + 1) * d)
-            blk = lambda i: slice(i * d, (i + 1) * d)
-            H[blk(a), blk(a)] += Wa / gamma
-            g[blk(a)] += Wa @ preds[t0 + a] / gamma
-            for i in range(N + 1):
-                Ci = C[t0 + i]
-                H[blk(i), blk(i)] += Ci.T @ Wv @ Ci
-                g[blk(i)] += Ci.T @ Wv @ ys[t0 + i]
-            for i in range(N):
-                F, drive = Phi[t0 + i], W[t0 + i] @ us[t0 + i]
-                H[blk(i), blk(i)] += F.T @ Ww @ F
-                H[blk(i), blk(i + 1)] -= F.T @ Ww
-                H[blk(i + 1), blk(i)] -= Ww @ F
-                H[blk(i + 1), blk(i + 1)] += Ww
-                g[blk(i)] -= F.T @ Ww @ drive
-                g[blk(i + 1)] += Ww @ drive
-            Z = np.linalg.solve(H, g).reshape(N + 1, d)
+            Z = _numpy_window([f for f, _ in trans[t0:k]], [dr for _, dr in trans[t0:k]],
+                              [o[0] for o in outs[t0:]], [o[1] for o in outs[t0:]], *weights, a, preds[t0 + a])
             xcur = xchain = Z[-1]
             windows.append(Z)
             priors.append(preds[t0 + a])
-        out.append(xcur)
-    return np.array(out), np.array(windows), np.array(priors)
+        est.append(xcur)
+    return np.array(est), np.array(windows), np.array(priors)
 
 
 def test_time_varying_equals_window_least_squares():
@@ -107,12 +115,53 @@ def test_time_varying_equals_window_least_squares():
     ys, us = rng.normal(size=(T, 2)), rng.normal(size=(T, 1))
     est = TimeVaryingMHE(Wv, Ww, Wa, gamma, Phi=Phi, W=W, C=Cs, N=N, anchor=a, xhat0=x0)
     run = jd.run_estimator(est, ys, us)
-    ref, windows, priors = _numpy_tv_mhe(Phi, W, Cs, Wv, Ww, Wa, gamma, N, a, x0, ys, us)
+    ref, windows, priors = _numpy_mhe(lambda x, u, k: (Phi[k], W[k], np.zeros(3)), lambda y, x, k: (Cs[k], y),
+                                      (Wv, Ww, Wa, gamma), N, a, x0, ys, us)
     scale = np.abs(ref).max()
     assert scale > 0.5
     np.testing.assert_allclose(run.xhat, ref, rtol=0, atol=1e-9 * scale)
     np.testing.assert_allclose(run.aux.window[N:], windows, rtol=0, atol=1e-9 * scale)
     np.testing.assert_allclose(run.aux.prior[N:], priors, rtol=0, atol=1e-9 * scale)
+
+
+def _fd_jacobian(fun, x, eps=1e-6):
+    return np.stack([(fun(x + eps * e) - fun(x - eps * e)) / (2 * eps) for e in np.eye(x.shape[0])], axis=-1)
+
+
+def test_nonlinear_model_linearised_along_the_estimate():
+    """A damped pendulum (f: one Euler step, h = (sin theta, theta omega)) against the NumPy estimator with
+    central-difference Jacobians at the same points (the previous unconstrained estimate for f, the prediction for
+    h): 1e-7, the differences' error."""
+    dt = 0.05
+    f_np = lambda x, u: np.array([x[0] + dt * x[1], x[1] + dt * (-9.0 * np.sin(x[0]) - 0.2 * x[1] + u[0])])
+    h_np = lambda x: np.array([np.sin(x[0]), x[0] * x[1]])
+    f_jx = lambda x, u: jnp.stack([x[0] + dt * x[1], x[1] + dt * (-9.0 * jnp.sin(x[0]) - 0.2 * x[1] + u[0])])
+    h_jx = lambda x: jnp.stack([jnp.sin(x[0]), x[0] * x[1]])
+    weights = (np.diag([400.0, 100.0]), np.diag([1e4, 1e3]), np.eye(2) * 4.0, 1.0)
+    N, a, T = 4, 0, 40
+    x0 = np.array([0.8, 0.0])
+    rng = np.random.default_rng(6)
+    us = 0.5 * rng.normal(size=(T, 1))
+    xs = [np.array([1.0, -0.3])]
+    for k in range(T - 1):
+        xs.append(f_np(xs[-1], us[k]) + rng.normal(0, [0.01, 0.03]))
+    ys = np.array([h_np(x) for x in xs]) + rng.normal(0, [0.05, 0.1], size=(T, 2))
+
+    def transition(x, u, k):
+        F, Wk = _fd_jacobian(lambda z: f_np(z, u), x), _fd_jacobian(lambda v: f_np(x, v), u)
+        return F, Wk, f_np(x, u) - F @ x - Wk @ u
+
+    def output(y, x, k):
+        Ck = _fd_jacobian(h_np, x)
+        return Ck, y - h_np(x) + Ck @ x
+
+    ref, windows, _ = _numpy_mhe(transition, output, weights, N, a, x0, ys, us)
+    est = TimeVaryingMHE(*weights, f=f_jx, h=h_jx, N=N, anchor=a, xhat0=x0)
+    run = jd.run_estimator(est, ys, us)
+    np.testing.assert_allclose(run.xhat, ref, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(run.aux.window[N:], windows, rtol=0, atol=1e-7)
+    truth = np.array(xs)
+    assert np.sqrt(np.mean((ref[N:] - truth[N:]) ** 2)) < 0.3 * np.sqrt(np.mean((x0 - truth[N:]) ** 2))
 
 
 def test_maps_linearise_exactly_when_linear():
