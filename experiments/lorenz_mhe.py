@@ -35,6 +35,7 @@ from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.records import loop_record
 from jaxdip.runner.results import fmt_ci
 from jaxdip.plants import lorenz
 from jaxdip.scenarios import lorenz_mhe as scenario
@@ -86,6 +87,10 @@ class LorenzMheConfig:
     chunk_steps: int = C.field(1000, C.positive, doc="samples per compiled call (progress granularity)")
     figure_trial: int = C.field(0, C.nonneg, doc="trial shown in the xL figure")
     record_every: int = C.field(10, C.positive, doc="keep every n-th sample of the figure trial")
+    record_seed: int = C.field(-1,
+                               doc="-1: none; k >= 0: write record-seed<k>.csv, trial k's time, inputs, "
+                                   "measurements, true states and every estimator's in-loop estimate, with a UKF "
+                                   "(the EKF's noise levels) added to that trial")
 
     def loads(self) -> list[Load]:
         n = steps_of(self.duration, self.h)
@@ -99,6 +104,8 @@ class LorenzMheConfig:
             raise C.ConfigError("duration", f"must be at least one sample (h = {self.h})")
         if self.figure_trial >= self.seeds:
             raise C.ConfigError("figure_trial", f"must be below seeds ({self.seeds})")
+        if not -1 <= self.record_seed < self.seeds:
+            raise C.ConfigError("record_seed", f"must be -1 (no record) or a trial 0..{self.seeds - 1}")
 
     @property
     def n_steps(self) -> int:
@@ -126,14 +133,15 @@ def noise_levels(cfg: LorenzMheConfig) -> dict[str, float]:
             "ekf2_sigma_eta": eta(cfg.ekf2_sigma_eta, cfg.ekf_eta_time)}
 
 
-def build(cfg: LorenzMheConfig, steps: int | None = None, save_every: int | None = None) -> jd.Rollout:
+def build(cfg: LorenzMheConfig, steps: int | None = None, save_every: int | None = None,
+          ukf: bool = False) -> jd.Rollout:
     """One trial of the comparison (``jaxdip.scenarios.lorenz_mhe``) with this configuration."""
     return scenario.build(
         h=cfg.h, steps=cfg.n_steps if steps is None else steps, substeps=cfg.substeps, **noise_levels(cfg),
         x0_mean=tuple(cfg.x0_mean), x0_std=cfg.x0_std, init_error_std=cfg.init_error_std,
         cpx_gamma=cfg.cpx_gamma, scpx_gamma=cfg.scpx_gamma, scpx_p=cfg.scpx_p,
         extrema_threshold=cfg.extrema_threshold, divergence_bound=cfg.divergence_bound,
-        expm_squarings=cfg.expm_squarings, save_every=save_every, alignment=cfg.alignment)
+        expm_squarings=cfg.expm_squarings, save_every=save_every, alignment=cfg.alignment, ukf=ukf)
 
 
 def simulate(cfg: LorenzMheConfig, progress: bool = True) -> dict:
@@ -376,7 +384,12 @@ def run(cfg: LorenzMheConfig, ctx: RunContext | None = None) -> Outcome:
     sums = simulate(cfg)
     results, per_trial = summarize(cfg, sums)
     rec = record_trial(cfg)
-    return Outcome(results=results, report=report(cfg, results), figures=figures(cfg, per_trial, rec))
+    records = {}
+    if cfg.record_seed >= 0:
+        records[f"seed{cfg.record_seed}"] = loop_record(
+            build(cfg, ukf=True), jax.random.fold_in(jax.random.PRNGKey(cfg.seed), cfg.record_seed))
+    return Outcome(results=results, report=report(cfg, results), figures=figures(cfg, per_trial, rec),
+                   records=records)
 
 
 EXPERIMENT = Experiment(

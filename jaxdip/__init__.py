@@ -30,6 +30,8 @@ _NAMES = {
         "FunctionPlant", "Identity", "KeySchedule", "Loop", "Passthrough", "Plant", "Rollout", "Sample", "Sensor",
         "Solution", "State", "Summary", "init_state", "linearize", "metrics", "monte_carlo", "param", "simulate",
         "split_lanes", "summary"), "jaxdip.engine"),
+    "run_estimator": "jaxdip.estimators.recorded", "EstimatorRun": "jaxdip.estimators.recorded",
+    "read_csv": "jaxdip.runner.records", "write_csv": "jaxdip.runner.records",
     "Discrete": "jaxdip.sim.discretize", "zoh": "jaxdip.sim.discretize",
 }
 __all__ = sorted([*_SUBMODULES, *_NAMES])

@@ -63,6 +63,10 @@ def test_config_file_mirrors_defaults():
     with pytest.raises(C.ConfigError) as e:
         C.load(L.LorenzMheConfig, sets=["scpx_p=4"])
     assert e.value.key == "scpx_p"
+    for bad in ("-2", "3"):  # -1 (no record) or a trial of the run
+        with pytest.raises(C.ConfigError) as e:
+            C.load(L.LorenzMheConfig, sets=["seeds=3", f"record_seed={bad}"])
+        assert e.value.key == "record_seed"
 
 
 def test_small_run_writes_contract(tmp_path):

@@ -13,6 +13,7 @@ import jaxdip as jd
 from jaxdip.estimators.weighted_mhe import WeightedMHE
 from jaxdip.scenarios.dip_linear import C3, DT, PROC_STD, SENSOR_STD, X0_RADIUS, LinearPlant, problem
 from jaxdip.scenarios.dip_linear import loop as dip_loop
+from qp_reference import kkt_reference
 
 
 def dip_setup():
@@ -169,36 +170,6 @@ def test_bound_the_true_state_touches_lowers_the_error():
 
 # ---- affine constraints -------------------------------------------------------------------------------------
 
-def _kkt_reference(A, b, G, lo, hi, x_start):
-    """The minimiser of ||A x - b||^2 subject to lo <= G x <= hi, certified: the active set of an approximate
-    solution (scipy's SLSQP) is fixed and the equality-constrained KKT system solved exactly in NumPy; the
-    answer must then be feasible and its multipliers of the right sign (KKT, sufficient for a convex QP)."""
-    from scipy.optimize import minimize
-
-    fin_lo, fin_hi = np.isfinite(lo), np.isfinite(hi)
-    cons = [{"type": "ineq", "fun": lambda x: (G @ x - lo)[fin_lo], "jac": lambda x: G[fin_lo]},
-            {"type": "ineq", "fun": lambda x: (hi - G @ x)[fin_hi], "jac": lambda x: -G[fin_hi]}]
-    s = np.linalg.norm(A, 2) ** 2  # scaled so the objective is O(1) for SLSQP's absolute tolerance
-    r = minimize(lambda x: 0.5 * np.sum((A @ x - b) ** 2) / s, x_start, jac=lambda x: A.T @ (A @ x - b) / s,
-                 constraints=cons, method="SLSQP", options={"ftol": 1e-15, "maxiter": 1000})
-    gx = G @ r.x
-    scale = 1e-7 * max(1.0, np.max(np.abs(gx)))
-    up, dn = fin_hi & (gx > hi - scale), fin_lo & (gx < lo + scale)
-    act = up | dn
-    H, g = A.T @ A, A.T @ b
-    n, Ga = H.shape[0], G[act]
-    kkt = np.block([[H, Ga.T], [Ga, np.zeros((Ga.shape[0],) * 2)]])
-    # least squares: with dependent active rows (the hard model repeats a row for every window state when the
-    # model leaves that combination unchanged) x is still unique and lam the minimum-norm multiplier
-    sol = np.linalg.lstsq(kkt, np.concatenate([g, np.where(up, hi, lo)[act]]), rcond=None)[0]
-    x, lam = sol[:n], sol[n:]
-    assert np.all(G @ x <= hi + 1e-12) and np.all(G @ x >= lo - 1e-12)
-    sign = np.where(up[act], 1.0, -1.0)  # H x - g + Ga^T lam = 0: lam >= 0 at an upper bound, <= 0 at a lower
-    assert np.all(sign * lam >= -1e-9 * np.max(np.abs(g)))
-    assert np.max(np.abs(r.x - x)) < 1e-5  # scipy found this active set itself
-    return x, int(act.sum())
-
-
 def _window_data(mhe, rng, d, p, m):
     N = mhe.N
     xbar = jnp.asarray(rng.normal(0, 0.05, d))
@@ -232,7 +203,7 @@ def test_affine_step_equals_a_certified_qp_solution():
     active = 0
     for _ in range(6):
         A, b, X, viol = _solve_window(mhe, *_window_data(mhe, rng, 3, 1, 1))
-        ref, n_act = _kkt_reference(A, b, G, np.full(25, -np.inf), np.tile(f, 5), np.zeros(15))
+        ref, n_act = kkt_reference(A, b, G, np.full(25, -np.inf), np.tile(f, 5), np.zeros(15))
         np.testing.assert_allclose(X, ref, rtol=0, atol=1e-8)
         assert viol < 1e-9
         active += n_act
@@ -261,7 +232,7 @@ def test_constraints_in_the_hard_model_form_equal_a_certified_qp_solution():
         G = np.vstack([np.vstack([-T[i], A_LOAD @ T[i]]) for i in range(N + 1)])
         f = np.concatenate([np.concatenate([np.array([0.05, 0.3, 0.0]) + t[i], B_LOAD - A_LOAD @ t[i]])
                             for i in range(N + 1)])
-        ref, n_act = _kkt_reference(A, b, G, np.full(G.shape[0], -np.inf), f, np.asarray(xbar))
+        ref, n_act = kkt_reference(A, b, G, np.full(G.shape[0], -np.inf), f, np.asarray(xbar))
         np.testing.assert_allclose(X, ref, rtol=0, atol=1e-8)
         assert viol < 1e-9
         active += n_act

@@ -207,7 +207,31 @@ class Sensor(eqx.Module):
         """-> (state, y, aux)"""
 
 
+def _structural_hash(self) -> int:
+    # equinox hashes a module by its fields, and arrays are unhashable, so ``jax.jit(est.step)`` (which hashes
+    # the bound method, a module holding ``est``) failed. This hash keeps the contract with equinox's ``__eq__``
+    # (``tree_equal``): equal modules have equal structure, static fields and leaf shapes/dtypes, so equal
+    # hashes; modules that differ only in array values collide and ``__eq__`` tells them apart.
+    leaves, treedef = jax.tree_util.tree_flatten(self)
+
+    def key(leaf):
+        if hasattr(leaf, "shape") and hasattr(leaf, "dtype"):
+            return ("array", tuple(leaf.shape), str(leaf.dtype))
+        try:
+            return hash(leaf)
+        except TypeError:
+            return type(leaf).__name__
+
+    return hash((treedef, tuple(key(leaf) for leaf in leaves)))
+
+
 class Estimator(eqx.Module):
+    """Estimator role. ``jax.jit(est.step)`` works: the hash is structural (``_structural_hash``), so the bound
+    method is hashable and its array fields become constants of the compiled step; to trace the fields instead
+    (no recompile when a value changes) use ``eqx.filter_jit(type(est).step)(est, ...)``."""
+
+    __hash__ = _structural_hash
+
     def init(self, key, x0):
         return ()
 

@@ -10,10 +10,11 @@ from jaxdip.estimators.kf import ExtendedKalmanFilter, KalmanFilter
 from jaxdip.estimators.ldf import LDF
 from jaxdip.estimators.linearized import AffineStep, local_model
 from jaxdip.estimators.proximal import LeastSquaresMHE, ls_mhe_filter, prox_ls, prox_ls_svd
-from jaxdip.estimators.recorded import kalman_filter, log_likelihood, rts_smoother
+from jaxdip.estimators.recorded import kalman_filter, log_likelihood, rts_smoother, run_estimator
 from jaxdip.estimators.sampling import sample_posterior
 from jaxdip.estimators.ukf import UnscentedKalmanFilter
 from jaxdip.estimators.weighted_mhe import WeightedMHE
+from jaxdip.estimators.varying_mhe import TimeVaryingMHE
 from jaxdip.estimators.wrappers import Ahead, Delayed, DelayedMeasurement, FromTruth, InitialError, Prior
 
 from jaxdip._public import public_dir
@@ -21,10 +22,10 @@ from jaxdip._public import public_dir
 __all__ = [
     "kalman", "linearized", "proximal", "recorded", "bias_observers", "continuous", "homd", "luenberger",
     "CPX", "LinearizedCPX", "DMSO", "KalmanFilter", "ExtendedKalmanFilter", "UnscentedKalmanFilter", "LDF",
-    "LeastSquaresMHE", "WeightedMHE", "Passthrough", "FanOut",
+    "LeastSquaresMHE", "WeightedMHE", "TimeVaryingMHE", "Passthrough", "FanOut",
     "Ahead", "Delayed", "DelayedMeasurement", "FromTruth", "InitialError", "Prior",
     "AffineStep", "local_model", "ls_mhe_filter", "prox_ls", "prox_ls_svd",
-    "kalman_filter", "log_likelihood", "rts_smoother",
+    "kalman_filter", "log_likelihood", "rts_smoother", "run_estimator",
     "em", "sampling", "fit_em", "sample_posterior",
 ]
 __dir__ = public_dir(globals())

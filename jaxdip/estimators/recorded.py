@@ -24,7 +24,7 @@ decided, so an engine estimator has no u_k to feed through.
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple, Optional
+from typing import Any, NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
@@ -36,31 +36,80 @@ from jaxdip.estimators.kalman import smoother_gain, sym
 
 from jaxdip._public import public_dir
 
-__all__ = ["run", "inputs_before", "observed_mask", "FilterResult", "SmootherResult", "kalman_filter", "log_likelihood",
-           "rts_smoother"]
+__all__ = ["run", "run_estimator", "EstimatorRun", "inputs_before", "observed_mask", "FilterResult",
+           "SmootherResult", "kalman_filter", "log_likelihood", "rts_smoother"]
 __dir__ = public_dir(globals())
 
 
-def run(est: Estimator, ys, us_prev, x0, key: Optional[jax.Array] = None):
+def run(est: Estimator, ys, us_prev, x0, key: Optional[jax.Array] = None, keys=None):
     """Feed samples j = 0..T-1 to ``est``: ``ys[j]`` = y_j and ``us_prev[j]`` = u_{j-1} (zeros for j = 0).
 
     ``x0`` is what ``init`` receives as the true initial state (used by ``FromTruth``, ``InitialError`` and the
-    estimators that read it). Keys: ``fold_in(key, 0)`` at init, ``fold_in(key, j + 1)`` at sample j. Returns
-    (final state, outputs (T, ...), aux (T, ...)).
+    estimators that read it). Keys: ``fold_in(key, 0)`` at init, ``fold_in(key, j + 1)`` at sample j, or
+    ``keys = (init_key, step_keys)`` taken as they are (``step_keys`` (T, ...): a loop's own keys, so that a
+    recorded run repeats an estimator that draws, e.g. ``InitialError``). Returns (final state, outputs
+    (T, ...), aux (T, ...)).
     """
-    key = jax.random.PRNGKey(0) if key is None else key
-    state = est.init(jax.random.fold_in(key, 0), x0)
     ys = jnp.asarray(ys)
     us_prev = jnp.asarray(us_prev)
+    js = jnp.arange(ys.shape[0], dtype=jnp.int32)
+    if keys is None:
+        key = jax.random.PRNGKey(0) if key is None else key
+        keys = (jax.random.fold_in(key, 0), jax.vmap(lambda j: jax.random.fold_in(key, j + 1))(js))
+    init_key, step_keys = keys
+    state = est.init(init_key, x0)
 
     def body(st, inp):
-        j, y, u = inp
-        st, out, aux = est.step(st, y, u, jax.random.fold_in(key, j + 1), j)
+        j, y, u, kj = inp
+        st, out, aux = est.step(st, y, u, kj, j)
         return st, (out, aux)
 
-    js = jnp.arange(ys.shape[0], dtype=jnp.int32)
-    state, (outs, auxes) = jax.lax.scan(body, state, (js, ys, us_prev))
+    state, (outs, auxes) = jax.lax.scan(body, state, (js, ys, us_prev, step_keys))
     return state, outs, auxes
+
+
+class EstimatorRun(NamedTuple):
+    xhat: Any  # (T, ...) or (B, T, ...): what the estimator hands out at each sample
+    aux: Any  # its aux at each sample (covariances, window trajectories, ...)
+    final: Any  # its state after the last sample (to continue a run)
+
+
+def run_estimator(est: Estimator, ys, us=None, *, x0=None, key: Optional[jax.Array] = None,
+                  keys=None) -> EstimatorRun:
+    """An engine estimator over a recorded sequence, exactly as a closed loop runs it.
+
+    ``ys`` (T, p): y_k. ``us`` (T, m): u_k, the input applied after sample k (it drives x_k -> x_{k+1}; in a
+    ``jd.Loop`` the controller's output ``Sample.u``); at sample k the estimator gets u_{k-1} (zeros at k = 0),
+    as in the loop. ``None``: no input. ``x0`` (n,): what ``init`` receives as the true initial state (default
+    the estimator's ``xhat0``). Keys: ``fold_in(key, 0)`` at init and ``fold_in(key, k + 1)`` at sample k, or
+    ``keys = (init_key, step_keys)`` (step_keys (T, 2)), a loop's own keys. A leading batch axis on ``ys``
+    ((B, T, p)) runs B sequences by ``vmap``; ``us``, ``x0`` and ``keys`` then carry it too (an ``x0`` of shape
+    (n,) or a single ``key`` is shared).
+    """
+    ys = jnp.asarray(ys, dtype=jnp.result_type(float))
+    if ys.ndim not in (2, 3):
+        raise checks.ArgumentError(f"run_estimator: ys must be (T, p) or (B, T, p), got shape {ys.shape}")
+    T = ys.shape[-2]
+    if x0 is None:
+        if not hasattr(est, "xhat0"):
+            raise checks.ArgumentError(f"run_estimator: {type(est).__name__} has no xhat0; give x0, the true initial "
+                                "state that its init receives")
+        x0 = est.xhat0
+    x0 = jnp.asarray(x0, ys.dtype)
+    if us is not None:
+        us = jnp.asarray(us, ys.dtype)
+        if us.ndim != ys.ndim or us.shape[:-1] != ys.shape[:-1]:
+            raise checks.ArgumentError(f"run_estimator: us must be {'(B, T, m)' if ys.ndim == 3 else '(T, m)'} with the "
+                                f"leading shape {ys.shape[:-1]} of ys, got shape {us.shape}")
+
+    def one(y, u, x, k, ks):
+        st, out, aux = run(est, y, inputs_before(u, T, ys.dtype), x, k, ks)
+        return EstimatorRun(out, aux, st)
+
+    if ys.ndim == 2:
+        return one(ys, us, x0, key, keys)
+    axes = (0, None if us is None else 0, 0 if x0.ndim == 2 else None, None, None if keys is None else 0)
+    return jax.vmap(one, in_axes=axes)(ys, us, x0, key, keys)
 
 
 def inputs_before(us, T: int, dtype=None):

@@ -33,9 +33,10 @@ two kinds (static ``prior``):
   It has already used y_{j-N+a} .. y_{j-1}, which the new window uses again.
 * "filtered": the estimator's own one-step prediction of x_{j-N+a} made before y_{j-N+a} arrived,
   xhat_{j-N+a|j-N+a-1} = Phi xhat_{j-N+a-1} + W u (a buffer of the last N + 1 predictions). With a = 0 no
-  measurement is counted twice; Wa = P^{-1} (P the stationary a-priori KF covariance), Wv = R^{-1} and
-  Ww = Q^{-1} then make the window's estimate of x_j the Kalman filter's once the filter is stationary: the
-  prior summarises the data before the window exactly as the filter's prior does. Measured on the linearised
+  measurement is counted twice; with Wa = P^{-1} (P the stationary a-priori KF covariance), Wv = R^{-1},
+  Ww = Q^{-1}, gamma = 1, no active constraint, each window is the stationary (fixed-gain) Kalman filter run from
+  the window's prior, so the estimate *converges* to that filter's: the difference obeys d_j =
+  [(I - K C) Phi]^{N+1} d_{j-N-1} (the first N estimates are propagations), tested. Measured on the linearised
   DIP the smoothed prior with the same weights had 1.67x the KF's velocity RMS error (the double-counted
   measurements are weighed as if new), the filtered one matches it (tests/test_weighted_mhe.py).
 Before the first full window (j < N) the estimate is the model's propagation of xhat_0, and the smoothed prior
@@ -74,6 +75,7 @@ from jaxdip._public import public_dir
 from jaxdip.engine.roles import Estimator, param
 from jaxdip.estimators import _weighted_mhe_checks as validation
 from jaxdip.estimators.active_set import dual_active_set
+from jaxdip.estimators.varying_mhe import window_matrix, window_vector
 from jaxdip.sim.discretize import Discrete
 
 __all__ = ["WMHEState", "WMHEAux", "WeightedMHE"]
@@ -94,6 +96,7 @@ class WMHEAux(NamedTuple):
     xhat: jax.Array  # current estimate x_j (the output)
     ahead: jax.Array  # Phi x_j + W u_{j-1}, the prediction with the input held (``Ahead``)
     violation: jax.Array  # KKT residual of the constrained step (0 unconstrained or converged)
+    window: jax.Array  # (N + 1, d) the window solution, row i estimating x_{j-N+i} (zeros while j < N)
 
 
 def _sqrt_weight(Wt):
@@ -233,17 +236,7 @@ class WeightedMHE(Estimator):
             Ms = _powers(Phi, self.model.Phi_inv, N, a)
             G = jnp.concatenate([Sv @ (Ci @ M) for Ci, M in zip(Cs, Ms)], axis=0)
             return jnp.concatenate([Sa, G if self.window_sqrt is None else self.window_sqrt @ G], axis=0)
-        Sw = _sqrt_weight(self.proc_weight)
-        n = d * (N + 1)
-        arr = jnp.zeros((d, n), Phi.dtype).at[:, a * d:(a + 1) * d].set(Sa)
-        meas = jnp.zeros(((N + 1) * p, n), Phi.dtype)
-        for i in range(N + 1):
-            meas = meas.at[i * p:(i + 1) * p, i * d:(i + 1) * d].set(Sv @ Cs[i])
-        proc = jnp.zeros((N * d, n), Phi.dtype)
-        for i in range(N):
-            proc = proc.at[i * d:(i + 1) * d, i * d:(i + 1) * d].set(-Sw @ Phi)
-            proc = proc.at[i * d:(i + 1) * d, (i + 1) * d:(i + 2) * d].set(Sw)
-        return jnp.concatenate([arr, meas, proc], axis=0)
+        return window_matrix(Sa, Sv, _sqrt_weight(self.proc_weight), Cs, [Phi] * N, a)
 
     def _input_response(self, ubuf) -> list:
         """s_i, i = 0 .. N: the hard-model window's response to the known inputs with z_a = 0."""
@@ -269,8 +262,7 @@ class WeightedMHE(Estimator):
             s = self._input_response(ubuf)
             q = jnp.concatenate([Sv @ (ybuf[i] - Cs[i] @ s[i]) for i in range(N + 1)])
             return jnp.concatenate([Sa @ xbar, q if self.window_sqrt is None else self.window_sqrt @ q])
-        Sw = _sqrt_weight(self.proc_weight)
-        return jnp.concatenate([Sa @ xbar, (ybuf @ Sv.T).reshape(-1), (ubuf @ (Sw @ W).T).reshape(-1)])
+        return window_vector(Sa, Sv, xbar, ybuf, ubuf @ (_sqrt_weight(self.proc_weight) @ W).T)
 
     # ---- constraints --------------------------------------------------------------------------------------
 
@@ -390,5 +382,10 @@ class WeightedMHE(Estimator):
         xbar = jnp.where(full, Phi @ z_a + W @ ubuf[a],
                          jnp.where(k - N + a >= 0, Phi @ state.xbar + W @ ubuf[a], state.xbar))
         violation = jnp.where(full, violation, 0.0)
-        aux = WMHEAux(xcur, Phi @ xcur + W @ u_prev, violation)
+        if self.proc_weight is not None:
+            window = X.reshape(N + 1, d)
+        else:  # the hard model: z_i = Phi^{i-a} z_a + s_i
+            Ms = _powers(Phi, self.model.Phi_inv, N, a)
+            window = jnp.stack([M @ X + si for M, si in zip(Ms, self._input_response(ubuf))])
+        aux = WMHEAux(xcur, Phi @ xcur + W @ u_prev, violation, jnp.where(full, window, 0.0))
         return WMHEState(state.factor, xbar, ybuf, ubuf, xcur, pbuf, xchain), xcur, aux

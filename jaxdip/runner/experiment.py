@@ -25,6 +25,7 @@ import jax
 from jaxdip import checkpoint
 from jaxdip import config as cfgmod
 from jaxdip import distributed, outdir, resources
+from jaxdip.runner import records
 from jaxdip.runner.results import ResultError, check_writable, drop_missing
 from jaxdip.runner.scale import scale, scale_line
 
@@ -64,6 +65,9 @@ class Outcome:
     report: str  # markdown body (the runner adds a provenance header)
     figures: dict = field(default_factory=dict)  # name -> matplotlib Figure
     timing: dict = field(default_factory=dict)  # wall times and what is derived from them: never in results
+    # name -> record (``runner.records``), written to record-NAME.csv (the output folder holds plain files only:
+    # its marker digests each one, ``jaxdip.outdir``)
+    records: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -274,6 +278,8 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
                 fh.write("\n## Figures\n\n" + "".join(f"![{n}]({n}.png)\n" for n in outcome.figures))
         with open(os.path.join(tmp, "config.toml"), "w") as fh:
             fh.write(config_toml(exp, cfg, compile_effort))
+        for name, rec in outcome.records.items():
+            records.write_csv(os.path.join(tmp, f"record-{name}.csv"), rec)
         for name, fig in outcome.figures.items():
             fig.savefig(os.path.join(tmp, f"{name}.png"), dpi=120, bbox_inches="tight")
             plt.close(fig)

@@ -36,6 +36,7 @@ from jaxdip.engine import Gaussian, KeySchedule, Loop, Rollout, param
 from jaxdip.engine.metrics import Reducer
 from jaxdip.estimators.cpx import LinearizedCPX
 from jaxdip.estimators.kf import ExtendedKalmanFilter
+from jaxdip.estimators.ukf import UnscentedKalmanFilter
 from jaxdip.estimators.wrappers import Ahead, Delayed, InitialError, Prior
 from jaxdip.engine.roles import FanOut
 from jaxdip.plants import lorenz
@@ -124,12 +125,14 @@ def build(*, h: float = 0.001, steps: int, substeps: int = 1, sigma_eps: float =
           cpx_gamma: float = 0.5, scpx_gamma: float = 50.0, scpx_p: int = 2, ekf_sigma_eta: float = 0.1,
           ekf_sigma_eps: float = 5.0, ekf2_sigma_eta: float = 0.005, ekf2_sigma_eps: float = 10.0,
           extrema_threshold: float = 15.0, divergence_bound: float = 1000.0, expm_squarings: int = 3,
-          save_every: Optional[int] = None, alignment: str = "mixed") -> Rollout:
+          save_every: Optional[int] = None, alignment: str = "mixed", ukf: bool = False) -> Rollout:
     """One trial of the comparison: metrics ``{"errors": TrackingErrors}``; with ``save_every``, ``record_xl``
     every ``save_every`` samples (``steps`` must be a multiple). All noise levels are standard deviations per
     sample (the EKFs' Q = ekf_sigma_eta^2 I, R = ekf_sigma_eps^2 I). ``alignment``: see the module docstring;
     the predictors' current estimates are ``TrackingErrors``' ``current`` sums except under "filtered", where
-    they are the compared estimates themselves."""
+    they are the compared estimates themselves. ``ukf``: one more ``FanOut`` member "ukf", an unscented filter
+    with the EKF's noise levels on the RK4 map over h (for a record of one trial; no metric reads it, and the
+    other members' numbers are unchanged: every member gets the same keys)."""
     if alignment not in ALIGNMENTS:
         raise ValueError(f"alignment must be one of {ALIGNMENTS}, got {alignment!r}")
     plant = Lorenz()
@@ -149,9 +152,13 @@ def build(*, h: float = 0.001, steps: int, substeps: int = 1, sigma_eps: float =
                                  expm_squarings=expm_squarings)
         return start(Prior(e) if alignment == "prediction" else e)
 
-    estimators = FanOut({"cpx": cpx(cpx_gamma, None), "scpx": cpx(scpx_gamma, scpx_p),
-                         "ekf": ekf(ekf_sigma_eta, ekf_sigma_eps), "ekf2": ekf(ekf2_sigma_eta, ekf2_sigma_eps)},
-                        drive="ekf")
+    members = {"cpx": cpx(cpx_gamma, None), "scpx": cpx(scpx_gamma, scpx_p),
+               "ekf": ekf(ekf_sigma_eta, ekf_sigma_eps), "ekf2": ekf(ekf2_sigma_eta, ekf2_sigma_eps)}
+    if ukf:
+        members["ukf"] = start(UnscentedKalmanFilter(
+            lambda x, u: plant.period(x, u, h, 1), lambda x: Cm @ x, ekf_sigma_eta**2 * jnp.eye(3),
+            ekf_sigma_eps**2 * jnp.eye(2), P0, z3))
+    estimators = FanOut(members, drive="ekf")
     loop = Loop(plant, LinearSensor(Cm, h, white_std=sigma_eps), estimators,
                 ConstantInput(jnp.zeros(1)), dt=h, substeps=substeps, process_noise_std=sigma_eta, keys=MHEKeys())
     current = () if alignment == "filtered" else PREDICTORS
