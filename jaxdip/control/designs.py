@@ -20,13 +20,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxdip.control._riccati_args import check_problem
-from jaxdip.control.riccati import RTOL, _care, _dare, _f64, _host_check, _RNotPositiveDefinite
+from jaxdip.control.riccati import RTOL, _care, _dare, _f64, _hewer, _host_check, _RNotPositiveDefinite
 from jaxdip.engine import checks
 
 from jaxdip._public import public_dir
 
 __all__ = ["lqr", "dlqr", "lqi", "lqe", "dlqe"]
 __dir__ = public_dir(globals())
+
+_POLISH = 2  # Newton-Hewer steps after the doubling, for a DARE with a cross weight
 
 
 def _cross(owner: str, Q, R, N, n: int, m: int):
@@ -51,10 +53,11 @@ def _reduce(A, B, Q, R, N):
     return A - B @ RiNt, 0.5 * (Qr + Qr.T)
 
 
-def _solve(owner, A, B, Q, R, N, discrete: bool, rtol: float):
-    check_problem(owner, A, B, Q, R, _RNotPositiveDefinite)
+def _solve(owner, A, B, Q, R, N, discrete: bool, rtol: float, values: bool = True):
+    check_problem(owner, A, B, Q, R, _RNotPositiveDefinite, values=values)
     A, B, Q, R = _f64(A, B, Q, R)
     n, m = B.shape
+    cross = N is not None
     if N is None:  # no reduction: the same operations (and numbers) as without a cross weight
         N, Ar, Qr = jnp.zeros((n, m)), A, Q
     else:
@@ -62,6 +65,10 @@ def _solve(owner, A, B, Q, R, N, discrete: bool, rtol: float):
         Ar, Qr = _reduce(A, B, Q, R, N)
     if discrete:
         S = _dare(Ar, B, Qr, R, 40)
+        if cross:
+            # the reduced A - B R^-1 N^T can be far more unstable than A, and the doubling loses digits on it
+            # (1e-8 relative where the problem's conditioning allows 1e-12): Newton-Hewer steps restore them
+            S = _hewer(Ar, B, Qr, R, S, _POLISH)
         _host_check(Ar, B, Qr, R, S, True, rtol, "raise iters")
         K = jnp.linalg.solve(R + B.T @ S @ B, B.T @ S @ A + N.T)
     else:
@@ -110,9 +117,18 @@ def _estimator(owner, A, G, C, QN, RN, discrete: bool, rtol: float):
     n = A.shape[0]
     checks.check_shape(owner, "C", C, (C.shape[0], n), f"for a {n}-state model")
     checks.check_shape(owner, "G", G, (n, G.shape[1]), f"for a {n}-state model")
-    QN = jnp.atleast_2d(jnp.asarray(QN, dtype=jnp.float64))
+    QN, RN = _f64(QN, RN)
     checks.check_shape(owner, "QN", QN, (G.shape[1], G.shape[1]), f"for {G.shape[1]} noise inputs (G's columns)")
-    K, P, E = _solve(owner, A.T, C.T, G @ QN @ G.T, RN, None, discrete, rtol)
+    checks.check_shape(owner, "RN", RN, (C.shape[0], C.shape[0]), f"for {C.shape[0]} outputs (C's rows)")
+    # the noise covariances are checked, not G QN G^T: its zero eigenvalues come out of rounding as -1e-8 relative
+    # when G is badly scaled
+    checks.check_psd(owner, "QN", QN)
+    try:
+        checks.check_psd(owner, "RN", RN, definite=True)
+    except checks.ArgumentError as e:
+        raise _RNotPositiveDefinite(f"{e}: RN is not positive definite") from None
+    GQG = G @ QN @ G.T
+    K, P, E = _solve(owner, A.T, C.T, 0.5 * (GQG + GQG.T), RN, None, discrete, rtol, values=False)
     return K.T, P, E
 
 

@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.control.statespace import StateSpace
 from jaxdip.engine import checks
 
 from jaxdip._public import public_dir
@@ -158,27 +159,24 @@ def obsv(A, C, t: int | None = None) -> jax.Array:
     return ctrb(A.T, C.T, t).T
 
 
-def gram(A, B, C, type: str = "c", *, dt: float = 0.0) -> jax.Array:
-    """Gramian of the stable system (A, B, C): python-control's ``gram(sys, type)`` with the matrices given.
+def gram(sys: StateSpace, type: str = "c") -> jax.Array:
+    """Gramian of the stable system ``sys``, as python-control's ``gram(sys, type)``.
 
-    ``type`` 'c': controllability Gramian W (A W + W A^T + B B^T = 0, or A W A^T - W + B B^T = 0 for ``dt`` > 0);
-    'o': observability (A^T W + W A + C^T C = 0, or its discrete form); 'cf' / 'of': the upper-triangular
+    ``type`` 'c': controllability Gramian W (A W + W A^T + B B^T = 0, or A W A^T - W + B B^T = 0 in discrete
+    time); 'o': observability (A^T W + W A + C^T C = 0, or its discrete form); 'cf' / 'of': the upper-triangular
     Cholesky factor U with W = U^T U (positive diagonal; W must be definite, i.e. the pair controllable /
-    observable, where python-control's SLICOT routine also returns factors of semidefinite Gramians).
-    A system that is not strictly stable raises ``ArgumentError`` (a ``ValueError``, like python-control's) on the
-    host path and gives NaN under jit."""
+    observable, where python-control's SLICOT routine also factors semidefinite Gramians). A system that is not
+    strictly stable raises ``ArgumentError`` (a ``ValueError``, like python-control's) on the host path and
+    gives NaN under jit."""
+    if not isinstance(sys, StateSpace):
+        raise checks.ArgumentTypeError(f"gram: sys must be a StateSpace, got {sys.__class__.__name__}")
     checks.check_choice("gram", "type", type, ("c", "o", "cf", "of"))
-    A = _mat("gram", "A", A, square=True)
-    n = A.shape[0]
+    A = sys.A
     if type in ("c", "cf"):
-        M = _mat("gram", "B", B)
-        _expect("gram", "B", M, (n, M.shape[1]), f"for a {n}-state model")
-        Af, Q = A, M @ M.T
+        Af, Q = A, sys.B @ sys.B.T
     else:
-        M = _mat("gram", "C", C)
-        _expect("gram", "C", M, (M.shape[0], n), f"for a {n}-state model")
-        Af, Q = A.T, M.T @ M
-    discrete = bool(dt)
+        Af, Q = A.T, sys.C.T @ sys.C
+    discrete = sys.isdtime()
     lam = jnp.linalg.eigvals(A)
     stable = jnp.all(jnp.abs(lam) < 1) if discrete else jnp.all(jnp.real(lam) < 0)
     if checks.is_concrete(A) and not bool(stable):

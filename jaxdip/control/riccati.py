@@ -206,12 +206,18 @@ def _dare_regularised(A, B, Q, R, G, iters):
     scale = jnp.linalg.norm(Q) + jnp.linalg.norm(R) / jnp.maximum(jnp.linalg.norm(B) ** 2, jnp.finfo(A.dtype).tiny)
     X = _sda(A, G, Q + _REG * scale * jnp.eye(n), iters)
 
+    return _hewer(A, B, Q, R, X, _HEWER_STEPS)
+
+
+def _hewer(A, B, Q, R, X, steps: int):
+    """``steps`` Newton-Hewer steps on the DARE from a stabilising X (each one Stein solve; quadratic)."""
+
     def hewer(_, X):
         K = jnp.linalg.solve(R + B.T @ X @ B, B.T @ X @ A)
         Acl = A - B @ K
         return _dlyap(Acl.T, Q + K.T @ R @ K)
 
-    return jax.lax.fori_loop(0, _HEWER_STEPS, hewer, X)
+    return jax.lax.fori_loop(0, steps, hewer, X)
 
 
 @partial(jax.custom_jvp, nondiff_argnums=(4,))
