@@ -30,6 +30,7 @@ __all__ = ["LyapunovError", "lyap", "dlyap", "ctrb", "obsv", "gram"]
 __dir__ = public_dir(globals())
 
 _RTOL = 1e-8  # relative residual above which a host-path solve counts as singular
+_SEP = 1e-10  # relative eigenvalue gap (lambda + mu, or 1 - lambda mu) below which the equation is singular
 
 
 class LyapunovError(np.linalg.LinAlgError):
@@ -50,8 +51,10 @@ def _mat(owner: str, name: str, v, square: bool = False) -> jax.Array:
 
 
 def _symmetric(owner: str, Q) -> None:
+    if not checks.is_concrete(Q):
+        return
     q = np.asarray(Q)
-    if checks.is_concrete(Q) and np.max(np.abs(q - q.T), initial=0.0) > 1e-6 * max(np.max(np.abs(q)), 1e-300):
+    if np.max(np.abs(q - q.T), initial=0.0) > 1e-6 * max(np.max(np.abs(q)), 1e-300):
         checks.fail(owner, "Q must be symmetric (for a non-symmetric right-hand side pass it as C: the Sylvester "
                            "form)")
 
@@ -65,14 +68,20 @@ def _kron_solve(L, rhs, shape):
     return jnp.linalg.solve(L, rhs.reshape(-1)).reshape(shape)
 
 
-def _host_check(owner: str, X, residual, scale) -> None:
-    if not checks.is_concrete(X):
+def _host_check(owner: str, X, residual, scale, A, Q, discrete: bool) -> None:
+    """Raise on a singular equation: eigenvalues lambda of A and mu of Q (A itself in the Lyapunov form) with
+    lambda + mu = 0 (or lambda mu = 1) to working precision, or a solve that did not satisfy the equation. A nearly
+    singular Kronecker matrix still gives a small residual (the solve is backward stable), hence the eigenvalues."""
+    if not checks.is_concrete(X, A, Q):
         return
-    r, s = float(jnp.linalg.norm(residual)), float(scale)
-    if not (np.all(np.isfinite(np.asarray(X))) and r <= _RTOL * max(s, 1e-300)):
-        raise LyapunovError(f"{owner}: the equation is singular (eigenvalues of its coefficients sum to zero, or "
-                            f"multiply to one in discrete time), so it has no unique solution (relative residual "
-                            f"{r / max(s, 1e-300):.2e})")
+    lam, mu = np.linalg.eigvals(np.asarray(A)), np.linalg.eigvals(np.asarray(Q))
+    gap = np.abs(1 - lam[:, None] * mu[None, :]) if discrete else np.abs(lam[:, None] + mu[None, :])
+    size = 1.0 if discrete else max(np.abs(lam).max(initial=0), np.abs(mu).max(initial=0), 1e-300)
+    r, s = float(jnp.linalg.norm(residual)), max(float(scale), 1e-300)
+    if gap.min() <= _SEP * size or not (np.all(np.isfinite(np.asarray(X))) and r <= _RTOL * s):
+        raise LyapunovError(f"{owner}: the equation is singular (eigenvalues of its coefficients "
+                            + ("multiply to one" if discrete else "sum to zero") + f": smallest gap {gap.min():.2e}),"
+                            f" so it has no unique solution")
 
 
 def lyap(A, Q, C=None) -> jax.Array:
@@ -87,13 +96,14 @@ def lyap(A, Q, C=None) -> jax.Array:
         _expect("lyap", "Q", Q, (n, n), f"for a {n}-state model (A is {checks.fmt_shape(A.shape)})")
         _symmetric("lyap", Q)
         X = _lyap(A, Q)
-        _host_check("lyap", X, A @ X + X @ A.T + Q, 2 * jnp.linalg.norm(A @ X) + jnp.linalg.norm(Q))
+        _host_check("lyap", X, A @ X + X @ A.T + Q, 2 * jnp.linalg.norm(A @ X) + jnp.linalg.norm(Q), A, A, False)
         return X
     m = Q.shape[0]
     C = _mat("lyap", "C", C)
     _expect("lyap", "C", C, (n, m), f"(A is {checks.fmt_shape(A.shape)}, Q {checks.fmt_shape(Q.shape)})")
     X = _kron_solve(jnp.kron(A, jnp.eye(m)) + jnp.kron(jnp.eye(n), Q.T), -C, (n, m))
-    _host_check("lyap", X, A @ X + X @ Q + C, jnp.linalg.norm(A @ X) + jnp.linalg.norm(X @ Q) + jnp.linalg.norm(C))
+    _host_check("lyap", X, A @ X + X @ Q + C, jnp.linalg.norm(A @ X) + jnp.linalg.norm(X @ Q) + jnp.linalg.norm(C),
+                A, Q, False)
     return X
 
 
@@ -108,14 +118,14 @@ def dlyap(A, Q, C=None) -> jax.Array:
         _symmetric("dlyap", Q)
         X = _dlyap(A, Q)
         _host_check("dlyap", X, A @ X @ A.T - X + Q, jnp.linalg.norm(A @ X @ A.T) + jnp.linalg.norm(X)
-                    + jnp.linalg.norm(Q))
+                    + jnp.linalg.norm(Q), A, A, True)
         return X
     m = Q.shape[0]
     C = _mat("dlyap", "C", C)
     _expect("dlyap", "C", C, (n, m), f"(A is {checks.fmt_shape(A.shape)}, Q {checks.fmt_shape(Q.shape)})")
     X = _kron_solve(jnp.eye(n * m) - jnp.kron(A, Q), C, (n, m))
     _host_check("dlyap", X, A @ X @ Q.T - X + C, jnp.linalg.norm(A @ X @ Q.T) + jnp.linalg.norm(X)
-                + jnp.linalg.norm(C))
+                + jnp.linalg.norm(C), A, Q, True)
     return X
 
 
