@@ -87,7 +87,7 @@ def test_gram_matches_the_equations_python_control_solves(discrete):
 
 def test_gram_matches_python_control_with_slycot():
     pytest.importorskip("slycot")
-    for i, (k, A, B, C, D) in enumerate(batch(10, stable=True, seed=650, kinds=NONSINGULAR)):
+    for _kind, A, B, C, D in batch(10, stable=True, seed=650, kinds=NONSINGULAR):
         for kind in ("c", "o", "cf", "of"):
             assert rel(gram(ss(A, B, C, D), kind), control.gram(control.ss(A, B, C, D), kind)) < TOL
 
@@ -97,8 +97,8 @@ def test_gram_of_unstable_or_marginal_system_raises_like_python_control(discrete
     dt = 0.1 if discrete else 0.0
     # exactly on the boundary (no similarity: rounding would move the eigenvalues off it either way)
     marginal = np.diag([1.0, 0.5, -0.5, 0.2]) if discrete else np.diag([0.0, -1.0, -2.0, -0.5])
-    k, A, B, C, D = batch(1, discrete=discrete, stable=False, seed=8)[0]
-    for A in (marginal, A):
+    _, unstable, B, C, D = batch(1, discrete=discrete, stable=False, seed=8)[0]
+    for A in (marginal, unstable):
         with pytest.raises(ValueError, match="unstable"):
             control.gram(control.ss(A, B, C, D, dt), "c")
         with pytest.raises(ArgumentError, match="not strictly stable"):
