@@ -82,13 +82,16 @@ def rel(a, b):
 
 
 def fd_grad(f, x, h=1e-6):
-    """Central finite-difference gradient of a scalar function of an array."""
+    """Central finite differences of f (scalar- or array-valued) over the entries of x: shape x.shape + f's."""
     x = np.asarray(x, dtype=float)
-    g = np.zeros_like(x)
+    g = None
     for i in np.ndindex(x.shape):
         e = np.zeros_like(x)
         e[i] = h * max(1.0, abs(x[i]))
-        g[i] = (f(x + e) - f(x - e)) / (2 * e[i])
+        d = (np.asarray(f(x + e)) - np.asarray(f(x - e))) / (2 * e[i])
+        if g is None:
+            g = np.zeros(x.shape + d.shape)
+        g[i] = d
     return g
 
 
