@@ -12,7 +12,7 @@ within one grid cell, are not seen (python-control's polynomial roots see them; 
 for badly scaled models). At most ``MAX_CROSSINGS`` crossovers of each kind are refined.
 
 Selection follows python-control: the phase crossovers are the w >= 0 with Im L = 0 and Re L <= 0 (w = 0 included
-when the DC gain is negative), the gain margin is the one of 1 / |L| nearest 1 in log scale, the phase margin
+when the DC gain is negative; a pole on the stability boundary, where Im L passes through infinity, is not one), the gain margin is the one of 1 / |L| nearest 1 in log scale, the phase margin
 the one of ``remainder(angle(L), 360) - 180`` (degrees) smallest in magnitude; with no crossover the margin is
 inf and its frequency nan. Discrete systems (``dt`` > 0) are evaluated at z = exp(j w dt) for 0 <= w <= pi / dt.
 """
@@ -136,13 +136,12 @@ def margins(sys: StateSpace) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array
                                f"{sys.B.shape[-1]} inputs")
     grid = _grid(sys)
 
-    # phase crossovers: Im L = 0 where Re L <= 0, w = 0 (and w = pi/dt in discrete time) included
+    # phase crossovers: Im L = 0 where Re L <= 0, w = 0 included (not w = pi/dt, as python-control)
     wp, fp = _crossings(sys, _phase_f, grid)
-    ends = [jnp.zeros(())] + ([jnp.pi / sys.dt * jnp.ones(())] if sys.dt else [])
-    wp = jnp.concatenate([jnp.stack(ends), wp])
+    wp = jnp.concatenate([jnp.zeros(1), wp])
     Lp = jax.vmap(lambda w: _siso(sys, w))(wp)
     finite = jnp.isfinite(Lp)
-    fp = jnp.concatenate([finite[:len(ends)], fp]) & finite & (jnp.real(Lp) <= 0)
+    fp = jnp.concatenate([finite[:1], fp]) & finite & (jnp.real(Lp) <= 0)
     # a sign change of Im L through a pole on the axis is not a crossover: there |Im L| is not small
     fp = fp & (jnp.abs(jnp.imag(Lp)) <= 1e-6 * jnp.abs(Lp))
     absL = jnp.where(fp, jnp.abs(Lp), 1.0)
