@@ -13,8 +13,9 @@ eigenvectors so K is real.
 Differentiability: both are smooth in A, B and the poles where the poles are distinct (with one input) or of
 multiplicity at most m; at a pole of multiplicity above m no diagonalisable closed loop exists. Errors: on the
 host path an unreachable (A, B) raises ``ArgumentError`` (a ``ValueError``, the class of python-control's), as do
-poles not in conjugate pairs, of the wrong number or repeated more than rank(B) times; under jit the gain is NaN
-where no placement exists.
+poles not in conjugate pairs, of the wrong number or repeated more than rank(B) times. Under jit nothing is checked:
+where no placement exists the eigenvector matrix is singular and the gain huge or not finite, so check
+eig(A - B K) there.
 """
 
 from __future__ import annotations
