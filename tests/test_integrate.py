@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from jaxdip.control.riccati import lqr
+from jaxdip.control.designs import lqr
 from jaxdip.engine.integrate import rk4_zoh
 from jaxdip.engine.roles import linearize
 from jaxdip.plants import dip

@@ -1,4 +1,4 @@
-"""LQR / Riccati / Lyapunov in pure JAX against python-control and SciPy."""
+"""LQR / Riccati in pure JAX against python-control and SciPy."""
 
 import jaxdip  # noqa: F401  (enables float64)
 
@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from jaxdip.control.riccati import (RiccatiCode, RiccatiError, care, care_checked, dare, dare_checked, dlqr,
-                                   error_if_failed, lqr, lyap, riccati_status)
+from jaxdip.control.designs import dlqr, lqr
+from jaxdip.control.riccati import (RiccatiCode, RiccatiError, care, care_checked, dare, dare_checked,
+                                   error_if_failed, riccati_status)
 from jaxdip.plants import dip
 from jaxdip.engine.roles import linearize
 from jaxdip.sim.discretize import zoh
@@ -21,7 +22,6 @@ jlqr = jax.jit(lqr)
 jdlqr = jax.jit(dlqr)
 jcare = jax.jit(care)
 jdare = jax.jit(dare)
-jlyap = jax.jit(lyap)
 
 TOL = 1e-9
 
@@ -168,22 +168,6 @@ def test_care_residual(name, A, B, Q, R):
 @pytest.mark.parametrize("name,A,B,Q,R", DISC[:1] + DISC[2:4], ids=[c[0] for c in DISC[:1] + DISC[2:4]])
 def test_dare_matches_scipy(name, A, B, Q, R):
     assert rel(jdare(A, B, Q, R), sla.solve_discrete_are(A, B, Q, R)) < TOL
-
-
-@pytest.mark.parametrize("seed", range(4))
-def test_lyap_matches_scipy(seed):
-    rng = np.random.default_rng(100 + seed)
-    n = 6
-    A = rng.standard_normal((n, n))
-    A = A - (np.real(np.linalg.eigvals(A)).max() + 0.5) * np.eye(n)  # Hurwitz
-    M = rng.standard_normal((n, n))
-    Q = M @ M.T
-    X = np.asarray(jlyap(A, Q))
-    # ours: A^T X + X A + Q = 0; SciPy: a x + x a^H = q
-    Xs = sla.solve_continuous_lyapunov(A.T, -Q)
-    assert rel(X, Xs) < 1e-12, rel(X, Xs)
-    assert np.linalg.norm(A.T @ X + X @ A + Q) < 1e-12 * np.linalg.norm(Q) * max(1.0, np.linalg.norm(X))
-    assert np.linalg.eigvalsh(X).min() > 0  # Q > 0 and A Hurwitz give X > 0
 
 
 # ---- failures: reported, and the same verdicts as python-control --------------------------------------------

@@ -1,6 +1,4 @@
-"""Riccati equations and LQR gains in pure JAX.
-
-python-control's ``K, S, E = lqr(A, B, Q, R)`` and ``dlqr`` are the expected calling convention.
+"""Riccati equations in pure JAX (the LQR and estimator designs built on them are in ``jaxdip.control.designs``).
 
 * CARE: the matrix sign function of the Hamiltonian (scaled Newton iteration) gives the stable invariant
   subspace, and Newton-Kleinman steps (a Lyapunov solve each, by Kronecker products: n is at most ~6
@@ -49,12 +47,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxdip.control._riccati_args import check_problem
+from jaxdip.control.lyapunov import _dlyap, _lyap
 from jaxdip.engine import checks
 
 from jaxdip._public import public_dir
 
-__all__ = ["RTOL", "RiccatiError", "RiccatiCode", "lyap", "stein", "care", "care_checked", "dare", "dare_checked",
-           "lqr", "dlqr", "riccati_status", "error_if_failed"]
+__all__ = ["RTOL", "RiccatiError", "RiccatiCode", "care", "care_checked", "dare", "dare_checked", "riccati_status",
+           "error_if_failed"]
 __dir__ = public_dir(globals())
 
 RTOL = 1e-8  # relative Riccati residual below which a solution counts as converged
@@ -88,25 +87,6 @@ class _RNotPositiveDefinite(RiccatiError, checks.ArgumentError):
 
 def _f64(*arrs):
     return [jnp.atleast_2d(jnp.asarray(a, dtype=jnp.float64)) for a in arrs]
-
-
-def lyap(A, Q):
-    """Solve A^T X + X A + Q = 0 (A Hurwitz) by the Kronecker form; fine for the small n of pendulums."""
-    n = checks.check_square("lyap", "A", A)
-    checks.check_shape("lyap", "Q", Q, (n, n), f"for a {n}-state model (A is {checks.fmt_shape(A.shape)})")
-    I = jnp.eye(n)
-    L = jnp.kron(I, A.T) + jnp.kron(A.T, I)
-    x = jnp.linalg.solve(L, -Q.reshape(-1))
-    X = x.reshape(n, n)
-    return 0.5 * (X + X.T)
-
-
-def stein(A, Q):
-    """Solve X = A^T X A + Q (A Schur-stable) by the Kronecker form."""
-    n = A.shape[0]
-    L = jnp.eye(n * n) - jnp.kron(A.T, A.T)
-    X = jnp.linalg.solve(L, Q.reshape(-1)).reshape(n, n)
-    return 0.5 * (X + X.T)
 
 
 def care(A, B, Q, R, sign_iters: int = 60, newton_iters: int = 3, *, rtol: float = RTOL) -> jax.Array:
@@ -159,7 +139,7 @@ def _care_solve(A, B, Q, R, sign_iters, newton_iters):
     def newton(_, X):
         K = jnp.linalg.solve(R, B.T @ X)
         Acl = A - B @ K
-        return lyap(Acl, Q + K.T @ R @ K)
+        return _lyap(Acl.T, Q + K.T @ R @ K)
 
     return jax.lax.fori_loop(0, newton_iters, newton, X)
 
@@ -176,7 +156,7 @@ def _care_jvp(sign_iters, newton_iters, primals, tangents):
     Acl = A - B @ K
     dAcl = dA - dB @ K
     rhs = dQ + K.T @ dR @ K + dAcl.T @ X + X @ dAcl
-    return X, lyap(Acl, 0.5 * (rhs + rhs.T))
+    return X, _lyap(Acl.T, 0.5 * (rhs + rhs.T))
 
 
 def dare(A, B, Q, R, iters: int = 40, *, rtol: float = RTOL) -> jax.Array:
@@ -226,12 +206,18 @@ def _dare_regularised(A, B, Q, R, G, iters):
     scale = jnp.linalg.norm(Q) + jnp.linalg.norm(R) / jnp.maximum(jnp.linalg.norm(B) ** 2, jnp.finfo(A.dtype).tiny)
     X = _sda(A, G, Q + _REG * scale * jnp.eye(n), iters)
 
+    return _hewer(A, B, Q, R, X, _HEWER_STEPS)
+
+
+def _hewer(A, B, Q, R, X, steps: int):
+    """``steps`` Newton-Hewer steps on the DARE from a stabilising X (each one Stein solve; quadratic)."""
+
     def hewer(_, X):
         K = jnp.linalg.solve(R + B.T @ X @ B, B.T @ X @ A)
         Acl = A - B @ K
-        return stein(Acl, Q + K.T @ R @ K)
+        return _dlyap(Acl.T, Q + K.T @ R @ K)
 
-    return jax.lax.fori_loop(0, _HEWER_STEPS, hewer, X)
+    return jax.lax.fori_loop(0, steps, hewer, X)
 
 
 @partial(jax.custom_jvp, nondiff_argnums=(4,))
@@ -255,30 +241,7 @@ def _dare_jvp(iters, primals, tangents):
     Acl = A - B @ K
     dAcl = dA - dB @ K
     rhs = dQ + K.T @ dR @ K + dAcl.T @ X @ Acl + Acl.T @ X @ dAcl
-    return X, stein(Acl, 0.5 * (rhs + rhs.T))
-
-
-def lqr(A, B, Q, R, *, rtol: float = RTOL) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """Continuous LQR: returns (K, S, E) with u = -K x, S the CARE solution, E the closed-loop eigenvalues.
-
-    Raises ``RiccatiError`` for concrete inputs without a stabilising solution, like python-control's ``lqr``;
-    under jit use ``care_checked`` (or ``riccati_status`` on S) for a result code."""
-    check_problem("lqr", A, B, Q, R, _RNotPositiveDefinite)
-    A, B, Q, R = _f64(A, B, Q, R)
-    S = care(A, B, Q, R, rtol=rtol)
-    K = jnp.linalg.solve(R, B.T @ S)
-    E = jnp.linalg.eigvals(A - B @ K)
-    return K, S, E
-
-
-def dlqr(A, B, Q, R, *, rtol: float = RTOL) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """Discrete LQR: returns (K, S, E) with u_k = -K x_k (raises like ``lqr``; ``dare_checked`` under jit)."""
-    check_problem("dlqr", A, B, Q, R, _RNotPositiveDefinite)
-    A, B, Q, R = _f64(A, B, Q, R)
-    S = dare(A, B, Q, R, rtol=rtol)
-    K = jnp.linalg.solve(R + B.T @ S @ B, B.T @ S @ A)
-    E = jnp.linalg.eigvals(A - B @ K)
-    return K, S, E
+    return X, _dlyap(Acl.T, 0.5 * (rhs + rhs.T))
 
 
 # ---- checks --------------------------------------------------------------------------------------------------

@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from jaxdip.control.riccati import dlqr
+from jaxdip.control.designs import dlqr
 from jaxdip.plants import twip
 from jaxdip.sim.discretize import zoh
 
