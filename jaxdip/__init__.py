@@ -24,7 +24,7 @@ __version__ = "0.1.0"
 # no module depends on the package root: the layers (docs/architecture.md) hold for the imports Python runs too.
 _SUBMODULES = {"control": "jaxdip.control", "engine": "jaxdip.engine", "estimators": "jaxdip.estimators",
                "plants": "jaxdip.plants", "sim": "jaxdip.sim", "sensors": "jaxdip.sim.sensors",
-               "stats": "jaxdip.stats"}
+               "stats": "jaxdip.stats", "dataset": "jaxdip.dataset"}
 _NAMES = {
     **dict.fromkeys((
         "RESULTS", "ArgumentError", "ArgumentTypeError", "Actuator", "Aux", "Ball", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux",
