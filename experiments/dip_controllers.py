@@ -280,6 +280,7 @@ def report(cfg, r) -> str:
 
 
 EXPERIMENT = Experiment(
+    per_seed=False,  # no Outcome.per_seed yet (docs/data.md)
     id="dip-controllers",
     title="DIP: LQR vs power-series vs relaxed projection control",
     config_cls=DipControllersConfig,

@@ -343,6 +343,7 @@ def report(cfg, r, timing):
 
 
 EXPERIMENT = Experiment(
+    per_seed=False,  # no Outcome.per_seed yet (docs/data.md)
     id="eki-dip", title="ensemble Kalman synthesis of relaxed projection control for the DIP", config_cls=EkiDipConfig,
     run=run, quick={"seeds": 32, "ensemble": 8, "iterations": 4, "chunk": 2, "T": 1.0, "t_star": 0.5,
                     "grad_steps": 3, "grad_x0": 2, "eval_states": 8, "judge_duration": 2.0},

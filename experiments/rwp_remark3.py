@@ -137,6 +137,7 @@ def run(cfg: RwpRemark3Config, ctx: RunContext | None = None) -> Outcome:
 
 
 EXPERIMENT = Experiment(
+    per_seed=False,  # no Outcome.per_seed yet (docs/data.md)
     id="rwp-remark3",
     title="reaction-wheel pendulum: a biased wheel encoder and the wheel-speed estimate (fidelity readings)",
     config_cls=RwpRemark3Config,

@@ -29,10 +29,10 @@ RESULT_ATTRS = {"long_name": "per-seed result code (jaxdip.RESULTS)", "units": "
 
 
 def _dims(path: str, shape: tuple, lead: tuple[str, ...], names, extra: Mapping[str, Sequence[str]]) -> tuple:
-    for name in (path, path.split(".")[0]):  # the metric itself, or its top-level key (``u`` for ``u.var``)
-        if name in extra:
-            return (*lead, *extra[name])
     rest = shape[len(lead):]
+    for name in (path, path.split(".")[0]):  # the metric itself, or its top-level key (``u`` for ``u.var``)
+        if name in extra and len(extra[name]) == len(rest):
+            return (*lead, *extra[name])
     dims = [f"{path.split('.')[0]}_dim{i}" for i in range(len(rest))]
     if names is not None and rest and rest[-1] == len(names):
         dims[-1] = "state"  # one entry per state: labelled by the state names
