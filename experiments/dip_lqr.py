@@ -25,10 +25,6 @@ from jaxdip.plants import dip
 from jaxdip.scenarios.dip_lqr import dip_lqr
 
 INF = float("inf")
-# units of the per-seed metrics (x.* per state: m and rad, their squares for variances)
-UNITS = {"final_x": "m, rad, rad, m/s, rad/s, rad/s", "x.mean": "m or rad", "x.mean_abs": "m or rad",
-         "x.var": "m2 or rad2", "x.var_abs": "m2 or rad2", "u.mean": "V", "u.mean_abs": "V", "u.var": "V2",
-         "u.var_abs": "V2", "tail": "m or rad (max abs over the last second)"}
 
 
 @dataclass
@@ -79,7 +75,8 @@ def simulate(cfg: DipLqrConfig, progress: bool = True, shard: bool | None = None
 
 def per_seed(cfg: DipLqrConfig, sol: jd.Solution):
     """The per-seed arrays behind ``summarize``; the saved angles as trajectories (seed, time, angle)."""
-    data = loop_per_seed(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt, units=UNITS)
+    data = loop_per_seed(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt, state_units=dip.STATE_UNITS,
+                         input_units="V")
     data.coords["time"] = np.arange(np.shape(sol.saved)[1]) * cfg.dt * cfg.record_every
     data.coords["angle"] = ["alpha", "theta"]
     data.variables["saved"] = (("seed", "time", "angle"), np.asarray(sol.saved),

@@ -67,7 +67,8 @@ def _attrs(attrs: Mapping | None) -> dict:
 def build(variables: Mapping[str, Variable], coords: Mapping[str, Any] | None = None,
           attrs: Mapping | None = None):
     """An ``xarray.Dataset`` of ``variables`` (name -> (dims, values, attrs)), with ``coords`` (dimension ->
-    labels; ``seed`` defaults to 0 .. n-1, the index i of the key ``fold_in(base, i)``) and global ``attrs``.
+    labels; ``seed`` defaults to 0 .. n-1, the index i of the key ``fold_in(base, i)``; or name -> (dimension,
+    values) for a coordinate beside them, such as ``state_units``) and global ``attrs``.
     Booleans stay booleans (xarray stores them as int8 and reads them back as bool)."""
     xr = require()
     data = {}
@@ -81,7 +82,10 @@ def build(variables: Mapping[str, Variable], coords: Mapping[str, Any] | None = 
     if "seed" in ds.dims and "seed" not in labels:
         labels["seed"] = np.arange(ds.sizes["seed"])
     for dim, values in labels.items():
-        if dim in ds.dims:
+        if isinstance(values, tuple) and len(values) == 2 and isinstance(values[0], str):
+            # (dimension, values): a coordinate beside the labels, such as each state's units
+            ds = ds.assign_coords({dim: (values[0], np.asarray(values[1]))})
+        elif dim in ds.dims:
             values = np.asarray(values)
             ds = ds.assign_coords({dim: values.astype(str) if values.dtype.kind in "OU" else values})
     if "seed" in ds.coords:

@@ -31,6 +31,9 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 # each experiment at the smallest scale that still has seeds to summarise (quick overrides, then these)
 TINY = {
     "dip-lqr": ["seeds=6", "duration=0.2", "record_every=1"],
+    "dip-controllers": ["seeds=4", "duration=0.1"],
+    "eki-dip": ["seeds=4", "ensemble=6", "iterations=2", "chunk=2", "T=0.3", "t_star=0.1", "grad_steps=0",
+                "eval_states=2", "judge_duration=0.3", "early_stop=false", "min_success=2"],
 }
 
 
@@ -95,7 +98,10 @@ def check_against_metrics(folder: pathlib.Path) -> int:
     return checked
 
 
-KEEPING = sorted(i for i, e in registry().items() if e.per_seed)
+# run in the default suite (each a few seconds); the others, whose tiny runs still compile several loops, with -m slow
+FAST = ("dip-lqr", "rwp-remark3")
+KEEPING = [pytest.param(i, marks=() if i in FAST else pytest.mark.slow)
+           for i, e in sorted(registry().items()) if e.per_seed]
 
 
 @pytest.mark.parametrize("exp_id", KEEPING)
@@ -105,7 +111,10 @@ def test_per_seed_statistics_equal_metrics(tmp_path, exp_id):
     ds = xr.open_dataset(out / "per_seed.nc", engine="h5netcdf")
     assert ds.attrs["experiment"] == exp_id and "time" not in ds.dims  # trajectories only when asked
     assert ds.attrs["config_toml"] == (out / "config.toml").read_text()
-    assert ds["result"].dims[0] == "seed" and set(np.unique(ds["result"].values)) <= {0, 1, 2}
+    for name in ds.data_vars:
+        assert ds[name].dims[0] == "seed" and ds[name].attrs.get("units") is not None, name
+        if name.split(".")[-1] == "result":
+            assert set(np.unique(ds[name].values)) <= {0, 1, 2}
 
 
 def test_trajectories_provenance_and_the_documented_example(tmp_path):

@@ -63,9 +63,9 @@ def stacked(parts: dict[str, PerSeed], dim: str) -> PerSeed:
     return out
 
 
-def prefixed(part: PerSeed, name: str, path: str) -> PerSeed:
+def prefixed(part: PerSeed, name: str, path: str, seeds_key: str | None = None) -> PerSeed:
     """``part`` with every variable renamed ``<name>.<variable>`` and every ``summarised_as`` (and ``over``)
-    under ``results[path]``."""
+    under ``results[path]``; ``seeds_key``: the key its seeds were folded from, where it is not the run's."""
     out = PerSeed(coords=dict(part.coords))
     for var, (dims, values, attrs) in part.variables.items():
         attrs = dict(attrs)
@@ -73,6 +73,8 @@ def prefixed(part: PerSeed, name: str, path: str) -> PerSeed:
             attrs["summarised_as"] = f"{path}.{attrs['summarised_as']}"
         if "over" in attrs:
             attrs["over"] = f"{name}.{attrs['over']}"
+        if seeds_key is not None:
+            attrs["seeds_key"] = seeds_key
         out.variables[f"{name}.{var}"] = (dims, values, attrs)
     return out
 

@@ -71,18 +71,25 @@ def diverged_counts(results: dict, key: str = "diverged", where: str = "") -> di
     return out
 
 
-def loop_per_seed(sol, state_names, stab_idx, stab_tol, *, dt: float | None = None, units: dict | None = None):
+def loop_per_seed(sol, state_names, stab_idx, stab_tol, *, dt: float | None = None, state_units=None,
+                  input_units: str = ""):
     """The per-seed arrays ``loop_summary`` reduces (a ``runner.per_seed.PerSeed``): the engine's result codes,
     failure times and final states (``jaxdip.engine.dataset.solution_variables``), the metrics ``x.*``, ``u.*``
     and ``tail``, and ``stabilized`` (ok, and the ``stab_idx`` states' tail maxima below ``stab_tol``), each
     labelled with the statistic of ``results`` it is summarised into. Saved samples are kept on (seed, time, ...)
-    for a ``--per-seed trajectories`` run."""
+    for a ``--per-seed trajectories`` run. ``state_units`` (one per state) become the coordinate ``state_units``
+    that the state variables' ``units`` refer to; ``input_units``: those of u."""
     from jaxdip.engine.dataset import solution_variables
     from jaxdip.runner.per_seed import PerSeed, fraction_of, mean_of
 
     names = list(state_names)
-    out = PerSeed(solution_variables(sol, names, dt=dt, dims={"u": ("input",)},
-                                     units=units), {"state": names})
+    per_state, squared, u2 = "state_units", "state_units^2", f"{input_units}^2" if input_units else ""
+    units = {"final_x": per_state, "x.mean": per_state, "x.mean_abs": per_state, "x.var": squared,
+             "x.var_abs": squared, "x.mean_sq": squared, "tail": per_state, "u.mean": input_units,
+             "u.mean_abs": input_units, "u.var": u2, "u.var_abs": u2, "u.mean_sq": u2, "x.count": "1", "u.count": "1"}
+    out = PerSeed(solution_variables(sol, names, dt=dt, dims={"u": ("input",)}, units=units), {"state": names})
+    if state_units is not None:
+        out.coords["state_units"] = ("state", list(state_units))
     for stat in ("mean", "var", "mean_abs", "var_abs"):
         out.variables[f"x.{stat}"][2].update(mean_of(f"states.{{state}}.{stat}"))
     for stat in ("mean_abs", "var", "var_abs"):
