@@ -32,6 +32,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 TINY = {
     "dip-lqr": ["seeds=6", "duration=0.2", "record_every=1"],
     "dip-controllers": ["seeds=4", "duration=0.1"],
+    "rwp-remark3": ["seeds=4", "duration=1.0", "tail=0.5", "wheel_biases=[0.5, 1.0]"],
     "eki-dip": ["seeds=4", "ensemble=6", "iterations=2", "chunk=2", "T=0.3", "t_star=0.1", "grad_steps=0",
                 "eval_states=2", "judge_duration=0.3", "early_stop=false", "min_success=2"],
 }
@@ -48,13 +49,13 @@ def _run(tmp_path, exp_id: str, what: str = "final") -> pathlib.Path:
 def _at(results: dict, path: str):
     v = results
     for part in path.split("."):
-        v = v[part]
+        v = v[int(part)] if isinstance(v, list) else v[part]
     return v
 
 
 def _expanded(ds, name: str):
-    """(results path, per-seed values, the mask's values) for every label combination of the variable's
-    dimensions other than seed that its ``summarised_as`` names; the others must have one entry."""
+    """(results path, interval path, per-seed values, the mask's values) for every label combination of the
+    variable's dimensions other than seed that its ``summarised_as`` names; the others must have one entry."""
     var = ds[name]
     template = var.attrs["summarised_as"]
     named = re.findall(r"\{(\w+)\}", template)
@@ -66,7 +67,8 @@ def _expanded(ds, name: str):
         where = dict(zip(named, labels))
         v = var.sel(where)
         m = None if mask is None else mask.sel({k: w for k, w in where.items() if k in mask.dims})
-        yield template.format(**where), v.values, None if m is None else m.values.astype(bool)
+        yield (template.format(**where), var.attrs["interval_as"].format(**where), v.values,
+               None if m is None else m.values.astype(bool))
 
 
 def check_against_metrics(folder: pathlib.Path) -> int:
@@ -78,11 +80,11 @@ def check_against_metrics(folder: pathlib.Path) -> int:
         if "summarised_as" not in ds[name].attrs:
             continue
         statistic = ds[name].attrs["statistic"]
-        for path, values, mask in _expanded(ds, name):
+        for path, interval, values, mask in _expanded(ds, name):
             if statistic == "fraction_wilson":
                 frac, ci = wilson(int(values.astype(bool).sum()), values.size)
                 assert _at(results, path) == pytest.approx(frac, abs=1e-12, rel=1e-12), path
-                assert _at(results, path + "_ci95") == pytest.approx(ci, abs=1e-12, rel=1e-12), path
+                assert _at(results, interval) == pytest.approx(ci, abs=1e-12, rel=1e-12), path
             else:
                 assert statistic == "mean_ci95", (name, statistic)
                 keep = values[mask] if mask is not None else values
@@ -93,7 +95,7 @@ def check_against_metrics(folder: pathlib.Path) -> int:
                     continue
                 assert _at(results, path) == pytest.approx(float(np.mean(keep)), abs=1e-12, rel=1e-12), path
                 ci = mean_ci(values, mask)[1]
-                assert _at(results, path + "_ci95") == pytest.approx(ci, abs=1e-12, rel=1e-12), path
+                assert _at(results, interval) == pytest.approx(ci, abs=1e-12, rel=1e-12), path
             checked += 1
     return checked
 

@@ -5,7 +5,7 @@ An experiment fills ``Outcome.per_seed`` with a ``PerSeed``: variables (name -> 
 dimension ``seed``) and the labels of its other dimensions. A variable that a statistic of ``results`` is computed
 from says so in three attributes, so the dataset documents itself and a test recomputes every such statistic
 from the file: ``summarised_as`` (the dotted path in ``results``, with ``{dim}`` standing for a label of the
-variable's dimension ``dim``), ``statistic`` (``mean_ci95``: the mean over the seeds and its ``<path>_ci95``, by
+variable's dimension ``dim``; a number indexes a list), ``interval_as`` (the path of its interval), ``statistic`` (``mean_ci95``: the mean over the seeds and its interval, by
 ``jaxdip.stats.mean_ci``; ``fraction_wilson``: the fraction of true seeds and its Wilson interval) and ``over``
 (the boolean variable selecting the seeds a mean is taken over). The runner writes the dataset only when asked
 (``jaxdip run <id> --per-seed``); variables on a ``time`` dimension (trajectories) only with
@@ -38,14 +38,19 @@ class PerSeed:
         self.coords.update(other.coords)
 
 
-def mean_of(path: str, over: str = "ok") -> dict:
-    """The attributes of a variable whose mean over the seeds ``over`` selects is ``results[path]``."""
-    return {"summarised_as": path, "statistic": MEAN, "over": over}
+PATHS = ("summarised_as", "interval_as")
 
 
-def fraction_of(path: str) -> dict:
-    """The attributes of a boolean variable whose fraction of true seeds is ``results[path]``."""
-    return {"summarised_as": path, "statistic": FRACTION}
+def mean_of(path: str, over: str = "ok", interval: str | None = None) -> dict:
+    """The attributes of a variable whose mean over the seeds ``over`` selects is ``results[path]``, with its 95%
+    interval at ``interval`` (default ``<path>_ci95``)."""
+    return {"summarised_as": path, "interval_as": interval or f"{path}_ci95", "statistic": MEAN, "over": over}
+
+
+def fraction_of(path: str, interval: str | None = None) -> dict:
+    """The attributes of a boolean variable whose fraction of true seeds is ``results[path]``, with its Wilson
+    interval at ``interval`` (default ``<path>_ci95``)."""
+    return {"summarised_as": path, "interval_as": interval or f"{path}_ci95", "statistic": FRACTION}
 
 
 def stacked(parts: dict[str, PerSeed], dim: str) -> PerSeed:
@@ -56,9 +61,7 @@ def stacked(parts: dict[str, PerSeed], dim: str) -> PerSeed:
     out = PerSeed(coords={**first.coords, dim: names})
     for var, (dims, _, attrs) in first.variables.items():
         values = np.stack([np.asarray(parts[n].variables[var][1]) for n in names], axis=1)
-        attrs = dict(attrs)
-        if "summarised_as" in attrs:
-            attrs["summarised_as"] = f"{{{dim}}}.{attrs['summarised_as']}"
+        attrs = {k: f"{{{dim}}}.{v}" if k in PATHS else v for k, v in attrs.items()}
         out.variables[var] = ((dims[0], dim, *dims[1:]), values, attrs)
     return out
 
@@ -68,9 +71,7 @@ def prefixed(part: PerSeed, name: str, path: str, seeds_key: str | None = None) 
     under ``results[path]``; ``seeds_key``: the key its seeds were folded from, where it is not the run's."""
     out = PerSeed(coords=dict(part.coords))
     for var, (dims, values, attrs) in part.variables.items():
-        attrs = dict(attrs)
-        if "summarised_as" in attrs:
-            attrs["summarised_as"] = f"{path}.{attrs['summarised_as']}"
+        attrs = {k: f"{path}.{v}" if k in PATHS else v for k, v in attrs.items()}
         if "over" in attrs:
             attrs["over"] = f"{name}.{attrs['over']}"
         if seeds_key is not None:
