@@ -32,6 +32,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 TINY = {
     "dip-lqr": ["seeds=6", "duration=0.2", "record_every=1"],
     "dip-controllers": ["seeds=4", "duration=0.1"],
+    "lorenz-mhe": ["seeds=4", "duration=0.3", "chunk_steps=100", "record_every=5"],
     "rwp-remark3": ["seeds=4", "duration=1.0", "tail=0.5", "wheel_biases=[0.5, 1.0]"],
     "eki-dip": ["seeds=4", "ensemble=6", "iterations=2", "chunk=2", "T=0.3", "t_star=0.1", "grad_steps=0",
                 "eval_states=2", "judge_duration=0.3", "early_stop=false", "min_success=2"],

@@ -33,6 +33,10 @@ class PerSeed:
     def add(self, name: str, dims: tuple, values, units: str, long_name: str = "", **attrs) -> None:
         self.variables[name] = (tuple(dims), np.asarray(values), {"units": units, "long_name": long_name, **attrs})
 
+    def arrays(self) -> dict:
+        """name -> values."""
+        return {name: values for name, (_, values, _) in self.variables.items()}
+
     def update(self, other: PerSeed) -> None:
         self.variables.update(other.variables)
         self.coords.update(other.coords)

@@ -112,7 +112,7 @@ def loop_summary(sol, state_names, stab_idx, stab_tol, *, dt: float | None = Non
     null), and with ``dt`` and ``bound`` a ``failures`` block says how the seeds failed."""
     from jaxdip import stats
 
-    v = {k: a for k, (_, a, _) in (per_seed or loop_per_seed(sol, state_names, stab_idx, stab_tol, dt=dt)).variables.items()}
+    v = (per_seed or loop_per_seed(sol, state_names, stab_idx, stab_tol, dt=dt)).arrays()
     ok = v["ok"]
     failed = ~ok
     stab = v["stabilized"]
