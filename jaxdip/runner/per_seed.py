@@ -47,8 +47,9 @@ PATHS = ("summarised_as", "interval_as")
 
 def mean_of(path: str, over: str = "ok", interval: str | None = None) -> dict:
     """The attributes of a variable whose mean over the seeds ``over`` selects is ``results[path]``, with its 95%
-    interval at ``interval`` (default ``<path>_ci95``)."""
-    return {"summarised_as": path, "interval_as": interval or f"{path}_ci95", "statistic": MEAN, "over": over}
+    interval at ``interval`` (default ``<path>_ci95``; ``""``: none reported)."""
+    return {"summarised_as": path, "interval_as": f"{path}_ci95" if interval is None else interval or None,
+            "statistic": MEAN, "over": over}
 
 
 def fraction_of(path: str, interval: str | None = None) -> dict:
@@ -65,7 +66,7 @@ def stacked(parts: dict[str, PerSeed], dim: str) -> PerSeed:
     out = PerSeed(coords={**first.coords, dim: names})
     for var, (dims, _, attrs) in first.variables.items():
         values = np.stack([np.asarray(parts[n].variables[var][1]) for n in names], axis=1)
-        attrs = {k: f"{{{dim}}}.{v}" if k in PATHS else v for k, v in attrs.items()}
+        attrs = {k: f"{{{dim}}}.{v}" if k in PATHS and v else v for k, v in attrs.items()}
         out.variables[var] = ((dims[0], dim, *dims[1:]), values, attrs)
     return out
 
@@ -75,7 +76,7 @@ def prefixed(part: PerSeed, name: str, path: str, seeds_key: str | None = None) 
     under ``results[path]``; ``seeds_key``: the key its seeds were folded from, where it is not the run's."""
     out = PerSeed(coords=dict(part.coords))
     for var, (dims, values, attrs) in part.variables.items():
-        attrs = {k: f"{path}.{v}" if k in PATHS else v for k, v in attrs.items()}
+        attrs = {k: f"{path}.{v}" if k in PATHS and v else v for k, v in attrs.items()}
         if "over" in attrs:
             attrs["over"] = f"{name}.{attrs['over']}"
         if seeds_key is not None:
