@@ -36,6 +36,7 @@ TINY = {
     "dip-cpx-ldf": ["seeds=4", "duration=0.1", "sweep_seeds=3", "sweep_points=2", "velocity_trial=false"],
     "lorenz-mhe": ["seeds=4", "duration=0.3", "chunk_steps=100", "record_every=5"],
     "rwp-remark3": ["seeds=4", "duration=1.0", "tail=0.5", "wheel_biases=[0.5, 1.0]"],
+    "twip-extra-control": ["seeds=4", "chunk_seeds=4", "duration=1.0"],
     "twip-dmso": ["seeds=4", "det_seeds=2", "duration=1.0", "duration_fine=0.5", "tail_s=0.5", "chunk_seeds=4"],
     "eki-dip": ["seeds=4", "ensemble=6", "iterations=2", "chunk=2", "T=0.3", "t_star=0.1", "grad_steps=0",
                 "eval_states=2", "judge_duration=0.3", "early_stop=false", "min_success=2"],
@@ -50,9 +51,14 @@ def _run(tmp_path, exp_id: str, what: str = "final") -> pathlib.Path:
     return out
 
 
-def _at(results: dict, path: str):
+def _keys(template: str, where: dict) -> list[str]:
+    """A ``summarised_as`` template's keys: split at its dots first, so a label may hold dots of its own."""
+    return [part.format(**where) for part in template.split(".")]
+
+
+def _at(results: dict, path: list[str]):
     v = results
-    for part in path.split("."):
+    for part in path:
         v = v[int(part)] if isinstance(v, list) else v[part]
     return v
 
@@ -73,7 +79,7 @@ def _expanded(ds, name: str):
         v = var.sel(where)
         m = None if mask is None else mask.sel({k: w for k, w in where.items() if k in mask.dims})
         interval = var.attrs.get("interval_as")
-        yield (template.format(**where), interval and interval.format(**where), v.values,
+        yield (_keys(template, where), interval and _keys(interval, where), v.values,
                None if m is None else m.values.astype(bool))
 
 

@@ -5,7 +5,8 @@ An experiment fills ``Outcome.per_seed`` with a ``PerSeed``: variables (name -> 
 dimension ``seed``) and the labels of its other dimensions. A variable that a statistic of ``results`` is computed
 from says so in three attributes, so the dataset documents itself and a test recomputes every such statistic
 from the file: ``summarised_as`` (the dotted path in ``results``, with ``{dim}`` standing for a label of the
-variable's dimension ``dim``; a number indexes a list), ``interval_as`` (the path of its interval), ``statistic`` (``mean_ci95``: the mean over the seeds and its interval, by
+variable's dimension ``dim``, substituted after splitting at the dots, so a label may hold dots; a number
+indexes a list), ``interval_as`` (the path of its interval), ``statistic`` (``mean_ci95``: the mean over the seeds and its interval, by
 ``jaxdip.stats.mean_ci``; ``fraction_wilson``: the fraction of true seeds and its Wilson interval) and ``over``
 (the boolean variable selecting the seeds a mean is taken over). The runner writes the dataset only when asked
 (``jaxdip run <id> --per-seed``); variables on a ``time`` dimension (trajectories) only with
