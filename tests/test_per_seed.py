@@ -37,6 +37,7 @@ TINY = {
     "lorenz-mhe": ["seeds=4", "duration=0.3", "chunk_steps=100", "record_every=5"],
     "rwp-remark3": ["seeds=4", "duration=1.0", "tail=0.5", "wheel_biases=[0.5, 1.0]"],
     "twip-extra-control": ["seeds=4", "chunk_seeds=4", "duration=1.0"],
+    "tune": ["steps=2", "heldout_seeds=4", "landscape_points=3"],
     "twip-dmso": ["seeds=4", "det_seeds=2", "duration=1.0", "duration_fine=0.5", "tail_s=0.5", "chunk_seeds=4"],
     "eki-dip": ["seeds=4", "ensemble=6", "iterations=2", "chunk=2", "T=0.3", "t_star=0.1", "grad_steps=0",
                 "eval_states=2", "judge_duration=0.3", "early_stop=false", "min_success=2"],

@@ -46,9 +46,9 @@ class PerSeed:
 PATHS = ("summarised_as", "interval_as")
 
 
-def mean_of(path: str, over: str = "ok", interval: str | None = None) -> dict:
-    """The attributes of a variable whose mean over the seeds ``over`` selects is ``results[path]``, with its 95%
-    interval at ``interval`` (default ``<path>_ci95``; ``""``: none reported)."""
+def mean_of(path: str, over: str | None = "ok", interval: str | None = None) -> dict:
+    """The attributes of a variable whose mean over the seeds ``over`` selects (None: every seed) is
+    ``results[path]``, with its 95% interval at ``interval`` (default ``<path>_ci95``; ``""``: none reported)."""
     return {"summarised_as": path, "interval_as": f"{path}_ci95" if interval is None else interval or None,
             "statistic": MEAN, "over": over}
 
@@ -78,7 +78,7 @@ def prefixed(part: PerSeed, name: str, path: str, seeds_key: str | None = None) 
     out = PerSeed(coords=dict(part.coords))
     for var, (dims, values, attrs) in part.variables.items():
         attrs = {k: f"{path}.{v}" if k in PATHS and v else v for k, v in attrs.items()}
-        if "over" in attrs:
+        if attrs.get("over"):
             attrs["over"] = f"{name}.{attrs['over']}"
         if seeds_key is not None:
             attrs["seeds_key"] = seeds_key
