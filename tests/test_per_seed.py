@@ -37,6 +37,8 @@ TINY = {
     "lorenz-mhe": ["seeds=4", "duration=0.3", "chunk_steps=100", "record_every=5"],
     "rwp-remark3": ["seeds=4", "duration=1.0", "tail=0.5", "wheel_biases=[0.5, 1.0]"],
     "twip-extra-control": ["seeds=4", "chunk_seeds=4", "duration=1.0"],
+    "ifn-protection": ["seeds=512", "quad_panels=256", "bisect_panels=256", "lattice_panels=128", "lineages=64",
+                       "generations=3", "tune_steps=5", "tune_batch=256"],
     "tune": ["steps=2", "heldout_seeds=4", "landscape_points=3"],
     "twip-dmso": ["seeds=4", "det_seeds=2", "duration=1.0", "duration_fine=0.5", "tail_s=0.5", "chunk_seeds=4"],
     "eki-dip": ["seeds=4", "ensemble=6", "iterations=2", "chunk=2", "T=0.3", "t_star=0.1", "grad_steps=0",
