@@ -37,6 +37,8 @@ TINY = {
     "lorenz-mhe": ["seeds=4", "duration=0.3", "chunk_steps=100", "record_every=5"],
     "rwp-remark3": ["seeds=4", "duration=1.0", "tail=0.5", "wheel_biases=[0.5, 1.0]"],
     "twip-extra-control": ["seeds=4", "chunk_seeds=4", "duration=1.0"],
+    "eki-linear": ["seeds=4", "iterations=2", "judge_states=8"],
+    "eki-nonlinear": ["seeds=4", "iterations=2", "judge_states=8", "restarts=2"],
     "ifn-protection": ["seeds=512", "quad_panels=256", "bisect_panels=256", "lattice_panels=128", "lineages=64",
                        "generations=3", "tune_steps=5", "tune_batch=256"],
     "tune": ["steps=2", "heldout_seeds=4", "landscape_points=3"],
