@@ -7,7 +7,8 @@ from says so in three attributes, so the dataset documents itself and a test rec
 from the file: ``summarised_as`` (the dotted path in ``results``, with ``{dim}`` standing for a label of the
 variable's dimension ``dim``, substituted after splitting at the dots, so a label may hold dots; a number
 indexes a list), ``interval_as`` (the path of its interval), ``statistic`` (``mean_ci95``: the mean over the seeds and its interval, by
-``jaxdip.stats.mean_ci``; ``fraction_wilson``: the fraction of true seeds and its Wilson interval) and ``over``
+``jaxdip.stats.mean_ci``; ``fraction_wilson``: the fraction of true seeds and its Wilson interval; ``max``,
+``median``: over every seed, no interval) and ``over``
 (the boolean variable selecting the seeds a mean is taken over). The runner writes the dataset only when asked
 (``jaxdip run <id> --per-seed``); variables on a ``time`` dimension (trajectories) only with
 ``--per-seed trajectories``. docs/data.md describes the layout.
@@ -21,6 +22,7 @@ import numpy as np
 
 MEAN = "mean_ci95"
 FRACTION = "fraction_wilson"
+ORDER = ("max", "median")  # statistics of the seeds' values without an interval
 
 
 @dataclass
@@ -57,6 +59,13 @@ def fraction_of(path: str, interval: str | None = None) -> dict:
     """The attributes of a boolean variable whose fraction of true seeds is ``results[path]``, with its Wilson
     interval at ``interval`` (default ``<path>_ci95``)."""
     return {"summarised_as": path, "interval_as": interval or f"{path}_ci95", "statistic": FRACTION}
+
+
+def order_of(path: str, statistic: str) -> dict:
+    """The attributes of a variable whose ``statistic`` (``max`` or ``median``) over all seeds is ``results[path]``."""
+    if statistic not in ORDER:
+        raise ValueError(f"statistic must be one of {ORDER}, got {statistic!r}")
+    return {"summarised_as": path, "statistic": statistic}
 
 
 def stacked(parts: dict[str, PerSeed], dim: str) -> PerSeed:
