@@ -42,6 +42,7 @@ TINY = {
     "ifn-protection": ["seeds=512", "quad_panels=256", "bisect_panels=256", "lattice_panels=128", "lineages=64",
                        "generations=3", "tune_steps=5", "tune_batch=256"],
     "thesis-theory": ["trials=3", "lorenz_steps=20", "dip_steps=20", "rp_trials=3"],
+    "twip-allan": ["records=2", "hours=0.02", "clusters=6", "encoder_duration=5.0"],
     "tune": ["steps=2", "heldout_seeds=4", "landscape_points=3"],
     "twip-dmso": ["seeds=4", "det_seeds=2", "duration=1.0", "duration_fine=0.5", "tail_s=0.5", "chunk_seeds=4"],
     "eki-dip": ["seeds=4", "ensemble=6", "iterations=2", "chunk=2", "T=0.3", "t_star=0.1", "grad_steps=0",
@@ -107,6 +108,8 @@ def check_against_metrics(folder: pathlib.Path) -> int:
                 frac, ci = wilson(int(values.astype(bool).sum()), values.size)
             elif statistic in ("max", "median"):
                 frac, ci = float(getattr(np, statistic)(values)), None
+            elif statistic == "root_mean":
+                frac, ci = float(np.sqrt(np.mean(values))), None
             else:
                 assert statistic == "mean_ci95", (name, statistic)
                 keep = values[mask] if mask is not None else values

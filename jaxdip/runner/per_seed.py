@@ -8,7 +8,7 @@ from the file: ``summarised_as`` (the dotted path in ``results``, with ``{dim}``
 variable's dimension ``dim``, substituted after splitting at the dots, so a label may hold dots; a number
 indexes a list), ``interval_as`` (the path of its interval), ``statistic`` (``mean_ci95``: the mean over the seeds and its interval, by
 ``jaxdip.stats.mean_ci``; ``fraction_wilson``: the fraction of true seeds and its Wilson interval; ``max``,
-``median``: over every seed, no interval) and ``over``
+``median``, ``root_mean`` (the square root of the mean): over every seed, no interval) and ``over``
 (the boolean variable selecting the seeds a mean is taken over). The runner writes the dataset only when asked
 (``jaxdip run <id> --per-seed``); variables on a ``time`` dimension (trajectories) only with
 ``--per-seed trajectories``. docs/data.md describes the layout.
@@ -22,7 +22,7 @@ import numpy as np
 
 MEAN = "mean_ci95"
 FRACTION = "fraction_wilson"
-ORDER = ("max", "median")  # statistics of the seeds' values without an interval
+ORDER = ("max", "median", "root_mean")  # statistics of the seeds' values without an interval
 
 
 @dataclass
@@ -62,7 +62,8 @@ def fraction_of(path: str, interval: str | None = None) -> dict:
 
 
 def order_of(path: str, statistic: str) -> dict:
-    """The attributes of a variable whose ``statistic`` (``max`` or ``median``) over all seeds is ``results[path]``."""
+    """The attributes of a variable whose ``statistic`` over all seeds (``max``, ``median``, or ``root_mean``: the
+    square root of the mean) is ``results[path]``."""
     if statistic not in ORDER:
         raise ValueError(f"statistic must be one of {ORDER}, got {statistic!r}")
     return {"summarised_as": path, "statistic": statistic}
