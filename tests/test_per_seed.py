@@ -35,6 +35,8 @@ TINY = {
     "dip-controllers": ["seeds=4", "duration=0.1"],
     "dip-cpx-ldf": ["seeds=4", "duration=0.1", "sweep_seeds=3", "sweep_points=2", "velocity_trial=false"],
     "lorenz-mhe": ["seeds=4", "duration=0.3", "chunk_steps=100", "record_every=5"],
+    "rwp-bias": ["seeds=4", "bias_seeds=2", "no_bias_duration=1.0", "bias_duration=1.0", "lowpass_duration=1.0",
+                 "reduced_duration=1.0", "gamma_check_duration=12.0", "steady_window=0.5"],
     "rwp-remark3": ["seeds=4", "duration=1.0", "tail=0.5", "wheel_biases=[0.5, 1.0]"],
     "twip-extra-control": ["seeds=4", "chunk_seeds=4", "duration=1.0"],
     "eki-linear": ["seeds=4", "iterations=2", "judge_states=8"],
