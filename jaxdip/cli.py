@@ -207,7 +207,7 @@ def cmd_run(args, argv=None) -> int:
         from jaxdip import dataset
 
         if not exp.per_seed:
-            return error("--per-seed", f"{exp.id} keeps no per-seed data yet")
+            return error("--per-seed", f"{exp.id} keeps no per-seed data (docs/data.md)")
         try:
             dataset.require()
         except dataset.MissingExtra as e:

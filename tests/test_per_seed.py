@@ -208,3 +208,12 @@ def test_without_the_extra_per_seed_is_one_line_naming_it(tmp_path, monkeypatch,
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "pip install -e '.[data]'" in err and err.startswith("error: --per-seed")
     assert not (tmp_path / "o").exists()
+
+
+def test_an_experiment_without_per_seed_data_refuses_before_running(tmp_path, capsys):
+    refusing = sorted(i for i, e in registry().items() if not e.per_seed)
+    assert refusing == ["twip-transients"]  # one trajectory per reading: docs/data.md says why
+    assert cli.main(["run", "twip-transients", "--quick", "--per-seed", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "error: --per-seed: twip-transients keeps no per-seed data (docs/data.md)"
+    assert not (tmp_path / "o").exists()

@@ -253,7 +253,7 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
         raise ValueError(f"per_seed must be None, 'final' or 'trajectories', got {per_seed!r}")
     if per_seed:
         if not exp.per_seed:
-            raise ResultError("--per-seed", f"{exp.id} keeps no per-seed data yet")
+            raise ResultError("--per-seed", f"{exp.id} keeps no per-seed data (docs/data.md)")
         dataset.require()
     check_resources(cfg, flag_keys)
     ctx = run_context(exp, cfg, out_dir, resume, compile_effort)
