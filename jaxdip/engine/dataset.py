@@ -39,8 +39,8 @@ def _dims(path: str, shape: tuple, lead: tuple[str, ...], names, extra: Mapping[
     return (*lead, *dims)
 
 
-def solution_variables(sol: Any, names: Any = None, *, dt: Optional[float] = None, save_dt: Optional[float] = None,
-                       trajectories: bool = True, dims: Optional[Mapping[str, Sequence[str]]] = None,
+def solution_variables(sol: Any, names: Any = None, *, dt: Optional[float] = None, trajectories: bool = True,
+                       dims: Optional[Mapping[str, Sequence[str]]] = None,
                        units: Optional[Mapping[str, str]] = None) -> dict:
     """The per-seed variables of a ``jd.monte_carlo`` Solution: name -> (dims, values, attrs).
 
@@ -49,9 +49,8 @@ def solution_variables(sol: Any, names: Any = None, *, dt: Optional[float] = Non
     state) and every metric by its path (``x.mean``). A metric axis with one entry per state is the ``state``
     dimension; ``dims`` names the other axes (a path, or a metric's top-level key, -> names after the seed
     axis). With ``trajectories`` and a
-    rollout that saved samples, each saved leaf (``saved`` or ``saved.<path>``) on (seed, time, ...); ``save_dt``:
-    the time between saved samples in s (else ``time`` counts samples). ``units``: path -> units. A sweep's
-    leading axis is the ``sweep`` dimension.
+    rollout that saved samples, each saved leaf (``saved`` or ``saved.<path>``) on (seed, time, ...).
+    ``units``: path -> units. A sweep's leading axis is the ``sweep`` dimension.
     """
     for field in ("final", "metrics", "result"):
         if not hasattr(sol, field):
@@ -94,11 +93,11 @@ def to_dataset(sol: Any, names: Any = None, *, dt: Optional[float] = None, save_
                units: Optional[Mapping[str, str]] = None, attrs: Optional[Mapping] = None):
     """A ``jd.monte_carlo`` Solution as an ``xarray.Dataset`` with named dimensions (``seed``, ``state``,
     ``time``, ...): the variables of ``solution_variables`` (same arguments). ``names``: a plant or its state
-    names, for the ``state`` coordinate; ``key``: the base key or int seed of the run, recorded as the attribute
+    names, for the ``state`` coordinate; ``save_dt``: the time between saved samples in s (the ``time``
+    coordinate; without it ``time`` counts samples); ``key``: the base key or int seed of the run, recorded as the attribute
     ``seeds_key``; ``attrs``: more global attributes. ``MissingExtra`` (naming ``pip install -e '.[data]'``)
     without xarray and h5netcdf. Write it with ``jaxdip.dataset.write(ds, "per_seed.nc")``."""
-    variables = solution_variables(sol, names, dt=dt, save_dt=save_dt, trajectories=trajectories, dims=dims,
-                                   units=units)
+    variables = solution_variables(sol, names, dt=dt, trajectories=trajectories, dims=dims, units=units)
     coords = {}
     state_names = _state_names(names)
     if state_names is not None:

@@ -2,18 +2,21 @@
 ``results`` each one is summarised into.
 
 An experiment fills ``Outcome.per_seed`` with a ``PerSeed``: variables (name -> (dims, values, attrs), the first
-dimension ``seed``) and the labels of its other dimensions. A variable that a statistic of ``results`` is computed
-from says so in three attributes, so the dataset documents itself and a test recomputes every such statistic
-from the file: ``summarised_as`` (the dotted path in ``results``, with ``{dim}`` standing for a label of the
-variable's dimension ``dim``, substituted after splitting at the dots, so a label may hold dots; a number
-indexes a list), ``interval_as`` (the path of its interval), ``statistic`` (``mean_ci95``: the mean over the seeds and its interval, by
-``jaxdip.stats.mean_ci``; ``fraction_wilson``: the fraction of true seeds and its Wilson interval; ``max``,
-``median``, ``root_mean`` (the square root of the mean): over every seed, no interval) and ``over``
-(the boolean variable selecting the seeds a mean is taken over). The runner writes the dataset only when asked
-(``jaxdip run <id> --per-seed``); variables on a ``time`` dimension (trajectories) only with
-``--per-seed trajectories``. docs/data.md describes the layout.
-"""
+dimension the seeds: ``seed``, or ``<part>_seed`` for a part run with its own seed count) and the labels of the
+other dimensions. A variable that a statistic of ``results`` is computed from says so in its attributes, so the
+dataset documents itself and a test recomputes every such statistic from the file:
 
+- ``summarised_as``: the dotted path in ``results``; ``{dim}`` stands for a label of the variable's dimension
+  ``dim``, put in after the path is split at its dots (a label may hold dots); a number indexes a list;
+- ``interval_as``: the path of its 95% interval, the same way (absent where none is reported);
+- ``statistic``: ``mean_ci95`` (the mean over the seeds ``over`` selects, interval by ``jaxdip.stats.mean_ci``),
+  ``fraction_wilson`` (the fraction of true seeds, Wilson interval), or ``max``, ``median``, ``root_mean`` (the
+  square root of the mean) over every seed;
+- ``over``: the boolean variable selecting the seeds a mean is taken over (absent: every seed).
+
+The runner writes the dataset only when asked (``jaxdip run <id> --per-seed``); variables on a ``time`` dimension
+(trajectories) only with ``--per-seed trajectories``. docs/data.md describes the layout.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -27,8 +30,8 @@ ORDER = ("max", "median", "root_mean")  # statistics of the seeds' values withou
 
 @dataclass
 class PerSeed:
-    """Per-seed variables (name -> (dims, values, attrs)) and the labels of their dimensions other than ``seed``
-    (dimension -> labels)."""
+    """Per-seed variables (name -> (dims, values, attrs)) and the labels of their other dimensions (dimension ->
+    labels, or name -> (dimension, values) for a coordinate beside them, such as ``state_units``)."""
 
     variables: dict = field(default_factory=dict)
     coords: dict = field(default_factory=dict)
