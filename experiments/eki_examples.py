@@ -31,6 +31,7 @@ from jaxdip.control import StateFeedback, dlqr
 from jaxdip.control.projection import RelaxedProjection, projected_closed_loop
 from jaxdip.control.spd import P_v
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.per_seed import PerSeed, fraction_of
 from jaxdip.plants import examples2d
 from jaxdip.search import EKI
 from jaxdip.search.eki import align_signs
@@ -153,7 +154,8 @@ def stabilizes(cfg, v, key, n_states):
 
 
 def search_success(cfg, base):
-    """Fraction (Wilson 95% CI) of ``cfg.seeds`` independent searches that end with a stabilising P.
+    """Fraction (Wilson 95% CI) of ``cfg.seeds`` independent searches that end with a stabilising P, and the
+    per-search outcomes.
 
     Search i (i = 1 .. seeds) is seed i of the Monte Carlo driver; its P is judged from initial states drawn
     from ``fold_in(search key, 1)``."""
@@ -165,7 +167,7 @@ def search_success(cfg, base):
 
     ok = np.asarray(jd.monte_carlo(trial, base, cfg.seeds, offset=1, chunk=batch, progress=True,
                                    desc=f"eki-{cfg.example} searches (restarts={cfg.restarts})"))
-    return stats.wilson(int(ok.sum()), len(ok))
+    return (*stats.wilson(int(ok.sum()), len(ok)), ok)
 
 
 def _steps(s: dict, k: str) -> str:
@@ -184,10 +186,15 @@ def run(cfg: EkiExampleConfig, ctx: RunContext | None = None) -> Outcome:
     ok, measure = stabilizes(cfg, jnp.asarray(v), jax.random.fold_in(base, 10**6), cfg.judge_states)
 
     # repeat the whole search over many keys (Monte Carlo batches, progress between batches)
-    frac, ci = search_success(cfg, base)
+    frac, ci, found = search_success(cfg, base)
+    data = PerSeed(coords={"search_seed": np.arange(1, cfg.seeds + 1)})  # searches 1 .. seeds
+    data.add("stabilizing", ("search_seed",), found, "1", f"search i's P stabilises (restarts={cfg.restarts})",
+             **fraction_of("stabilizing_fraction"))
     single = None
     if cfg.restarts > 1:  # the thesis's procedure (one ensemble) on the same keys, for comparison
         single = search_success(dataclasses.replace(cfg, restarts=1), base)
+        data.add("stabilizing_single_ensemble", ("search_seed",), single[2], "1",
+                 "search i's P stabilises with one ensemble", **fraction_of("stabilizing_fraction_single_ensemble"))
 
     results = {
         "v": v.tolist(), "thesis_v": thesis_v.tolist(), "alignment_with_thesis_v": align,
@@ -264,7 +271,7 @@ def run(cfg: EkiExampleConfig, ctx: RunContext | None = None) -> Outcome:
     axh.legend()
     axh.set_title("ensemble-mean performance")
     figs["search_history"] = fig_h
-    return Outcome(results, report(cfg, results), figs)
+    return Outcome(results, report(cfg, results), figs, per_seed=data)
 
 
 def report(cfg, r):

@@ -18,6 +18,7 @@ import numpy as np
 
 from jaxdip import config as C
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.per_seed import PerSeed, order_of
 from jaxdip.runner.weights import weight_matrix
 
 
@@ -44,7 +45,7 @@ class ThesisTheoryConfig:
                                 "must be at least 4 (the tail is the last quarter of the steps)")
 
 
-def compute(cfg: ThesisTheoryConfig) -> dict:
+def compute(cfg: ThesisTheoryConfig) -> tuple[dict, PerSeed]:
     import jax
     import jax.numpy as jnp
 
@@ -88,7 +89,7 @@ def compute(cfg: ThesisTheoryConfig) -> dict:
             "rate_max": mx(rp.rates), "constant_weights": len(rp.rates), "worst_ratio_max": mx(rp.worst_ratio),
             "final_ratio_max": mx(rp.final_ratio),
             "holds": bool(np.all(rp.rates <= -rp.alpha + 1e-12) and np.all(rp.worst_ratio <= 1 + 1e-9))},
-    }
+    }, per_trial((nl, li, rp))
 
 
 def report(cfg: ThesisTheoryConfig, r: dict) -> str:
@@ -122,8 +123,31 @@ def report(cfg: ThesisTheoryConfig, r: dict) -> str:
 
 
 def run(cfg: ThesisTheoryConfig, ctx: RunContext | None = None) -> Outcome:
-    r = compute(cfg)
-    return Outcome(results=r, report=report(cfg, r))
+    r, data = compute(cfg)
+    return Outcome(results=r, report=report(cfg, r), per_seed=data)
+
+
+# the per-trial values behind each claim's statistics: (results block, trial dimension, {name: statistic})
+PER_TRIAL = (
+    ("thm_1_3_2", "lorenz_seed", {"growth": "median", "tail_gap_growing": "max", "tail_gap_constant": "max",
+                                  "err_growing": "max", "err_constant": "median", "truth_err_growing": "median",
+                                  "truth_err_constant": "median"}),
+    ("prop_1_4_1", "dip_seed", {"growth": "median", "err_growing": "max", "err_constant": "median",
+                                "truth_err_growing": "median", "truth_err_constant": "median"}),
+    ("prop_2_4_2", "rp_seed", {"worst_ratio": "max", "final_ratio": "max"}),
+)
+
+
+def per_trial(parts: tuple) -> PerSeed:
+    """The trials' values (``<claim>.<name>`` on the claim's own trial dimension), each with the statistic of
+    ``results`` it is reduced to. Prop. 2.4.2's decay rates are per constant weight, not per trial: not here."""
+    data = PerSeed()
+    for (claim, dim, names), part in zip(PER_TRIAL, parts):
+        for name, how in names.items():
+            stat = "_median" if how == "median" else "_max"
+            data.add(f"{claim}.{name}", (dim,), np.asarray(getattr(part, name)), "1", f"{claim}: {name} per trial",
+                     **order_of(f"{claim}.{name}{stat}", how))
+    return data
 
 
 EXPERIMENT = Experiment(

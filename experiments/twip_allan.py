@@ -24,6 +24,7 @@ import numpy as np
 import jaxdip as jd
 from jaxdip import config as C
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.per_seed import PerSeed, order_of
 
 SENSORS = ("tilt", "gyro")
 HOLD_FRACTION = 0.8  # a sensor holds when the law lies inside our interval at this fraction of the cluster times
@@ -122,7 +123,7 @@ def encoder_check(cfg: TwipAllanConfig) -> dict:
             "max_position_error_m": perr, "velocity_step_m_s": vstep, "holds": bool(ok)}
 
 
-def compute(cfg: TwipAllanConfig) -> dict:
+def compute(cfg: TwipAllanConfig) -> tuple[dict, PerSeed]:
     from scipy.stats import t as t_dist
 
     from jaxdip.sim import allan as A
@@ -158,7 +159,12 @@ def compute(cfg: TwipAllanConfig) -> dict:
                   "max_deviation": float(np.max(dev)),
                   "holds": bool(inside.mean() >= HOLD_FRACTION)}
     out["encoder"] = encoder_check(cfg)
-    return out
+    data = PerSeed(coords={"sensor": list(SENSORS), "tau_index": np.arange(len(ms)), "tau": ("tau_index", taus)})
+    data.add("allan_variance", ("record_seed", "sensor", "tau_index"),
+             np.stack([np.array(av[s]) for s in SENSORS], 1) / DEG**2, "deg^2 (tilt) or (deg/s)^2 (gyro)",
+             "the record's Allan variance at each cluster time (record i: key seed + i)",
+             **order_of("{sensor}.adev.{tau_index}", "root_mean"))
+    return out, data
 
 
 def _g(v, d=4) -> str:
@@ -214,8 +220,8 @@ def figure(r: dict):
 
 
 def run(cfg: TwipAllanConfig, ctx: RunContext | None = None) -> Outcome:
-    r = compute(cfg)
-    return Outcome(results=r, report=report(cfg, r), figures={"allan_deviation": figure(r)})
+    r, data = compute(cfg)
+    return Outcome(results=r, report=report(cfg, r), figures={"allan_deviation": figure(r)}, per_seed=data)
 
 
 EXPERIMENT = Experiment(

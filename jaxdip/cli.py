@@ -203,6 +203,15 @@ def cmd_run(args, argv=None) -> int:
     except KeyError as e:
         return _unknown(args.id, e)
     out = args.out or os.path.join("results", exp.id)
+    if args.per_seed:
+        from jaxdip import dataset
+
+        if not exp.per_seed:
+            return error("--per-seed", f"{exp.id} keeps no per-seed data (docs/data.md)")
+        try:
+            dataset.require()
+        except dataset.MissingExtra as e:
+            return error("--per-seed", str(e))
     ckpt = None
     with _Signals() as sig:
         try:
@@ -210,7 +219,8 @@ def cmd_run(args, argv=None) -> int:
             ckpt = run_context(exp, cfg, out, compile_effort=level).checkpoint_path
             metrics = run_experiment(exp, cfg, out, resume=args.resume, force=args.force,
                                      flag_keys=flags, stop_requested=sig.requested, compile_effort=level,
-                                     quick=args.quick)
+                                     quick=args.quick, per_seed=args.per_seed,
+                                     command=shlex.join(["jaxdip", *(sys.argv[1:] if argv is None else argv)]))
         except (ConfigError, OutputError, ResultError) as e:
             return error(e.key, e.why)
         except CheckpointError as e:

@@ -27,6 +27,7 @@ from jaxdip.estimators import bias_observers as bo
 from jaxdip.estimators import homd
 from jaxdip.estimators import luenberger as lu
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.per_seed import PerSeed, fraction_of, mean_of
 from jaxdip.runner.summaries import diverged_counts
 from experiments.rwp_bias.config import INF, RwpBiasConfig
 import experiments.rwp_bias.report as R  # the module: its report() would shadow it as an attribute
@@ -124,7 +125,7 @@ def part_a(cfg):
         "luenberger": lp,
         "homd": homd_parameters(cfg),
     }
-    out, curves = {}, {}
+    out, curves, cols = {}, {}, {}
     for name, est in observers.items():
         out[name] = {}
         divs, recs = simulate(cfg, [(est, 0.0, th0) for th0 in cfg.theta0], cfg.no_bias_duration, cfg.seeds,
@@ -147,8 +148,25 @@ def part_a(cfg):
                 **stats.with_ci("max_abs_current", maxI, stab),
             }
             curves[(name, th0)] = (t, rec[:8])
+            for key, v in (("stabilized", stab), ("settle_time", st), ("undershoot", under), ("max_abs_current", maxI)):
+                cols.setdefault(key, []).append(v)
     out["luenberger_omega"] = {"pendulum": wp, "wheel": wr}
-    return out, curves
+    return out, curves, no_bias_data(cfg, list(observers), cols)
+
+
+def no_bias_data(cfg, observers: list[str], cols: dict) -> PerSeed:
+    """Part (a)'s per-seed values on (seed, observer, theta0), in the order part_a made them."""
+    shape = (len(observers), len(cfg.theta0))
+    grid = {k: np.stack(v, 1).reshape(-1, *shape) for k, v in cols.items()}
+    data = PerSeed(coords={"observer": observers, "theta0": [f"{th0:g}" for th0 in cfg.theta0]})
+    dims, at = ("seed", "observer", "theta0"), "no_bias.{observer}.{theta0}."
+    data.add("no_bias.stabilized", dims, grid["stabilized"], "1", "stabilised: not diverged, |theta| and |theta_r'| "
+             "small over the last second", **fraction_of(at + "stabilized_fraction"))
+    for key, units, text in (("settle_time", "s", "time after which |theta| stays within settle_tol"),
+                             ("undershoot", "rad", "largest swing of theta past upright"),
+                             ("max_abs_current", "A", "largest |I|")):
+        data.add(f"no_bias.{key}", dims, grid[key], units, text, **mean_of(at + key, "no_bias.stabilized"))
+    return data
 
 
 def part_b(cfg):
@@ -159,6 +177,15 @@ def part_b(cfg):
     rec = recs[0]
     ok = ~divs[0]
     tail = _tail(cfg, rec, cfg.steady_window)[ok]
+    data = PerSeed()
+    data.add("bias.ok", ("bias_seed",), ok, "1", "the seed did not diverge")
+    full = _tail(cfg, rec, cfg.steady_window)
+    for key, values, units in (("ep2", full[:, :, REC["xp2"]] - full[:, :, REC["theta_dot"]], "rad/s"),
+                               ("er2", full[:, :, REC["xr2"]] - full[:, :, REC["thetar_dot"]], "rad/s"),
+                               ("thetar_dot", full[:, :, REC["thetar_dot"]], "rad/s"),
+                               ("theta", full[:, :, REC["theta"]], "rad"), ("y", full[:, :, REC["y"]], "rad")):
+        data.add(f"bias.{key}", ("bias_seed",), values.mean(1), units, f"mean of {key} over the steady window",
+                 **mean_of(f"bias.{key}_sim", "bias.ok", ""))
     ep2 = float((tail[:, :, REC["xp2"]] - tail[:, :, REC["theta_dot"]]).mean())
     er2 = float((tail[:, :, REC["xr2"]] - tail[:, :, REC["thetar_dot"]]).mean())
     wdot = float(tail[:, :, REC["thetar_dot"]].mean())
@@ -181,7 +208,7 @@ def part_b(cfg):
         "diverged": int((~ok).sum()),
         "paper_measured": {"ep2": PAPER["ep2"], "thetar_dot": PAPER["thetar_dot"]},
     }
-    return out, (_times(cfg, rec), rec[:8])
+    return out, (_times(cfg, rec), rec[:8]), data
 
 
 def _bias_metrics(cfg, diverged, rec):
@@ -202,6 +229,8 @@ def _bias_metrics(cfg, diverged, rec):
     stab = _stabilized(cfg, diverged, _tail(cfg, rec)) & (err_tail <= cfg.bias_settle_tol * d_abs)
     frac, ci = stats.wilson(int(stab.sum()), len(stab))
     ok = ~diverged
+    cols = {"ok": ok, "stabilized": stab, "settle_time": settle, "oscillation_amplitude": osc,
+            "wheel_speed_peak": peak, "wheel_speed_backswing": swing}
     return {
         "stabilized": bool(stab.all()), "stabilized_fraction": frac, "stabilized_fraction_ci95": ci,
         "diverged": int((~ok).sum()),
@@ -212,7 +241,7 @@ def _bias_metrics(cfg, diverged, rec):
         **stats.with_ci("wheel_speed_peak", peak, ok),
         **stats.with_ci("wheel_speed_backswing", swing, ok),
         "dhat_final": float(dhat[ok, -1].mean()) if ok.any() else float("nan"),
-    }, (t, rec[:8])
+    }, (t, rec[:8]), cols
 
 
 def part_c(cfg):
@@ -220,12 +249,24 @@ def part_c(cfg):
     out, curves = {}, {}
     divs, recs = simulate(cfg, [(bo.LowpassHOMD.build(hp, g), cfg.bias, cfg.bias_theta0)
                                 for g in cfg.gamma_d], cfg.lowpass_duration, cfg.bias_seeds, "(c) low-pass")
+    cols = {}
     for i, g in enumerate(cfg.gamma_d):
-        out[f"lowpass_{g:g}"], curves[f"lowpass_{g:g}"] = _bias_metrics(cfg, divs[i], recs[i])
+        name = f"lowpass_{g:g}"
+        out[name], curves[name], cols[name] = _bias_metrics(cfg, divs[i], recs[i])
     divs, recs = simulate(cfg, [(bo.JointObserver.build(hp, cfg.L0), cfg.bias,
                                  cfg.bias_theta0)], cfg.reduced_duration, cfg.bias_seeds, "(c) reduced-order")
-    out["reduced_order"], curves["reduced_order"] = _bias_metrics(cfg, divs[0], recs[0])
-    return out, curves
+    out["reduced_order"], curves["reduced_order"], cols["reduced_order"] = _bias_metrics(cfg, divs[0], recs[0])
+    data = PerSeed(coords={"bias_observer": list(cols)})
+    grid = {k: np.stack([c[k] for c in cols.values()], 1) for k in cols["reduced_order"]}
+    dims = ("bias_seed", "bias_observer")
+    data.add("bias_observer.ok", dims, grid["ok"], "1", "the seed did not diverge")
+    data.add("bias_observer.stabilized", dims, grid["stabilized"], "1", "stabilised, and d_hat settled to d",
+             **fraction_of("{bias_observer}.stabilized_fraction"))
+    for key, units in (("settle_time", "s"), ("oscillation_amplitude", "rad"), ("wheel_speed_peak", "rad/s"),
+                       ("wheel_speed_backswing", "rad/s")):
+        data.add(f"bias_observer.{key}", dims, grid[key], units, key.replace("_", " "),
+                 **mean_of(f"{{bias_observer}}.{key}", "bias_observer.ok"))
+    return out, curves, data
 
 
 def growth_rate(t, err, window):
@@ -304,9 +345,11 @@ def lmi_part(cfg, p):
 
 
 def run(cfg: RwpBiasConfig, ctx: RunContext | None = None) -> Outcome:
-    a, curves_a = part_a(cfg)
-    b, curve_b = part_b(cfg)
-    c, curves_c = part_c(cfg)
+    a, curves_a, data = part_a(cfg)
+    b, curve_b, data_b = part_b(cfg)
+    c, curves_c, data_c = part_c(cfg)
+    data.update(data_b)
+    data.update(data_c)
     d = part_d(cfg)
     results = {"no_bias": a, "bias": b, **c, **d}
     if fell := diverged_counts(results):  # seeds that left |theta| < pi/2 or became non-finite, per part and cell
@@ -320,7 +363,7 @@ def run(cfg: RwpBiasConfig, ctx: RunContext | None = None) -> Outcome:
         "rwp-fig6": _fig_bias(cfg, [(f"L0 = {cfg.L0:g}", curves_c["reduced_order"])],
                               f"Fig. 6: law (23) with the joint observer (24), (12), d = {cfg.bias:g}"),
     }
-    return Outcome(results=results, report=R.report(cfg, results), figures=figures)
+    return Outcome(results=results, report=R.report(cfg, results), figures=figures, per_seed=data)
 
 
 EXPERIMENT = Experiment(
