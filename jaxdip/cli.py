@@ -14,7 +14,8 @@ import numpy as np
 
 from jaxdip import xla_flags
 from jaxdip.cli_args import check_paths, parser, special_kind
-from jaxdip.cli_errors import component_refusal, emit, error, guarded, note, numerical, out_of_memory, riccati_keys, warn
+from jaxdip.cli_errors import (component_refusal, emit, error, guarded, note, numerical, riccati_keys, run_refusal,
+                               warn)
 from jaxdip.messages import listing, unknown
 from jaxdip.reproduce_pool import run_parallel
 
@@ -81,6 +82,8 @@ def _distributed(args) -> int:
              if v is not None]
     if not args.distributed:
         return error(given[0], "only with --distributed") if given else 0
+    if getattr(args, "sweep", None):
+        return error("--sweep", "not with --distributed: a sweep runs its points one after another in one process")
     if args.cmd == "reproduce":
         if args.jobs is not None and args.jobs != 1:
             return error("--jobs", "--distributed runs the experiments one after another in this process; "
@@ -186,15 +189,14 @@ def _set_effort(args) -> int:
 
 
 def cmd_run(args, argv=None) -> int:
-    from jaxdip.checkpoint import CheckpointError
     from jaxdip.config import ConfigError
-    from jaxdip.control.riccati import RiccatiError
-    from jaxdip.engine.checks import ArgumentError
     from jaxdip.runner import run_experiment
     from jaxdip.runner.experiment import run_context
-    from jaxdip.runner.results import ResultError
-    from jaxdip.outdir import OutputError
 
+    if args.sweep:
+        from jaxdip.cli_sweep import cmd_sweep
+
+        return cmd_sweep(args, _resolve, _unknown, _Signals)
     flags = _flag_keys(args)
     try:
         exp, cfg = _resolve(args.id, args)
@@ -211,22 +213,12 @@ def cmd_run(args, argv=None) -> int:
             metrics = run_experiment(exp, cfg, out, resume=args.resume, force=args.force,
                                      flag_keys=flags, stop_requested=sig.requested, compile_effort=level,
                                      quick=args.quick)
-        except (ConfigError, OutputError, ResultError) as e:
-            return error(e.key, e.why)
-        except CheckpointError as e:
-            return error("--resume", str(e))
-        except RiccatiError as e:
-            return error(riccati_keys(cfg), str(e))
-        except ArgumentError as e:
-            return component_refusal(cfg, e, exp.id)
-        except (np.linalg.LinAlgError, ArithmeticError, ValueError) as e:
-            return numerical(cfg, e)
         except KeyboardInterrupt:
             return _interrupted(ckpt, argv)
         except Exception as e:
-            if out_of_memory(e):
-                return error("--seeds", "the run ran out of memory; lower --seeds, shorten the run or save less")
-            raise
+            if (code := run_refusal(e, cfg, exp.id)) is None:
+                raise
+            return code
     from jaxdip.distributed import is_main
 
     if is_main():
@@ -379,6 +371,10 @@ def _command(args, argv) -> int:
         from jaxdip.cli_config import cmd_config
 
         return cmd_config(args, _unknown)
+    if args.cmd == "compare":
+        from jaxdip.cli_compare import cmd_compare
+
+        return cmd_compare(args)
     return {"run": cmd_run, "reproduce": cmd_reproduce, "bench": cmd_bench}[args.cmd](args, argv)
 
 

@@ -256,3 +256,31 @@ def numerical(cfg, e: Exception, where: str = "") -> int:
     if isinstance(e, np.linalg.LinAlgError):
         return error(f"{where}{riccati_keys(cfg)}", f"the computation failed on these values ({first})")
     raise e
+
+
+def run_refusal(e: Exception, cfg, exp_id: str) -> int | None:
+    """The one line for an exception a run of ``exp_id`` with ``cfg`` raised, as its exit status: a refusal of the
+    config, destination, checkpoint or results, a component's, a failed design or an out-of-memory. None for
+    anything else (a bug: the caller re-raises it, keeping its traceback)."""
+    import numpy as np
+
+    from jaxdip.checkpoint import CheckpointError
+    from jaxdip.config import ConfigError
+    from jaxdip.control.riccati import RiccatiError
+    from jaxdip.engine.checks import ArgumentError
+    from jaxdip.outdir import OutputError
+    from jaxdip.runner.results import ResultError
+
+    if isinstance(e, (ConfigError, OutputError, ResultError)):
+        return error(e.key, e.why)
+    if isinstance(e, CheckpointError):
+        return error("--resume", str(e))
+    if isinstance(e, RiccatiError):
+        return error(riccati_keys(cfg), str(e))
+    if isinstance(e, ArgumentError):
+        return component_refusal(cfg, e, exp_id)
+    if isinstance(e, (np.linalg.LinAlgError, ArithmeticError, ValueError)):
+        return numerical(cfg, e)
+    if out_of_memory(e):
+        return error("--seeds", OUT_OF_MEMORY)
+    return None
