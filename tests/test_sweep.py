@@ -9,6 +9,7 @@ import pytest
 from jaxdip import cli
 from jaxdip.config import ConfigError
 from jaxdip.runner import sweep as S
+from jaxdip.runner import sweep_table
 from jaxdip.runner.sweep_table import scalars
 
 # the smallest dip-cpx-ldf run that exercises both estimators: 4 seeds, 40 periods, no inner sweep or trial
@@ -71,6 +72,11 @@ def test_a_folder_that_is_not_a_sweep_is_refused(tmp_path, capsys):
     assert os.listdir(out) == ["notes.txt"]
 
 
+class Blank:
+    def savefig(self, buf, **kw):
+        buf.write(b"png")
+
+
 def _results(folder):
     with open(os.path.join(folder, "metrics.json")) as fh:
         return json.load(fh)["results"]
@@ -104,6 +110,8 @@ def test_the_table_equals_separate_runs(swept):
     md = (root / "sw" / "sweep.md").read_text()
     assert "| cpx.theta_var |" in md and "cpx_gamma=2e4" in md
     assert (root / "sw" / "sweep-cpx.theta_var.png").read_bytes()[:4] == b"\x89PNG"
+    assert not (root / "sw" / "sweep-ldf.theta_var.png").exists()  # the same at every point: a row, no figure
+    assert "ldf.theta_var" in md.split("without a figure:")[1]
 
 
 def test_gamma_points_after_the_first_compile_nothing(swept):
@@ -126,6 +134,7 @@ def test_an_interrupted_sweep_resumes_point_by_point(swept, tmp_path, monkeypatc
         return real(*a, **k)
 
     monkeypatch.setattr(S, "run_experiment", killed_at_second)
+    monkeypatch.setattr(sweep_table, "figure", lambda *a: Blank())  # rendering is tested above; it is slow
     assert cli.main(argv) == 130
     assert "1 of 3 points are complete" in capsys.readouterr().err
     assert sorted(os.listdir(out / "points")) == [f"cpx_gamma={GAMMAS[0]}"]

@@ -3,7 +3,9 @@ figure per headline result.
 
 A headline result is a number in a run's ``results`` (at any depth, named by its dotted path such as
 ``cpx.theta_var``) that has its 95% interval beside it (``<name>_ci95``): the statistics the experiments report
-with intervals over seeds. ``sweep.json`` also lists every other number of ``results`` (counts, criteria,
+with intervals over seeds. Each has a row in the table, and a figure (error bars against the first swept key,
+one line per value of the others) unless it is the same at every point (rendering is the slow part of a cheap
+sweep, and a flat line says nothing the table does not). ``sweep.json`` also lists every other number of ``results`` (counts, criteria,
 single-trial figures) per point, without an interval; lists (an experiment's own inner sweep) are left out.
 """
 
@@ -61,10 +63,12 @@ def _axis_numbers(values: list[Any]) -> list[float] | None:
 
 def figure(stat: str, rows: dict, axes: list[tuple[str, list[str]]], points: list[dict]):
     """The statistic against the first swept key, one line per combination of the others, with error bars."""
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     key = axes[0][0]
-    fig, ax = plt.subplots(figsize=(6, 3.6))
+    fig = Figure(figsize=(6, 3.6))  # not pyplot's: nothing to close, and no global state between points
+    ax = fig.add_subplot()
+    fig.subplots_adjust(left=0.14, right=0.97, bottom=0.14, top=0.9)  # tight_layout renders twice
     groups: dict[str, list[int]] = {}
     for i, p in enumerate(points):
         label = ", ".join(f"{k}={p['texts'][k]}" for k, _ in axes[1:])
@@ -89,8 +93,12 @@ def figure(stat: str, rows: dict, axes: list[tuple[str, list[str]]], points: lis
     ax.set_ylabel(stat)
     ax.set_title(f"{stat} (95% intervals)")
     ax.grid(alpha=0.3)
-    fig.tight_layout()
     return fig
+
+
+def varies(row: dict) -> bool:
+    """A headline result that is not the same at every point: it gets a figure (the others a table row only)."""
+    return row["headline"] and len({json.dumps([v, c]) for v, c in zip(row["value"], row["ci95"])}) > 1
 
 
 def figure_name(stat: str) -> str:
@@ -113,8 +121,10 @@ def markdown(exp_id: str, axes: list[tuple[str, list[str]]], points: list[dict],
     comp = ("Programs built per point (this invocation; kept points are not run): "
             + ", ".join("kept" if c is None else str(c) for c in compilations)
             + (f"; {sum(ran)} in all." if ran else "."))
-    figs = [f"![{stat}]({figure_name(stat)})" for stat, r in rows.items() if r["headline"]]
-    return "\n".join(head + lines + ["", comp, "", "## Figures", ""] + figs) + "\n"
+    figs = [f"![{stat}]({figure_name(stat)})" for stat, r in rows.items() if varies(r)]
+    same = [stat for stat, r in rows.items() if r["headline"] and not varies(r)]
+    note = [f"The same at every point, so without a figure: {', '.join(same)}.", ""] if same else []
+    return "\n".join(head + lines + ["", comp, "", "## Figures", ""] + note + figs) + "\n"
 
 
 def summary_files(exp_id: str, axes: list[tuple[str, list[str]]], points: list[dict], results: list[dict],
@@ -122,11 +132,6 @@ def summary_files(exp_id: str, axes: list[tuple[str, list[str]]], points: list[d
     """The sweep's summary files by name: sweep.json, sweep.md and one PNG per headline result. ``points``: per
     point its ``name``, ``texts`` and ``values`` (the swept keys' values as given and as read); ``results``:
     each point's metrics.json ``results``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     rows = table([scalars(r) for r in results])
     doc = {"experiment": exp_id, "swept": [{"key": k, "values": v} for k, v in axes],
            "points": [{"name": p["name"], "folder": f"points/{p['name']}", "values": p["values"]} for p in points],
@@ -137,11 +142,10 @@ def summary_files(exp_id: str, axes: list[tuple[str, list[str]]], points: list[d
     files: dict[str, str | bytes] = {"sweep.json": json.dumps(doc, indent=1) + "\n",
                                      "sweep.md": markdown(exp_id, axes, points, rows, compilations)}
     for stat, r in rows.items():
-        if r["headline"]:
+        if varies(r):
             fig = figure(stat, r, axes, points)
             buf = io.BytesIO()
             fig.savefig(buf, format="png", dpi=100)
-            plt.close(fig)
             files[figure_name(stat)] = buf.getvalue()
     return files
 

@@ -1,0 +1,150 @@
+"""``jaxdip compare A B``: the tests against SciPy, Holm's correction by hand, the classes of findings, and the
+command on real runs: the same config is identical, another seeds' key is within the intervals, another gamma is
+flagged; exit codes 0, 1 and 2."""
+
+import json
+import math
+import shutil
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from jaxdip import cli, stats
+from jaxdip.runner import compare as C
+from jaxdip.runner import sweep_table
+
+
+@pytest.mark.parametrize("n1, n2, shift, scale", [(2, 2, 0.5, 1.0), (5, 9, 0.3, 3.0), (60, 40, 0.4, 0.5),
+                                                  (3000, 2500, 0.02, 1.0)])
+def test_welch_matches_scipy(n1, n2, shift, scale):
+    rng = np.random.default_rng(n1)
+    a, b = rng.normal(0, 1, n1), rng.normal(shift, scale, n2)
+    t, df, p = stats.welch(a, b)
+    ref = scipy.stats.ttest_ind(a, b, equal_var=False)
+    assert t == pytest.approx(ref.statistic, rel=1e-12)
+    assert p == pytest.approx(ref.pvalue, rel=1e-9)
+    v1, v2 = a.var(ddof=1) / n1, b.var(ddof=1) / n2
+    assert df == pytest.approx((v1 + v2) ** 2 / (v1**2 / (n1 - 1) + v2**2 / (n2 - 1)), rel=1e-12)
+
+
+@pytest.mark.parametrize("t, df", [(0.0, 1.0), (0.3, 1.5), (2.1, 4.0), (-3.7, 11.2), (8.0, 300.0), (40.0, 2.5)])
+def test_t_and_z_pvalues_match_scipy(t, df):
+    assert stats.t_pvalue(t, df) == pytest.approx(2 * scipy.stats.t.sf(abs(t), df), rel=1e-10, abs=1e-300)
+    assert stats.z_pvalue(t) == pytest.approx(2 * scipy.stats.norm.sf(abs(t)), rel=1e-12, abs=1e-300)
+
+
+def test_welch_refuses_a_single_value():
+    with pytest.raises(ValueError, match="at least two"):
+        stats.welch([1.0], [1.0, 2.0])
+
+
+def test_leaves_pair_each_statistic_with_its_interval():
+    results = {"cpx": {"v": 1.0, "v_ci95": [0.5, 1.5], "n": 3, "word": "ok"},
+               "sweep": {"g": [1, 10], "w": [2.0, 3.0], "w_ci95": [[1.0, 3.0], [2.5, 3.5]]}, "lone_ci95": [0, 1]}
+    assert C.leaves(results) == {
+        "cpx.v": (1.0, [0.5, 1.5]), "cpx.n": (3, None), "cpx.word": ("ok", None),
+        "sweep.g[0]": (1, None), "sweep.g[1]": (10, None),
+        "sweep.w[0]": (2.0, [1.0, 3.0]), "sweep.w[1]": (3.0, [2.5, 3.5]),
+        "lone_ci95[0]": (0, None), "lone_ci95[1]": (1, None)}
+
+
+def test_each_class_of_finding():
+    a = {"same": 1.0, "close": 1.0, "near": 1.0, "near_ci95": [0.0, 2.0], "far": 1.0, "far_ci95": [0.9, 1.1],
+         "count": 3, "only_a": 1}
+    b = {"same": 1.0, "close": 1.0 + 1e-12, "near": 1.2, "near_ci95": [0.2, 2.2], "far": 5.0, "far_ci95": [4.9, 5.1],
+         "count": 4, "only_b": 1}
+    kinds = {f.path: f.kind for f in C.compare(a, b)}
+    assert kinds == {"same": C.IDENTICAL, "close": C.EQUAL, "near": C.WITHIN, "far": C.SIGNIFICANT,
+                     "count": C.DIFFERS, "only_a": C.MISSING, "only_b": C.MISSING}
+    near = next(f for f in C.compare(a, b) if f.path == "near")
+    se = 2.0 / (2 * stats.Z95)  # each interval's half-width over 1.96
+    assert near.p == pytest.approx(2 * scipy.stats.norm.sf(0.2 / math.hypot(se, se)), rel=1e-12)
+    assert C.compare(a, b, rtol=0)[1].kind == C.DIFFERS  # no tolerance: 1e-12 apart is a difference
+    assert C.status(C.compare(a, a)) == 0 and C.status(C.compare(a, b)) == 1
+
+
+def test_holm_step_down():
+    # p sorted: 0.005 <= 0.05/4, 0.01 <= 0.05/3, 0.03 > 0.05/2: the first two are rejected, the rest are not
+    fs = [C.Finding(str(i), C.WITHIN, p=p) for i, p in enumerate([0.01, 0.04, 0.03, 0.005])]
+    C.holm(fs, 0.05)
+    assert [f.kind for f in fs] == [C.SIGNIFICANT, C.WITHIN, C.WITHIN, C.SIGNIFICANT]
+    # uncorrected, 0.03 and 0.04 would count: with many statistics a few would be flagged by chance
+    fs = [C.Finding(str(i), C.WITHIN, p=p) for i, p in enumerate([0.04, 0.03])]
+    C.holm(fs, 0.05)
+    assert [f.kind for f in fs] == [C.WITHIN, C.WITHIN]
+
+
+TINY = ["run", "dip-cpx-ldf", "--quick", "--seeds", "4", "--set", "duration=0.04", "--set", "sweep_points=0",
+        "--set", "velocity_trial=false"]
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """The default config run alone, and a sweep of gamma x the seeds' key."""
+    root = tmp_path_factory.mktemp("compare")
+    assert cli.main([*TINY, "--out", str(root / "base")]) == 0
+    with pytest.MonkeyPatch.context() as mp:  # the sweep's figures are not compared (and slow to render)
+        mp.setattr(sweep_table, "varies", lambda row: False)
+        assert cli.main([*TINY, "--out", str(root / "sw"), "--sweep", "cpx_gamma=150,1e5", "--sweep", "seed=0,1"]) == 0
+    return root, root / "sw" / "points"
+
+
+def _compare(capsys, a, b):
+    code = cli.main(["compare", str(a), str(b)])
+    return code, capsys.readouterr().out.strip().splitlines()
+
+
+def test_the_same_config_is_identical(runs, capsys):
+    root, points = runs
+    code, out = _compare(capsys, root / "base", points / "cpx_gamma=150,seed=0")
+    assert code == 0
+    assert len(out) == 1 and out[0].startswith("compare: ") and "identical, 0 equal, 0 within" in out[0]
+
+
+def test_another_seeds_key_is_within_the_intervals(runs, capsys):
+    _, points = runs
+    code, out = _compare(capsys, points / "cpx_gamma=150,seed=0", points / "cpx_gamma=150,seed=1")
+    assert code == 0
+    assert out[0] == "note: config seed: 0 vs 1"
+    lines = out[1:-1]
+    assert lines and all(": within interval: " in ln for ln in lines)
+    assert any(ln.startswith("cpx.theta_var: ") for ln in lines)  # a statistic over seeds did change
+    assert "0 significantly different, 0 differs, 0 missing" in out[-1]
+
+
+def test_another_gamma_is_flagged(runs, capsys):
+    _, points = runs
+    code, out = _compare(capsys, points / "cpx_gamma=150,seed=0", points / "cpx_gamma=1e5,seed=0")
+    assert code == 1
+    flagged = {ln.split(":")[0] for ln in out if ": significantly different: " in ln}
+    assert {"cpx.theta_dot_rms_err", "cpx.u_var"} <= flagged
+    assert not any(ln.startswith("ldf.") for ln in out)  # the LDF runs do not see gamma: identical
+    assert out[-1].endswith("-> differences (exit 1)")
+
+
+def test_a_statistic_on_one_side_only(runs, capsys, tmp_path):
+    root, _ = runs
+    other = tmp_path / "other"
+    shutil.copytree(root / "base", other)
+    m = json.loads((other / "metrics.json").read_text())
+    del m["results"]["cpx"]["u_var"]
+    (other / "metrics.json").write_text(json.dumps(m))
+    code, out = _compare(capsys, root / "base", other)
+    assert code == 1 and "cpx.u_var: missing in B" in out
+
+
+def test_folders_that_cannot_be_compared(runs, capsys, tmp_path):
+    root, _ = runs
+    assert cli.main(["compare", str(root / "base"), str(tmp_path / "nowhere")]) == 2
+    assert capsys.readouterr().err.strip().endswith("nowhere: no such folder")
+    assert cli.main(["compare", str(root / "base"), str(tmp_path)]) == 2
+    assert "not a jaxdip result folder" in capsys.readouterr().err
+    other = tmp_path / "other"
+    shutil.copytree(root / "base", other)
+    m = json.loads((other / "metrics.json").read_text())
+    (other / "metrics.json").write_text(json.dumps({**m, "experiment": "dip-lqr"}))
+    assert cli.main(["compare", str(root / "base"), str(other)]) == 2
+    assert "not comparable" in capsys.readouterr().err
+    assert cli.main(["compare", str(root / "base"), str(other), "--alpha", "1.5"]) == 2
+    assert "--alpha: must be between 0 and 1" in capsys.readouterr().err
