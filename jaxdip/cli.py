@@ -6,7 +6,6 @@ import json
 import os
 import re
 import shlex
-import signal
 import sys
 import time
 
@@ -14,8 +13,8 @@ import numpy as np
 
 from jaxdip import xla_flags
 from jaxdip.cli_args import check_paths, parser, special_kind
-from jaxdip.cli_errors import (component_refusal, emit, error, guarded, note, numerical, riccati_keys, run_refusal,
-                               warn)
+from jaxdip.cli_errors import (Signals, component_refusal, emit, error, guarded, note, numerical, riccati_keys,
+                               run_refusal, warn)
 from jaxdip.messages import listing, unknown
 from jaxdip.reproduce_pool import run_parallel
 
@@ -105,32 +104,6 @@ def _distributed(args) -> int:
     return 0
 
 
-class _Signals:
-    """SIGINT and SIGTERM stop a run: the first raises KeyboardInterrupt and is remembered, so a run whose
-    library code swallowed it still refuses to write its folder (``run_experiment``'s ``stop_requested``)."""
-
-    def __init__(self):
-        self.hit = None
-        self._old = {}
-
-    def _handler(self, signum, frame):
-        self.hit = signum
-        raise KeyboardInterrupt
-
-    def __enter__(self):
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            self._old[sig] = signal.signal(sig, self._handler)
-        return self
-
-    def __exit__(self, *exc):
-        for sig, h in self._old.items():
-            signal.signal(sig, h)
-        return False
-
-    def requested(self) -> bool:
-        return self.hit is not None
-
-
 def _flag_keys(args) -> dict:
     keys = {}
     if getattr(args, "seeds", None) is not None:
@@ -193,10 +166,6 @@ def cmd_run(args, argv=None) -> int:
     from jaxdip.runner import run_experiment
     from jaxdip.runner.experiment import run_context
 
-    if args.sweep:
-        from jaxdip.cli_sweep import cmd_sweep
-
-        return cmd_sweep(args, _resolve, _unknown, _Signals)
     flags = _flag_keys(args)
     try:
         exp, cfg = _resolve(args.id, args)
@@ -205,14 +174,28 @@ def cmd_run(args, argv=None) -> int:
     except KeyError as e:
         return _unknown(args.id, e)
     out = args.out or os.path.join("results", exp.id)
+    if args.per_seed:
+        from jaxdip import dataset
+
+        if not exp.per_seed:
+            return error("--per-seed", f"{exp.id} keeps no per-seed data yet")
+        try:
+            dataset.require()
+        except dataset.MissingExtra as e:
+            return error("--per-seed", str(e))
+    if args.sweep:
+        from jaxdip.cli_sweep import cmd_sweep
+
+        return cmd_sweep(args, exp, shlex.join(["jaxdip", *(sys.argv[1:] if argv is None else argv)]))
     ckpt = None
-    with _Signals() as sig:
+    with Signals() as sig:
         try:
             level = xla_flags.effort()
             ckpt = run_context(exp, cfg, out, compile_effort=level).checkpoint_path
             metrics = run_experiment(exp, cfg, out, resume=args.resume, force=args.force,
                                      flag_keys=flags, stop_requested=sig.requested, compile_effort=level,
-                                     quick=args.quick)
+                                     quick=args.quick, per_seed=args.per_seed,
+                                     command=shlex.join(["jaxdip", *(sys.argv[1:] if argv is None else argv)]))
         except KeyboardInterrupt:
             return _interrupted(ckpt, argv)
         except Exception as e:
@@ -288,14 +271,14 @@ def cmd_reproduce(args, argv=None) -> int:
         sections.append(re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", rf"![\1]({exp_id}/\2)", body))
 
     if jobs > 1 and len(reg) > 1:
-        with _Signals():
+        with Signals():
             code = run_parallel(args, reg, jobs)
         if code:
             return code
         for exp_id, exp in reg:
             collect(exp_id, exp)
     else:
-        with _Signals() as sig:
+        with Signals() as sig:
             try:
                 for exp_id, exp in reg:
                     out = os.path.join(args.out, exp_id)
@@ -340,7 +323,7 @@ def cmd_bench(args, argv=None) -> int:
         check_outputs(args.out)
     except outdir.OutputError as e:
         return error(e.key, e.why)
-    with _Signals():
+    with Signals():
         try:
             run_bench(quick=args.quick, out=args.out)
         except outdir.OutputError as e:

@@ -132,6 +132,9 @@ def parser(description: str = DESCRIPTION) -> Parser:
     r.add_argument("--resume", action="store_true", help="continue an interrupted search from its checkpoint")
     r.add_argument("--force", action="store_true",
                    help="replace a jaxdip result folder of another experiment (a user's files are never replaced)")
+    r.add_argument("--per-seed", nargs="?", const="final", choices=("final", "trajectories"), default=None,
+                   help="also write per_seed.nc, every seed's final values, metrics and failures as a labelled "
+                        "netCDF dataset (trajectories: with the saved trajectories); needs pip install -e '.[data]'")
 
     c = _command(sub, "config", "print an experiment's default config as TOML, or write every one's")
     c.add_argument("id", nargs="?", help="the experiment (jaxdip list prints the ids)")

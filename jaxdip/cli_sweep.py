@@ -10,15 +10,13 @@ from __future__ import annotations
 import json
 import os
 import sys
-from typing import Callable
-
 from jaxdip import xla_flags
-from jaxdip.cli_errors import emit, error, note, run_refusal
+from jaxdip.cli_errors import Signals, emit, error, note, run_refusal
 
 
-def cmd_sweep(args, resolve: Callable, unknown: Callable, signals: type) -> int:
-    """The exit status of a sweep. ``resolve(id, args)``, ``unknown(id, KeyError)`` and ``signals`` are the
-    command line's config loader, unknown-id refusal and interrupt handler (``jaxdip.cli``)."""
+def cmd_sweep(args, exp, command: str) -> int:
+    """The exit status of a sweep of the experiment ``exp`` (its base config checked already); ``command``: the
+    command line, recorded by every point."""
     from jaxdip import config as C
     from jaxdip.config import ConfigError
     from jaxdip.runner import sweep as S
@@ -27,23 +25,21 @@ def cmd_sweep(args, resolve: Callable, unknown: Callable, signals: type) -> int:
     if args.resume:
         return error("--resume", "a sweep continues where it stopped without it: give the same command again")
     try:
-        exp, _ = resolve(args.id, args)  # the base config's own errors first, as a plain run reports them
         axes = S.parse_sweeps(args.sweep, args.set)
         points = S.plan(axes, lambda sets: C.load(exp.config_cls, path=args.config,
                                                   quick=exp.quick if args.quick else None, seeds=args.seeds,
                                                   sets=list(args.set) + sets))
     except ConfigError as e:
         return error(e.key, e.why)
-    except KeyError as e:
-        return unknown(args.id, e)
     out = args.out or os.path.join("results", f"{exp.id}-sweep")
     folder = S.SweepFolder(out, exp.id)
     done = S.SweepRun()
     level = xla_flags.effort()
-    with signals() as sig:
+    with Signals() as sig:
         try:
             S.run_sweep(exp, points, folder, done, compile_effort=level, quick=args.quick,
-                        stop_requested=sig.requested, say=lambda s: print(s, file=sys.stderr, flush=True))
+                        stop_requested=sig.requested, say=lambda s: print(s, file=sys.stderr, flush=True),
+                        per_seed=args.per_seed, command=command)
         except KeyboardInterrupt:
             kept = sum(S.is_complete(exp, p, folder.point(p), level) for p in points)
             note(f"interrupted: {kept} of {len(points)} points are complete in {os.path.join(out, S.POINTS)}; "

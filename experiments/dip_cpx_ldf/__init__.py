@@ -345,6 +345,7 @@ def _less_var(c, l) -> str:
 
 
 EXPERIMENT = Experiment(
+    per_seed=False,  # no Outcome.per_seed yet (docs/data.md)
     id="dip-cpx-ldf",
     title="DIP: power-series control fed by CPX vs the low-pass derivative filter",
     config_cls=DipCpxLdfConfig,

@@ -348,6 +348,7 @@ def run(cfg: IfnProtectionConfig, ctx: RunContext | None = None) -> Outcome:
 
 
 EXPERIMENT = Experiment(
+    per_seed=False,  # no Outcome.per_seed yet (docs/data.md)
     id="ifn-protection",
     title="Optimal antiviral protection (Interferon-β): (P), Theorem 4.4.1 and §4.5 by Monte Carlo",
     config_cls=IfnProtectionConfig,

@@ -211,6 +211,7 @@ def report(cfg, r, timing) -> str:
 
 
 EXPERIMENT = Experiment(
+    per_seed=False,  # no Outcome.per_seed yet (docs/data.md)
     id="tune",
     title="Gradient-based tuning of estimator and controller hyperparameters",
     config_cls=TuneConfig,

@@ -365,6 +365,7 @@ def run(cfg: TwipDmsoConfig, ctx: RunContext | None = None, progress: bool = Tru
 
 
 EXPERIMENT = Experiment(
+    per_seed=False,  # no Outcome.per_seed yet (docs/data.md)
     id="twip-dmso",
     title="TWIP: discrete modified state observer vs Kalman filter",
     config_cls=TwipDmsoConfig,

@@ -297,6 +297,7 @@ def report(cfg: TwipExtraControlConfig, r: dict) -> str:
 
 
 EXPERIMENT = Experiment(
+    per_seed=False,  # no Outcome.per_seed yet (docs/data.md)
     id="twip-extra-control",
     title="TWIP: two-layer-network extra control for unmatched uncertainty vs LQR",
     config_cls=TwipExtraControlConfig,

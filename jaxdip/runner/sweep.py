@@ -241,11 +241,11 @@ class SweepRun:
 
 def run_sweep(exp: Experiment, points: list[Point], folder: SweepFolder, done: SweepRun, *,
               compile_effort: str = "full", quick: bool = False, stop_requested: Callable[[], bool] | None = None,
-              say: Callable[[str], None] = lambda s: None) -> SweepRun:
+              say: Callable[[str], None] = lambda s: None, **run_options) -> SweepRun:
     """Run the points not already complete, in order, each into its folder, recording in ``done`` (so a caller
     that catches an exception knows the point that raised it: ``points[len(done.ran)]``). Every destination is
     checked before the first point runs. An interrupt leaves the finished points in place (and nothing of the
-    one it stopped)."""
+    one it stopped). ``run_options`` go to every point's ``run_experiment`` (``per_seed``, ``command``)."""
     folder.check()
     for p in points:
         outdir.check_destination(folder.point(p), exp.id, key="--out")
@@ -261,7 +261,7 @@ def run_sweep(exp: Experiment, points: list[Point], folder: SweepFolder, done: S
         say(f"== point {i}/{len(points)} {p.name}")
         with CompileCounter() as counter:
             run_experiment(exp, p.cfg, dest, stop_requested=stop_requested, compile_effort=compile_effort,
-                           quick=quick)
+                           quick=quick, **run_options)
         done.ran.append(True)
         done.compilations.append(counter.count)
         done.programs.append(dict(counter.names.most_common()))
