@@ -21,7 +21,15 @@ def cmd_compare(args) -> int:
         return error(args.b, f"results of {mb['experiment']!r}, {args.a} of {ma['experiment']!r}: not comparable")
     for n in C.context(args.a, args.b, ma, mb):
         emit(f"note: {n}")
-    findings = C.compare(ma["results"], mb["results"], rtol=args.rtol, atol=args.atol, alpha=args.alpha)
+    sa, sb = C.per_seed_samples(args.a), C.per_seed_samples(args.b)
+
+    def samples(path):
+        return C.sample_test(sa[path], sb[path]) if path in sa and path in sb else None
+
+    if sa and sb:
+        emit(f"note: per-seed data in both folders: {sum(p in sb for p in sa)} statistics tested on them")
+    findings = C.compare(ma["results"], mb["results"], rtol=args.rtol, atol=args.atol, alpha=args.alpha,
+                         samples=samples)
     for f in findings:
         if f.kind != C.IDENTICAL:
             emit(C.line(f))

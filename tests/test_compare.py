@@ -148,3 +148,57 @@ def test_folders_that_cannot_be_compared(runs, capsys, tmp_path):
     assert "not comparable" in capsys.readouterr().err
     assert cli.main(["compare", str(root / "base"), str(other), "--alpha", "1.5"]) == 2
     assert "--alpha: must be between 0 and 1" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("k1, n1, k2, n2", [(3, 10, 7, 12), (0, 16, 5, 16), (40, 100, 45, 90)])
+def test_the_proportion_test_is_the_chi_square_test_of_the_two_by_two_table(k1, n1, k2, n2):
+    table = [[k1, n1 - k1], [k2, n2 - k2]]
+    ref = scipy.stats.chi2_contingency(table, correction=False).pvalue
+    assert C.proportion_pvalue(k1, n1, k2, n2) == pytest.approx(ref, rel=1e-10)
+    assert C.proportion_pvalue(0, 5, 0, 9) == 1.0 and C.proportion_pvalue(5, 5, 9, 9) == 1.0
+
+
+LOW, HIGH = "[0.001,0.001,0.001,0.01,0.01,0.01]", "[0.01,0.01,0.01,0.1,0.1,0.1]"  # the default, and 10 times it
+
+
+@pytest.fixture(scope="module")
+def lqr_runs(tmp_path_factory):
+    """dip-lqr with per-seed data: two seeds' keys x two levels of measurement noise."""
+    pytest.importorskip("xarray")
+    pytest.importorskip("h5netcdf")
+    pytest.importorskip("h5py")
+    from conftest import TINY_DIP_LQR
+
+    root = tmp_path_factory.mktemp("lqr")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(sweep_table, "varies", lambda row: False)
+        assert cli.main([*TINY_DIP_LQR, "--per-seed", "--out", str(root), "--sweep", "seed=0,1",
+                         "--sweep", f"noise_std={LOW},{HIGH}"]) == 0
+    return root / "points"
+
+
+def test_per_seed_data_are_tested_by_welch(lqr_runs, capsys):
+    a, b = lqr_runs / f"seed=0,noise_std={LOW}", lqr_runs / f"seed=1,noise_std={LOW}"
+    code, out = _compare(capsys, a, b)
+    assert code == 0
+    assert out[1].startswith("note: per-seed data in both folders: ")
+    tested = [ln for ln in out if ": within interval: " in ln]
+    assert tested and all("(Welch t-test on the per-seed values, p = " in ln for ln in tested)
+    # the p-value from the files, read here with xarray and tested by SciPy
+    import xarray as xr
+
+    def alpha_mean_abs(folder):
+        ds = xr.open_dataset(folder / "per_seed.nc", engine="h5netcdf").load()
+        return ds["x.mean_abs"].sel(state="alpha").values[ds["ok"].values.astype(bool)]
+
+    sa, sb = C.per_seed_samples(str(a)), C.per_seed_samples(str(b))
+    ref = scipy.stats.ttest_ind(alpha_mean_abs(a), alpha_mean_abs(b), equal_var=False).pvalue
+    assert C.sample_test(sa["states.alpha.mean_abs"], sb["states.alpha.mean_abs"]) == ("welch", pytest.approx(ref))
+
+
+def test_per_seed_data_flag_more_measurement_noise(lqr_runs, capsys):
+    code, out = _compare(capsys, lqr_runs / f"seed=0,noise_std={LOW}", lqr_runs / f"seed=0,noise_std={HIGH}")
+    assert code == 1
+    flagged = [ln for ln in out if ": significantly different: " in ln]
+    assert {"u.var", "u.mean_abs"} <= {ln.split(":")[0] for ln in flagged}  # the input follows the noise
+    assert all("Welch t-test on the per-seed values" in ln or "two-proportion" in ln for ln in flagged)

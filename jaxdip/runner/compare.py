@@ -7,9 +7,10 @@ first class that fits:
 - ``identical``: the same value (and interval) to the last bit;
 - ``equal``: numbers within ``atol + rtol * max(|a|, |b|)`` (the interval's ends too);
 - ``within interval`` / ``significantly different``: numbers with an interval on both sides are tested for a
-  difference of means. With per-seed samples of the statistic in both folders (``per_seed`` hands them in) the
-  test is Welch's two-sample t-test on them; otherwise a two-sample z-test on the standard errors the intervals
-  imply, ``se = (hi - lo) / (2 * 1.96)``, so ``z = |a - b| / sqrt(se_a^2 + se_b^2)``. The p-values of all tested
+  difference. Where both folders hold ``per_seed.nc`` (``jaxdip run --per-seed``) and it names the per-seed
+  values a statistic summarises (``per_seed_samples``), the test uses them: Welch's two-sample t-test for a mean,
+  the pooled two-proportion z-test for a fraction of seeds. Otherwise a two-sample z-test on the standard errors
+  the intervals imply, ``se = (hi - lo) / (2 * 1.96)``, so ``z = |a - b| / sqrt(se_a^2 + se_b^2)``. The p-values of all tested
   statistics are corrected together by Holm's step-down method, so that the chance of flagging any statistic
   when none differs is at most ``alpha`` (0.05): a run with other seeds differs in every statistic, and dozens
   of uncorrected 5% tests would flag a few by chance. Rejected: ``significantly different``; else ``within
@@ -25,12 +26,16 @@ jaxdip results, or of different experiments).
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
+import re
 import tomllib
 from dataclasses import dataclass
 from typing import Any, Callable
+
+import numpy as np
 
 from jaxdip.stats import Z95, welch, z_pvalue
 
@@ -58,7 +63,7 @@ class Finding:
     a_ci: list | None = None
     b_ci: list | None = None
     p: float | None = None  # the test's p-value before correction
-    test: str = ""  # "welch" (per-seed samples) or "z" (the intervals' standard errors)
+    test: str = ""  # "welch" or "proportion" (per-seed samples), or "z" (the intervals' standard errors)
 
 
 def read_metrics(folder: str) -> dict:
@@ -76,6 +81,65 @@ def read_metrics(folder: str) -> dict:
     if not isinstance(m, dict) or not isinstance(m.get("results"), dict) or "experiment" not in m:
         raise CompareError(folder, "metrics.json has no experiment and results: not a jaxdip result folder")
     return m
+
+
+MEAN, FRACTION = "mean_ci95", "fraction_wilson"  # per_seed.nc's ``statistic`` attribute (docs/data.md)
+
+
+def per_seed_samples(folder: str) -> dict[str, tuple[str, np.ndarray]]:
+    """The per-seed values behind the statistics of ``results``, from the folder's ``per_seed.nc``: path (as
+    ``leaves`` names it) -> (``mean_ci95`` and the finite values of the seeds the mean is over, or
+    ``fraction_wilson`` and every seed's truth). Empty without the file or without the ``data`` extra."""
+    path = os.path.join(folder, "per_seed.nc")
+    if not os.path.isfile(path):
+        return {}
+    from jaxdip import dataset
+
+    if not dataset.available():
+        return {}
+    ds = dataset.read(path)
+    out = {}
+    for name in ds.data_vars:
+        var = ds[name]
+        template, statistic = var.attrs.get("summarised_as"), var.attrs.get("statistic")
+        if template is None or statistic not in (MEAN, FRACTION):
+            continue
+        named = re.findall(r"\{(\w+)\}", template)
+        var = var.isel({d: 0 for d in var.dims if d != "seed" and d not in named and var.sizes[d] == 1})
+        if any(d != "seed" and d not in named for d in var.dims):
+            continue  # a dimension the path does not name: not one statistic per label
+        over = ds[var.attrs["over"]] if var.attrs.get("over") in ds else None
+        for labels in itertools.product(*(ds[d].values.tolist() for d in named)):
+            where = dict(zip(named, labels))
+            values = np.asarray(var.sel(where).values)
+            key = re.sub(r"\.(\d+)(?=\.|$)", r"[\1]", template.format(**where))
+            if statistic == FRACTION:
+                out[key] = (FRACTION, values.astype(bool))
+                continue
+            if over is not None:
+                values = values[np.asarray(over.sel({k: w for k, w in where.items() if k in over.dims}).values,
+                                           dtype=bool)]
+            out[key] = (MEAN, values[np.isfinite(values)].astype(np.float64))
+    return out
+
+
+def proportion_pvalue(k1: int, n1: int, k2: int, n2: int) -> float:
+    """Two-sided p-value of the pooled two-proportion z-test of k1/n1 against k2/n2 (1 when both are 0 or 1)."""
+    pooled = (k1 + k2) / (n1 + n2)
+    var = pooled * (1 - pooled) * (1 / n1 + 1 / n2)
+    return 1.0 if var == 0 else z_pvalue((k1 / n1 - k2 / n2) / math.sqrt(var))
+
+
+def sample_test(a: tuple[str, np.ndarray], b: tuple[str, np.ndarray]) -> tuple[str, float] | None:
+    """(test, p) on two folders' per-seed values of one statistic; None where they do not allow one."""
+    (kind, x), (kind_b, y) = a, b
+    if kind != kind_b:
+        return None
+    if kind == FRACTION and x.size and y.size:
+        return "proportion", proportion_pvalue(int(x.sum()), x.size, int(y.sum()), y.size)
+    if kind == MEAN and x.size >= 2 and y.size >= 2:
+        return "welch", welch(x, y)[2]
+    return None
 
 
 def _number(v) -> bool:
@@ -114,9 +178,9 @@ def _close(a, b, rtol: float, atol: float) -> bool:
     return abs(a - b) <= atol + rtol * max(abs(a), abs(b))
 
 
-def classify(path: str, a, b, rtol: float, atol: float,
-             samples: tuple[Any, Any] | None = None) -> Finding:
-    """One statistic's finding before the correction (a tested one is ``within interval`` with its p-value)."""
+def classify(path: str, a, b, rtol: float, atol: float, samples: tuple[str, float] | None = None) -> Finding:
+    """One statistic's finding before the correction (a tested one is ``within interval`` with its p-value);
+    ``samples``: the per-seed test's name and p-value, where both folders have the statistic's per-seed values."""
     (va, ca), (vb, cb) = a, b
     f = Finding(path, DIFFERS, va, vb, ca, cb)
     if va == vb and ca == cb and type(va) is type(vb):
@@ -126,8 +190,7 @@ def classify(path: str, a, b, rtol: float, atol: float,
                                             and all(_close(x, y, rtol, atol) for x, y in zip(ca, cb)))):
         f.kind = EQUAL
     elif samples is not None:
-        f.kind, f.test = WITHIN, "welch"
-        f.p = welch(*samples)[2]
+        f.kind, (f.test, f.p) = WITHIN, samples
     elif _number(va) and _number(vb) and ca is not None and cb is not None:
         se2 = ((ca[1] - ca[0]) / (2 * Z95)) ** 2 + ((cb[1] - cb[0]) / (2 * Z95)) ** 2
         if se2 > 0:
@@ -147,9 +210,9 @@ def holm(findings: list[Finding], alpha: float) -> None:
 
 
 def compare(a: dict, b: dict, *, rtol: float = 1e-9, atol: float = 0.0, alpha: float = 0.05,
-            samples: Callable[[str], tuple[Any, Any] | None] = lambda path: None) -> list[Finding]:
+            samples: Callable[[str], tuple[str, float] | None] = lambda path: None) -> list[Finding]:
     """The findings for every statistic of the ``results`` dicts ``a`` and ``b``, in ``a``'s order then ``b``'s
-    extra ones; ``samples(path)`` gives both folders' per-seed values of a statistic where both have them."""
+    extra ones; ``samples(path)``: the per-seed test's (name, p-value) where both folders allow one."""
     la, lb = leaves(a), leaves(b)
     out = []
     for path in list(la) + [p for p in lb if p not in la]:
@@ -174,7 +237,8 @@ def _value(v, ci) -> str:
 
 def line(f: Finding) -> str:
     """The finding as one line: ``path: kind: a vs b (test)``."""
-    where = {"welch": "Welch t-test on the per-seed values", "z": "z-test on the intervals"}.get(f.test, "")
+    where = {"welch": "Welch t-test on the per-seed values", "proportion": "two-proportion z-test on the seeds",
+             "z": "z-test on the intervals"}.get(f.test, "")
     test = f" ({where}, p = {f.p:.3g})" if f.p is not None else ""
     if f.kind == MISSING:
         return f"{f.path}: missing in {'B' if f.b is None else 'A'}"
