@@ -157,3 +157,43 @@ def test_an_interrupted_sweep_resumes_point_by_point(swept, tmp_path, monkeypatc
     (out / "points" / f"cpx_gamma={GAMMAS[1]}" / "report.md").write_text("edited")
     assert cli.main(argv) == 2
     assert "changed since jaxdip wrote them" in capsys.readouterr().err
+
+
+KILLER = """
+import dataclasses, os, signal, sys
+from jaxdip import cli
+from jaxdip.runner import sweep as S
+
+real, calls = S.run_experiment, []
+
+def run_experiment(exp, *a, **k):
+    calls.append(1)
+    if len(calls) < 2:
+        return real(exp, *a, **k)
+    def killed(cfg, ctx):  # SIGKILL in the middle of the second point, its staging folder half-written
+        os.kill(os.getpid(), signal.SIGKILL)
+    return real(dataclasses.replace(exp, run=killed), *a, **k)
+
+S.run_experiment = run_experiment
+sys.exit(cli.main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.slow
+def test_a_sigkilled_sweep_resumes_to_the_uninterrupted_table(swept, tmp_path):
+    import signal
+    import subprocess
+    import sys
+
+    root, doc = swept
+    argv = [*TINY, "--out", str(tmp_path / "sw"), "--sweep", "cpx_gamma=" + ",".join(GAMMAS)]
+    child = subprocess.run([sys.executable, "-c", KILLER, *argv], capture_output=True, text=True, timeout=600)
+    assert child.returncode == -signal.SIGKILL
+    assert os.listdir(tmp_path / "sw" / "points") != sorted(os.listdir(root / "sw" / "points"))
+    again = subprocess.run([sys.executable, "-m", "jaxdip.cli", *argv], capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr
+    assert "(2 run, 1 kept" in again.stdout
+    with open(tmp_path / "sw" / "sweep.json") as fh:
+        resumed = json.load(fh)
+    assert resumed["table"] == doc["table"]
+    assert sorted(os.listdir(tmp_path / "sw" / "points")) == sorted(os.listdir(root / "sw" / "points"))

@@ -38,6 +38,8 @@ POINTS = "points"
 COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
 NAME_MAX = 255
 _UNSAFE = re.compile(r"[^A-Za-z0-9._+\-=,\[\]]")
+# write_file_atomic's temporary names for the sweep's own files
+_LEFT_OVER = re.compile(r"^\.(\.jaxdip-sweep\.json|sweep\.md|sweep\.json|sweep-[^/]*\.png)\.tmp-[A-Za-z0-9_]+$")
 
 
 def split_values(text: str) -> list[str]:
@@ -179,6 +181,9 @@ class SweepFolder:
         if owner != self.exp_id:
             raise outdir.OutputError("--out", f"{label} holds a sweep of {owner!r}, not {self.exp_id!r}; choose "
                                               "another folder")
+        for e in [e for e in entries if _LEFT_OVER.match(e)]:  # a summary file's write that a kill cut short
+            os.remove(os.path.join(self.path, e))
+            entries.remove(e)
         foreign = [e for e in entries if e not in (SWEEP_MARKER, POINTS) and e not in files]
         changed = [n for n, d in files.items() if os.path.lexists(os.path.join(self.path, n))
                    and _digest(os.path.join(self.path, n)) != d]
