@@ -41,7 +41,7 @@ def cmd_sweep(args, exp, command: str) -> int:
                         stop_requested=sig.requested, say=lambda s: print(s, file=sys.stderr, flush=True),
                         per_seed=args.per_seed, command=command)
         except KeyboardInterrupt:
-            kept = sum(S.is_complete(exp, p, folder.point(p), level) for p in points)
+            kept = sum(S.is_complete(exp, p, folder.point(p), level, args.per_seed) for p in points)
             note(f"interrupted: {kept} of {len(points)} points are complete in {os.path.join(out, S.POINTS)}; "
                  "give the same command again to continue")
             return 130

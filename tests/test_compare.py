@@ -202,3 +202,16 @@ def test_per_seed_data_flag_more_measurement_noise(lqr_runs, capsys):
     flagged = [ln for ln in out if ": significantly different: " in ln]
     assert {"u.var", "u.mean_abs"} <= {ln.split(":")[0] for ln in flagged}  # the input follows the noise
     assert all("Welch t-test on the per-seed values" in ln or "two-proportion" in ln for ln in flagged)
+
+
+def test_a_sweep_asked_for_per_seed_data_reruns_the_points_without_it(lqr_runs, tmp_path, capsys):
+    from conftest import TINY_DIP_LQR
+
+    argv = [*TINY_DIP_LQR, "--out", str(tmp_path), "--sweep", "seed=0,1"]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(sweep_table, "varies", lambda row: False)
+        for extra, said in (([], "(2 run, 0 kept"), (["--per-seed"], "(2 run, 0 kept"), (["--per-seed"], "(0 run, 2 kept"),
+                            ([], "(0 run, 2 kept")):
+            assert cli.main([*argv, *extra]) == 0
+            assert said in capsys.readouterr().out
+    assert (tmp_path / "points" / "seed=1" / "per_seed.nc").exists()

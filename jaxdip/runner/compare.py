@@ -89,15 +89,17 @@ MEAN, FRACTION = "mean_ci95", "fraction_wilson"  # per_seed.nc's ``statistic`` a
 def per_seed_samples(folder: str) -> dict[str, tuple[str, np.ndarray]]:
     """The per-seed values behind the statistics of ``results``, from the folder's ``per_seed.nc``: path (as
     ``leaves`` names it) -> (``mean_ci95`` and the finite values of the seeds the mean is over, or
-    ``fraction_wilson`` and every seed's truth). Empty without the file or without the ``data`` extra."""
+    ``fraction_wilson`` and every seed's truth). Empty without the file, or where it cannot be read (the ``data``
+    extra missing, a damaged file): the statistics are then tested on their intervals."""
     path = os.path.join(folder, "per_seed.nc")
     if not os.path.isfile(path):
         return {}
     from jaxdip import dataset
 
-    if not dataset.available():
+    try:
+        ds = dataset.read(path)
+    except (ImportError, OSError, ValueError):
         return {}
-    ds = dataset.read(path)
     out = {}
     for name in ds.data_vars:
         var = ds[name]

@@ -217,14 +217,14 @@ class SweepFolder:
         return os.path.join(self.path, POINTS, p.name)
 
 
-def is_complete(exp: Experiment, p: Point, folder: str, compile_effort: str) -> bool:
+def is_complete(exp: Experiment, p: Point, folder: str, compile_effort: str, per_seed: str | None = None) -> bool:
     """Whether ``folder`` holds this point's finished run: a jaxdip folder of the experiment with its files
-    unchanged, and the config.toml this point would write."""
+    unchanged, the config.toml this point would write, and per_seed.nc when ``per_seed`` asks for it."""
     try:
         verdict = outdir.check_destination(folder, exp.id)
     except outdir.OutputError:
         return False
-    if verdict.kind != "ours":
+    if verdict.kind != "ours" or (per_seed and "per_seed.nc" not in verdict.files):
         return False
     try:
         with open(os.path.join(folder, "config.toml")) as fh:
@@ -257,7 +257,7 @@ def run_sweep(exp: Experiment, points: list[Point], folder: SweepFolder, done: S
     folder.open()
     for i, p in enumerate(points[len(done.ran):], len(done.ran) + 1):
         dest = folder.point(p)
-        if is_complete(exp, p, dest, compile_effort):
+        if is_complete(exp, p, dest, compile_effort, run_options.get("per_seed")):
             say(f"== point {i}/{len(points)} {p.name}: complete, kept")
             done.ran.append(False)
             done.compilations.append(None)
