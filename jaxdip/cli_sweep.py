@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+
 from jaxdip import xla_flags
 from jaxdip.cli_errors import Signals, emit, error, note, run_refusal
 

@@ -3,7 +3,9 @@
 ``mean_ci``, what the experiments report, uses the normal approximation (mean +- 1.96 s / sqrt(n)), which is what
 "95% interval over seeds" means at the hundreds-to-thousands of seeds they run; ``t_interval`` (``jd.summary``'s)
 uses Student's t quantile instead, the same there and honest at a handful of seeds; fractions use the Wilson
-score interval (``wilson``), which stays inside [0, 1] and is honest at 0 or n successes. Public as ``jd.stats``.
+score interval (``wilson``), which stays inside [0, 1] and is honest at 0 or n successes. Two samples are compared
+by Welch's t-test (``welch``, p-values by ``t_pvalue``, for any positive degrees of freedom; ``z_pvalue`` for the
+normal), as ``jaxdip compare`` does with per-seed data. Public as ``jd.stats``.
 """
 
 from __future__ import annotations
@@ -155,11 +157,14 @@ def _betainc(a: float, b: float, x: float) -> float:
 
 
 def t_pvalue(t: float, df: float) -> float:
-    """Two-sided p-value P(|T| >= |t|) of Student's t with ``df`` (> 0, not necessarily whole) degrees of freedom."""
+    """Two-sided p-value P(|T| >= |t|) of Student's t with ``df`` (> 0, not necessarily whole; infinite: the
+    normal) degrees of freedom."""
     if not df > 0:
         raise ValueError(f"t_pvalue: df must be > 0, got {df}")
     if math.isinf(t):
         return 0.0
+    if math.isinf(df):
+        return z_pvalue(t)
     return _betainc(df / 2.0, 0.5, df / (df + t * t))
 
 

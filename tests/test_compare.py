@@ -34,6 +34,12 @@ def test_t_and_z_pvalues_match_scipy(t, df):
     assert stats.z_pvalue(t) == pytest.approx(2 * scipy.stats.norm.sf(abs(t)), rel=1e-12, abs=1e-300)
 
 
+def test_t_pvalue_at_infinite_degrees_of_freedom_is_the_normal():
+    assert stats.t_pvalue(1.7, math.inf) == stats.z_pvalue(1.7) == pytest.approx(2 * scipy.stats.norm.sf(1.7))
+    with pytest.raises(ValueError, match="df must be > 0"):
+        stats.t_pvalue(1.0, 0.0)
+
+
 def test_welch_refuses_a_single_value():
     with pytest.raises(ValueError, match="at least two"):
         stats.welch([1.0], [1.0, 2.0])
