@@ -79,8 +79,9 @@ def build(variables: Mapping[str, Variable], coords: Mapping[str, Any] | None = 
         data[name] = (tuple(dims), arr, _attrs(vattrs))
     ds = xr.Dataset(data, attrs=_attrs(attrs))
     labels = dict(coords or {})
-    if "seed" in ds.dims and "seed" not in labels:
-        labels["seed"] = np.arange(ds.sizes["seed"])
+    for dim in ds.dims:
+        if str(dim).endswith("seed") and dim not in labels:  # seed, or the seeds of a part run with its own count
+            labels[dim] = np.arange(ds.sizes[dim])
     for dim, values in labels.items():
         if isinstance(values, tuple) and len(values) == 2 and isinstance(values[0], str):
             # (dimension, values): a coordinate beside the labels, such as each state's units
@@ -88,8 +89,9 @@ def build(variables: Mapping[str, Variable], coords: Mapping[str, Any] | None = 
         elif dim in ds.dims:
             values = np.asarray(values)
             ds = ds.assign_coords({dim: values.astype(str) if values.dtype.kind in "OU" else values})
-    if "seed" in ds.coords:
-        ds["seed"].attrs["long_name"] = "Monte Carlo seed i: its key is fold_in(base key, i)"
+    for dim in ds.dims:
+        if str(dim).endswith("seed"):
+            ds[dim].attrs["long_name"] = "Monte Carlo seed i: its key is fold_in(base key, i)"
     return ds
 
 

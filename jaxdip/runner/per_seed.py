@@ -5,7 +5,8 @@ An experiment fills ``Outcome.per_seed`` with a ``PerSeed``: variables (name -> 
 dimension ``seed``) and the labels of its other dimensions. A variable that a statistic of ``results`` is computed
 from says so in three attributes, so the dataset documents itself and a test recomputes every such statistic
 from the file: ``summarised_as`` (the dotted path in ``results``, with ``{dim}`` standing for a label of the
-variable's dimension ``dim``; a number indexes a list), ``interval_as`` (the path of its interval), ``statistic`` (``mean_ci95``: the mean over the seeds and its interval, by
+variable's dimension ``dim``, substituted after splitting at the dots, so a label may hold dots; a number
+indexes a list), ``interval_as`` (the path of its interval), ``statistic`` (``mean_ci95``: the mean over the seeds and its interval, by
 ``jaxdip.stats.mean_ci``; ``fraction_wilson``: the fraction of true seeds and its Wilson interval) and ``over``
 (the boolean variable selecting the seeds a mean is taken over). The runner writes the dataset only when asked
 (``jaxdip run <id> --per-seed``); variables on a ``time`` dimension (trajectories) only with
@@ -45,10 +46,11 @@ class PerSeed:
 PATHS = ("summarised_as", "interval_as")
 
 
-def mean_of(path: str, over: str = "ok", interval: str | None = None) -> dict:
-    """The attributes of a variable whose mean over the seeds ``over`` selects is ``results[path]``, with its 95%
-    interval at ``interval`` (default ``<path>_ci95``)."""
-    return {"summarised_as": path, "interval_as": interval or f"{path}_ci95", "statistic": MEAN, "over": over}
+def mean_of(path: str, over: str | None = "ok", interval: str | None = None) -> dict:
+    """The attributes of a variable whose mean over the seeds ``over`` selects (None: every seed) is
+    ``results[path]``, with its 95% interval at ``interval`` (default ``<path>_ci95``; ``""``: none reported)."""
+    return {"summarised_as": path, "interval_as": f"{path}_ci95" if interval is None else interval or None,
+            "statistic": MEAN, "over": over}
 
 
 def fraction_of(path: str, interval: str | None = None) -> dict:
@@ -65,7 +67,7 @@ def stacked(parts: dict[str, PerSeed], dim: str) -> PerSeed:
     out = PerSeed(coords={**first.coords, dim: names})
     for var, (dims, _, attrs) in first.variables.items():
         values = np.stack([np.asarray(parts[n].variables[var][1]) for n in names], axis=1)
-        attrs = {k: f"{{{dim}}}.{v}" if k in PATHS else v for k, v in attrs.items()}
+        attrs = {k: f"{{{dim}}}.{v}" if k in PATHS and v else v for k, v in attrs.items()}
         out.variables[var] = ((dims[0], dim, *dims[1:]), values, attrs)
     return out
 
@@ -75,8 +77,8 @@ def prefixed(part: PerSeed, name: str, path: str, seeds_key: str | None = None) 
     under ``results[path]``; ``seeds_key``: the key its seeds were folded from, where it is not the run's."""
     out = PerSeed(coords=dict(part.coords))
     for var, (dims, values, attrs) in part.variables.items():
-        attrs = {k: f"{path}.{v}" if k in PATHS else v for k, v in attrs.items()}
-        if "over" in attrs:
+        attrs = {k: f"{path}.{v}" if k in PATHS and v else v for k, v in attrs.items()}
+        if attrs.get("over"):
             attrs["over"] = f"{name}.{attrs['over']}"
         if seeds_key is not None:
             attrs["seeds_key"] = seeds_key
