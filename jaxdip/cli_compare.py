@@ -21,7 +21,7 @@ def cmd_compare(args) -> int:
         return error(args.b, f"results of {mb['experiment']!r}, {args.a} of {ma['experiment']!r}: not comparable")
     for n in C.context(args.a, args.b, ma, mb):
         emit(f"note: {n}")
-    sa, sb = C.per_seed_samples(args.a), C.per_seed_samples(args.b)
+    sa, sb = C.per_seed_samples(args.a, ma["results"]), C.per_seed_samples(args.b, mb["results"])
 
     def samples(path):
         return C.sample_test(sa[path], sb[path]) if path in sa and path in sb else None

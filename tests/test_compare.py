@@ -197,7 +197,7 @@ def test_per_seed_data_are_tested_by_welch(lqr_runs, capsys):
         ds = xr.open_dataset(folder / "per_seed.nc", engine="h5netcdf").load()
         return ds["x.mean_abs"].sel(state="alpha").values[ds["ok"].values.astype(bool)]
 
-    sa, sb = C.per_seed_samples(str(a)), C.per_seed_samples(str(b))
+    sa, sb = (C.per_seed_samples(str(f), json.loads((f / "metrics.json").read_text())["results"]) for f in (a, b))
     ref = scipy.stats.ttest_ind(alpha_mean_abs(a), alpha_mean_abs(b), equal_var=False).pvalue
     assert C.sample_test(sa["states.alpha.mean_abs"], sb["states.alpha.mean_abs"]) == ("welch", pytest.approx(ref))
 

@@ -86,11 +86,26 @@ def read_metrics(folder: str) -> dict:
 MEAN, FRACTION = "mean_ci95", "fraction_wilson"  # per_seed.nc's ``statistic`` attribute (docs/data.md)
 
 
-def per_seed_samples(folder: str) -> dict[str, tuple[str, np.ndarray]]:
-    """The per-seed values behind the statistics of ``results``, from the folder's ``per_seed.nc``: path (as
-    ``leaves`` names it) -> (``mean_ci95`` and the finite values of the seeds the mean is over, or
-    ``fraction_wilson`` and every seed's truth). Empty without the file, or where it cannot be read (the ``data``
-    extra missing, a damaged file): the statistics are then tested on their intervals."""
+def _path(results: dict, parts: list[str]) -> str | None:
+    """The ``leaves`` path of the statistic at ``parts`` (keys, list indices as digits) in ``results``; None where
+    there is none."""
+    v, path = results, ""
+    for part in parts:
+        if isinstance(v, list) and part.isdigit() and int(part) < len(v):
+            v, path = v[int(part)], f"{path}[{part}]"
+        elif isinstance(v, dict) and part in v:
+            v, path = v[part], f"{path}.{part}" if path else part
+        else:
+            return None
+    return path
+
+
+def per_seed_samples(folder: str, results: dict) -> dict[str, tuple[str, np.ndarray]]:
+    """The per-seed values behind the statistics of ``results`` (the folder's own), from the folder's
+    ``per_seed.nc`` (docs/data.md): path (as ``leaves`` names it) -> (``mean_ci95`` and the finite values of the
+    seeds the mean is over, or ``fraction_wilson`` and every seed's truth). Empty without the file, or where it
+    cannot be read (the ``data`` extra missing, a damaged file): the statistics are then tested on their
+    intervals."""
     path = os.path.join(folder, "per_seed.nc")
     if not os.path.isfile(path):
         return {}
@@ -107,14 +122,18 @@ def per_seed_samples(folder: str) -> dict[str, tuple[str, np.ndarray]]:
         if template is None or statistic not in (MEAN, FRACTION):
             continue
         named = re.findall(r"\{(\w+)\}", template)
-        var = var.isel({d: 0 for d in var.dims if d != "seed" and d not in named and var.sizes[d] == 1})
-        if any(d != "seed" and d not in named for d in var.dims):
-            continue  # a dimension the path does not name: not one statistic per label
+        others = [d for d in var.dims[1:] if d not in named]  # the first dimension is the seeds
+        if any(var.sizes[d] != 1 for d in others):
+            continue  # not one statistic per label of the named dimensions
+        var = var.isel({d: 0 for d in others})
         over = ds[var.attrs["over"]] if var.attrs.get("over") in ds else None
         for labels in itertools.product(*(ds[d].values.tolist() for d in named)):
             where = dict(zip(named, labels))
+            # split first: a label may hold dots of its own
+            key = _path(results, [part.format(**where) for part in template.split(".")])
+            if key is None:
+                continue  # a statistic over no seed, left out of results
             values = np.asarray(var.sel(where).values)
-            key = re.sub(r"\.(\d+)(?=\.|$)", r"[\1]", template.format(**where))
             if statistic == FRACTION:
                 out[key] = (FRACTION, values.astype(bool))
                 continue
