@@ -221,3 +221,33 @@ def test_a_sweep_asked_for_per_seed_data_reruns_the_points_without_it(lqr_runs, 
             assert cli.main([*argv, *extra]) == 0
             assert said in capsys.readouterr().out
     assert (tmp_path / "points" / "seed=1" / "per_seed.nc").exists()
+
+
+def test_per_seed_paths_follow_the_results_lists_dotted_labels_and_masks(tmp_path):
+    """A hand-made per_seed.nc (docs/data.md's layout): list entries by index, a label holding a dot, the seeds
+    a mean is over, a fraction, and a dimension the path does not name (not one statistic: left out)."""
+    pytest.importorskip("xarray")
+    pytest.importorskip("h5py")
+    from jaxdip import dataset
+
+    rng = np.random.default_rng(0)
+    v, w, ok = rng.normal(size=(5, 2)), rng.normal(size=(5, 2)), np.array([True, True, False, True, True])
+    variables = {
+        "ok": (("seed",), ok, {"units": "1"}),
+        "sweep.v": (("sweep_seed", "gamma_index"), v, {"units": "1", "summarised_as": "sweep.v.{gamma_index}",
+                                                        "statistic": C.MEAN}),
+        "gain.w": (("seed", "gain"), w, {"units": "1", "summarised_as": "gains.{gain}.w", "statistic": C.MEAN,
+                                         "over": "ok"}),
+        "stab": (("seed",), ok, {"units": "1", "summarised_as": "stabilized", "statistic": C.FRACTION}),
+        "both": (("seed", "gain"), w, {"units": "1", "summarised_as": "both", "statistic": C.MEAN}),
+    }
+    dataset.write(dataset.build(variables, {"gain": ["0.5", "2"], "gamma_index": [0, 1]}),
+                  str(tmp_path / "per_seed.nc"))
+    results = {"sweep": {"v": [0.1, 0.2]}, "gains": {"0.5": {"w": 1.0}, "2": {"w": 2.0}}, "stabilized": 0.8,
+               "both": 3.0}
+    got = C.per_seed_samples(str(tmp_path), results)
+    assert sorted(got) == ["gains.0.5.w", "gains.2.w", "stabilized", "sweep.v[0]", "sweep.v[1]"]
+    assert set(got) <= set(C.leaves(results))  # the names compare gives the statistics
+    np.testing.assert_array_equal(got["sweep.v[1]"][1], v[:, 1])
+    np.testing.assert_array_equal(got["gains.0.5.w"][1], w[ok, 0])
+    assert got["stabilized"][0] == C.FRACTION and got["stabilized"][1].sum() == 4
