@@ -146,6 +146,8 @@ def test_folders_that_cannot_be_compared(runs, capsys, tmp_path):
     assert capsys.readouterr().err.strip().endswith("nowhere: no such folder")
     assert cli.main(["compare", str(root / "base"), str(tmp_path)]) == 2
     assert "not a jaxdip result folder" in capsys.readouterr().err
+    assert cli.main(["compare", str(root / "sw"), str(root / "base")]) == 2
+    assert "is a sweep: compare its points" in capsys.readouterr().err
     other = tmp_path / "other"
     shutil.copytree(root / "base", other)
     m = json.loads((other / "metrics.json").read_text())

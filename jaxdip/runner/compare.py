@@ -75,6 +75,10 @@ def read_metrics(folder: str) -> dict:
         with open(path) as fh:
             m = json.load(fh)
     except FileNotFoundError:
+        from jaxdip.runner.sweep import SWEEP_MARKER
+
+        if os.path.exists(os.path.join(folder, SWEEP_MARKER)):
+            raise CompareError(folder, "is a sweep: compare its points, points/<key=value,...>") from None
         raise CompareError(folder, "holds no metrics.json: not a jaxdip result folder") from None
     except (OSError, ValueError) as e:
         raise CompareError(folder, f"cannot read metrics.json ({getattr(e, 'strerror', None) or e})") from None
