@@ -6,7 +6,6 @@ import json
 import os
 import re
 import shlex
-import signal
 import sys
 import time
 
@@ -14,7 +13,8 @@ import numpy as np
 
 from jaxdip import xla_flags
 from jaxdip.cli_args import check_paths, parser, special_kind
-from jaxdip.cli_errors import component_refusal, emit, error, guarded, note, numerical, out_of_memory, riccati_keys, warn
+from jaxdip.cli_errors import (Signals, component_refusal, emit, error, guarded, note, numerical, riccati_keys,
+                               run_refusal, warn)
 from jaxdip.messages import listing, unknown
 from jaxdip.reproduce_pool import run_parallel
 
@@ -81,6 +81,8 @@ def _distributed(args) -> int:
              if v is not None]
     if not args.distributed:
         return error(given[0], "only with --distributed") if given else 0
+    if getattr(args, "sweep", None):
+        return error("--sweep", "not with --distributed: a sweep runs its points one after another in one process")
     if args.cmd == "reproduce":
         if args.jobs is not None and args.jobs != 1:
             return error("--jobs", "--distributed runs the experiments one after another in this process; "
@@ -100,32 +102,6 @@ def _distributed(args) -> int:
     if pid != 0:
         os.environ["JAXDIP_NO_PROGRESS"] = "1"  # one progress bar, process 0's
     return 0
-
-
-class _Signals:
-    """SIGINT and SIGTERM stop a run: the first raises KeyboardInterrupt and is remembered, so a run whose
-    library code swallowed it still refuses to write its folder (``run_experiment``'s ``stop_requested``)."""
-
-    def __init__(self):
-        self.hit = None
-        self._old = {}
-
-    def _handler(self, signum, frame):
-        self.hit = signum
-        raise KeyboardInterrupt
-
-    def __enter__(self):
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            self._old[sig] = signal.signal(sig, self._handler)
-        return self
-
-    def __exit__(self, *exc):
-        for sig, h in self._old.items():
-            signal.signal(sig, h)
-        return False
-
-    def requested(self) -> bool:
-        return self.hit is not None
 
 
 def _flag_keys(args) -> dict:
@@ -186,14 +162,9 @@ def _set_effort(args) -> int:
 
 
 def cmd_run(args, argv=None) -> int:
-    from jaxdip.checkpoint import CheckpointError
     from jaxdip.config import ConfigError
-    from jaxdip.control.riccati import RiccatiError
-    from jaxdip.engine.checks import ArgumentError
     from jaxdip.runner import run_experiment
     from jaxdip.runner.experiment import run_context
-    from jaxdip.runner.results import ResultError
-    from jaxdip.outdir import OutputError
 
     flags = _flag_keys(args)
     try:
@@ -212,8 +183,12 @@ def cmd_run(args, argv=None) -> int:
             dataset.require()
         except dataset.MissingExtra as e:
             return error("--per-seed", str(e))
+    if args.sweep:
+        from jaxdip.cli_sweep import cmd_sweep
+
+        return cmd_sweep(args, exp, shlex.join(["jaxdip", *(sys.argv[1:] if argv is None else argv)]))
     ckpt = None
-    with _Signals() as sig:
+    with Signals() as sig:
         try:
             level = xla_flags.effort()
             ckpt = run_context(exp, cfg, out, compile_effort=level).checkpoint_path
@@ -221,22 +196,12 @@ def cmd_run(args, argv=None) -> int:
                                      flag_keys=flags, stop_requested=sig.requested, compile_effort=level,
                                      quick=args.quick, per_seed=args.per_seed,
                                      command=shlex.join(["jaxdip", *(sys.argv[1:] if argv is None else argv)]))
-        except (ConfigError, OutputError, ResultError) as e:
-            return error(e.key, e.why)
-        except CheckpointError as e:
-            return error("--resume", str(e))
-        except RiccatiError as e:
-            return error(riccati_keys(cfg), str(e))
-        except ArgumentError as e:
-            return component_refusal(cfg, e, exp.id)
-        except (np.linalg.LinAlgError, ArithmeticError, ValueError) as e:
-            return numerical(cfg, e)
         except KeyboardInterrupt:
             return _interrupted(ckpt, argv)
         except Exception as e:
-            if out_of_memory(e):
-                return error("--seeds", "the run ran out of memory; lower --seeds, shorten the run or save less")
-            raise
+            if (code := run_refusal(e, cfg, exp.id)) is None:
+                raise
+            return code
     from jaxdip.distributed import is_main
 
     if is_main():
@@ -306,14 +271,14 @@ def cmd_reproduce(args, argv=None) -> int:
         sections.append(re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", rf"![\1]({exp_id}/\2)", body))
 
     if jobs > 1 and len(reg) > 1:
-        with _Signals():
+        with Signals():
             code = run_parallel(args, reg, jobs)
         if code:
             return code
         for exp_id, exp in reg:
             collect(exp_id, exp)
     else:
-        with _Signals() as sig:
+        with Signals() as sig:
             try:
                 for exp_id, exp in reg:
                     out = os.path.join(args.out, exp_id)
@@ -358,7 +323,7 @@ def cmd_bench(args, argv=None) -> int:
         check_outputs(args.out)
     except outdir.OutputError as e:
         return error(e.key, e.why)
-    with _Signals():
+    with Signals():
         try:
             run_bench(quick=args.quick, out=args.out)
         except outdir.OutputError as e:
@@ -389,6 +354,10 @@ def _command(args, argv) -> int:
         from jaxdip.cli_config import cmd_config
 
         return cmd_config(args, _unknown)
+    if args.cmd == "compare":
+        from jaxdip.cli_compare import cmd_compare
+
+        return cmd_compare(args)
     return {"run": cmd_run, "reproduce": cmd_reproduce, "bench": cmd_bench}[args.cmd](args, argv)
 
 
