@@ -31,7 +31,7 @@ class MissingExtra(ImportError):
 
 
 def available() -> bool:
-    """Whether xarray and h5netcdf can be imported."""
+    """Whether xarray, h5netcdf and h5py can be imported."""
     try:
         require()
     except MissingExtra:
@@ -43,9 +43,10 @@ def require():
     """The ``xarray`` module, or ``MissingExtra`` naming the extra that provides it and h5netcdf."""
     try:
         import h5netcdf  # noqa: F401  (the engine xarray writes with)
+        import h5py  # noqa: F401  (h5netcdf's HDF5 library: recent h5netcdf releases no longer install it)
         import xarray
     except ImportError as e:
-        raise MissingExtra(f"per-seed datasets need xarray and h5netcdf ({e.name} is missing): {EXTRA}") from None
+        raise MissingExtra(f"per-seed datasets need xarray, h5netcdf and h5py ({e.name} is missing): {EXTRA}") from None
     return xarray
 
 
