@@ -34,7 +34,7 @@ from jax.flatten_util import ravel_pytree
 
 from jaxdip.search.failures import OK, Failure, SearchStopped, sanitize, status_message
 from jaxdip.search.schedules import Schedule
-from jaxdip.search.steps import SearchState, Step, iterate, make_step
+from jaxdip.search.steps import SearchState, Step, make_step, run_steps
 from jaxdip.search.variants import ensemble_update
 
 from jaxdip._public import public_dir
@@ -151,7 +151,7 @@ def run_eki(eki: EKI, state: EKIState, iterations: int, *, chunk: int = 10, prog
     end = kalman.schedule.end
 
     def advance(st, n_dummy):
-        return iterate(lambda s: eki.step(s, axis), st, n_dummy.shape[0], end=end, penalty=eki.penalty)
+        return run_steps(lambda s: eki.step(s, axis), st, n_dummy.shape[0], end=end, penalty=eki.penalty)
 
     if shard:
         from jax.sharding import Mesh, NamedSharding, PartitionSpec
