@@ -96,6 +96,9 @@ class EKI(NamedTuple):
             J = V.shape[0] // n
             first = jax.lax.axis_index(axis) * J
             V = jax.lax.dynamic_slice_in_dim(V, first, J)
+        if self.project is not None and not self.kalman().variant.ensemble:
+            # UKI's sigma points stay as drawn (the update needs them): G sees them projected
+            unravel = lambda v, u=self.unravel(): self.project(u(v))  # noqa: E731
         if self.member_keys:
             keys = jax.vmap(lambda j: jax.random.fold_in(key, j))(first + jnp.arange(V.shape[0]))
             Y = jax.vmap(lambda v, k: self.G(unravel(v), k))(V, keys)
@@ -109,7 +112,7 @@ class EKI(NamedTuple):
         """One iteration; returns (new state, performances of the members before the update).
 
         An ensemble variant's members are re-projected (``project``) and sign-aligned (``align``) after the
-        update; UKI's sigma points are left as drawn (its mean is projected by ``mean``).
+        update; UKI's sigma points are left as drawn (``evaluate`` and ``mean`` project them).
         """
         kalman = self.kalman()
         Y = self.evaluate(state, kalman.eval_key(state), axis)
