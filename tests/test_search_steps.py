@@ -249,3 +249,24 @@ def test_localiser_formulas_match_numpy():
     np.testing.assert_allclose(k[:3], [1.0, 5 / 24, 0.0], atol=1e-12)
     near = np.asarray(distance_kernel(np.array([1 - 1e-9, 1 + 1e-9]), np.array([0.0]), 1.0))[:, 0]
     assert abs(near[0] - near[1]) < 1e-7
+
+
+def test_nesterov_momentum_follows_its_rule():
+    # the accelerated step is the plain step's ensemble u_k extrapolated by theta_k (1/theta_{k-1} - 1)(u_k - u_{k-1})
+    G, m0, C0, R, y, mu, P = linear_gaussian(11)
+    E0 = jnp.asarray(m0) + jax.random.normal(jax.random.PRNGKey(12), (30, 4)) @ jnp.linalg.cholesky(C0).T
+    plain = make_step("eki", schedule=scheduled(lambda i: 0.5 + 0.25 * i))
+    acc = make_step("eki", schedule=scheduled(lambda i: 0.5 + 0.25 * i), accelerate="nesterov")
+    s_acc = acc.init(E0, jax.random.PRNGKey(13))
+    s_plain = plain.init(E0, jax.random.PRNGKey(13))
+    u_prev, theta_prev, dt_prev = np.asarray(E0), 1.0, 1.0
+    for k in range(3):
+        Y = s_acc.members @ jnp.asarray(G).T
+        u = np.asarray(plain.update(s_plain._replace(members=s_acc.members), Y, jnp.asarray(y), jnp.asarray(R)).members)
+        s_acc = acc.update(s_acc, Y, jnp.asarray(y), jnp.asarray(R))
+        s_plain = s_plain._replace(iteration=s_plain.iteration + 1)
+        dt = 0.5 + 0.25 * k
+        a = np.sqrt(theta_prev**2 * dt / dt_prev)
+        theta = (-a + np.sqrt(a * a + 4)) / 2
+        np.testing.assert_allclose(s_acc.members, u + theta * (1 / theta_prev - 1) * (u - u_prev), rtol=1e-12)
+        u_prev, theta_prev, dt_prev = u, theta, dt
