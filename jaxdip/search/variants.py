@@ -118,10 +118,14 @@ def etki() -> Variant:
 
 
 def unscented_points(mean, cov):
-    """(2p + 1, p): the centre, then mean + c L_i and mean - c L_i (L L^T = cov), c^2 = min(p, 4)."""
+    """(2p + 1, p): the centre, then mean + c L_i and mean - c L_i (L L^T = cov), c^2 = min(p, 4).
+
+    L is the symmetric square root with negative eigenvalues (rounding, or a covariance estimated from fewer
+    members than parameters) clipped to zero, so a semidefinite covariance still has its points."""
     p = mean.shape[0]
     c = jnp.sqrt(min(p, 4.0))
-    L = jnp.linalg.cholesky(0.5 * (cov + cov.T))
+    lam, Q = jnp.linalg.eigh(0.5 * (cov + cov.T))
+    L = (Q * jnp.sqrt(jnp.maximum(lam, 0.0))) @ Q.T
     return jnp.concatenate([mean[None], mean + c * L.T, mean - c * L.T])
 
 
