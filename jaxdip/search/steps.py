@@ -193,5 +193,7 @@ def run_steps(body: Callable, state: SearchState, iterations: int, *, end: float
         return s, i + 1, hist.at[i].set(sanitize(Y.reshape(Y.shape[0], -1), penalty).mean(axis=0))
 
     hist = jnp.full((iterations, m), jnp.nan, state.members.dtype)
+    if iterations == 0:  # nothing to run (the loop body could not even index its empty history)
+        return state, hist, jnp.zeros((), jnp.int32)
     state, n, hist = jax.lax.while_loop(cond, loop, (state, jnp.zeros((), jnp.int32), hist))
     return state, hist, n
