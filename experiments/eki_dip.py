@@ -92,6 +92,9 @@ class EkiDipConfig:
     schedule: str = C.field("fixed", C.one_of("fixed", "adaptive"),
                             doc="step: the thesis's fixed dt = 1, or the data-misfit controller (the search also "
                                 "stops at algorithmic time 1)")
+    adaptive_end: float = C.field(1.0, C.positive_finite,
+                                  doc="algorithmic time at which the adaptive schedule stops (Iglesias & Yang: 1, "
+                                      "prior to posterior; larger values keep minimising)")
     y_target: float = C.field(-8.0, C.finite, doc="performance objective yhat (log scale: 3.4e-4)")
     R: float = C.field(1.0, C.positive_finite, doc="variance of the objective's perturbation")
     sigma_w: float = C.field(1e-4, C.nonneg_finite, doc="std of the members' random perturbation")
@@ -207,7 +210,7 @@ def build(cfg: EkiDipConfig, base):
               min_success=cfg.min_success, penalty=float(np.log(scfg.penalty)) if cfg.log_performance else scfg.penalty,
               align=lambda V: align_signs(V, member_blocks(cfg.free_vectors, 6)),
               member_keys=cfg.x0_draw == "per_member", variant=cfg.variant,
-              schedule=data_misfit() if cfg.schedule == "adaptive" else None)
+              schedule=data_misfit(cfg.adaptive_end) if cfg.schedule == "adaptive" else None)
     return plant, scfg, eki, eki.init(members0, jax.random.fold_in(base, 2)), members0, v1_lqr
 
 
