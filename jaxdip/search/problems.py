@@ -24,7 +24,7 @@ __all__ = ["tikhonov", "Box", "box"]
 __dir__ = public_dir(globals())
 
 
-def tikhonov(forward: Callable, y, R, prior_mean, prior_cov):
+def tikhonov(forward: Callable, y, R, prior_mean, prior_cov) -> tuple:
     """(forward+, y+, R+) of TEKI: ``forward+(points, key) = [forward(points, key), points]`` (outputs of the
     (J, p) points side by side), ``y+ = [y, prior_mean]``, ``R+ = blockdiag(R, prior_cov)``."""
     y, R = jnp.atleast_1d(jnp.asarray(y)), jnp.atleast_2d(jnp.asarray(R))

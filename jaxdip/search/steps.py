@@ -158,7 +158,7 @@ def make_step(variant="eki", *, schedule: Optional[Schedule] = None, localiser: 
     return Step(init, eval_key, update, variant, schedule, failure)
 
 
-def done(state: SearchState, end: float = math.inf):
+def done(state: SearchState, end: float = math.inf) -> jnp.ndarray:
     """True once the search must stop: a status other than OK, or the algorithmic time at ``end``."""
     return (state.status != OK) | (state.time >= end)
 
@@ -175,7 +175,7 @@ def step_body(step: Step, forward: Callable, y, R) -> Callable:
 
 
 def run_steps(body: Callable, state: SearchState, iterations: int, *, end: float = math.inf,
-            penalty: float = 1000.0):
+              penalty: float = 1000.0) -> tuple:
     """Up to ``iterations`` calls of ``body(state) -> (state, Y)`` (e.g. ``step_body(step, forward, y, R)``) as one
     ``lax.while_loop`` (jit- and vmap-able). Ends early after the iteration that set a status other than OK or
     took the algorithmic time to ``end`` (``step.schedule.end``). Returns (state, history (iterations, m): the

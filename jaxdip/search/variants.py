@@ -66,7 +66,7 @@ def _gain_update(V, Y, Yhat, R, dV, dY, n, localise):
     return V + (Yhat - Y) @ gain_T, jnp.all(jnp.isfinite(gain_T))
 
 
-def ensemble_update(V, Y, Yhat, R, W):
+def ensemble_update(V, Y, Yhat, R, W) -> jnp.ndarray:
     """(2.22) with the Kalman sign, for given perturbed objectives Yhat (J, m) and perturbations W (J, p)."""
     dV, dY, n = _moments(V, Y, None, False)
     return _gain_update(V, Y, Yhat, R, dV, dY, n, None)[0] + W
@@ -117,7 +117,7 @@ def etki() -> Variant:
     return Variant("etki", lambda start, key: {}, lambda aux, members: members, analysis)
 
 
-def unscented_points(mean, cov):
+def unscented_points(mean, cov) -> jnp.ndarray:
     """(2p + 1, p): the centre, then mean + c L_i and mean - c L_i (L L^T = cov), c^2 = min(p, 4).
 
     L is the symmetric square root with negative eigenvalues (rounding, or a covariance estimated from fewer
