@@ -217,6 +217,7 @@ def cmd_reproduce(args, argv=None) -> int:
     from jaxdip.config import ConfigError
     from jaxdip.control.riccati import RiccatiError
     from jaxdip.engine.checks import ArgumentError
+    from jaxdip.search.failures import SearchStopped
     from jaxdip.runner import registry, run_experiment
     from jaxdip.outdir import OutputError
 
@@ -291,6 +292,8 @@ def cmd_reproduce(args, argv=None) -> int:
                 return error(e.key, e.why)
             except RiccatiError as e:
                 return error(exp_id, f"{riccati_keys(cfgs[exp_id])}: {e}")
+            except SearchStopped as e:
+                return error(exp_id, e.why)
             except ArgumentError as e:
                 return component_refusal(cfgs[exp_id], e, exp_id, f"{exp_id}: ")
             except (np.linalg.LinAlgError, ArithmeticError, ValueError) as e:

@@ -273,8 +273,9 @@ def run_refusal(e: Exception, cfg, exp_id: str) -> int | None:
     from jaxdip.engine.checks import ArgumentError
     from jaxdip.outdir import OutputError
     from jaxdip.runner.results import ResultError
+    from jaxdip.search.failures import SearchStopped
 
-    if isinstance(e, (ConfigError, OutputError, ResultError)):
+    if isinstance(e, (ConfigError, OutputError, ResultError, SearchStopped)):
         return error(e.key, e.why)
     if isinstance(e, CheckpointError):
         return error("--resume", str(e))

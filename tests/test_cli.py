@@ -213,3 +213,13 @@ def test_reproduce_workers_share_the_cores(monkeypatch, argv, cores, devices):
     monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=3")
     cli._use_all_cores(2)
     assert os.environ["XLA_FLAGS"] == "--xla_force_host_platform_device_count=3"
+
+
+@pytest.mark.slow
+def test_a_search_where_every_member_fails_ends_with_one_line(tmp_path, capsys):
+    # initial states far outside the state bound: every member fails every iteration; with failure "ignore" the
+    # search stops after ten skipped iterations with a status, which the CLI prints as one line (status 2)
+    code = cli.main(["run", "eki-dip", "--quick", "--out", str(tmp_path / "o"), "--set", "failure=ignore",
+                     "--set", "min_success=4", "--set", "iterations=20", "--set", "x0_std=[20.0, 20.0, 20.0, 0, 0, 0]"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err[-1].startswith("error: search: ensemble search stopped at iteration 10:"), err[-1:]
