@@ -1,8 +1,14 @@
-"""Derivative-free search: ensemble Kalman inversion over SPD matrices P (thesis §2.6)."""
+"""Derivative-free search: ensemble Kalman inversion and its variants as composable steps (thesis §2.6)."""
 
 from jaxdip.search.eki import EKI, EKIState, ensemble_update, run_eki
+from jaxdip.search.failures import Failure, SearchStopped
+from jaxdip.search.localisers import distance_kernel, schur, sec, sec_fisher
+from jaxdip.search.schedules import data_misfit, fixed, scheduled
+from jaxdip.search.steps import SearchState, advance, iterate, make_step
 
 from jaxdip._public import public_dir
 
-__all__ = ["EKI", "EKIState", "ensemble_update", "run_eki"]
+__all__ = ["EKI", "EKIState", "ensemble_update", "run_eki", "Failure", "SearchStopped", "distance_kernel", "schur",
+           "sec", "sec_fisher", "data_misfit", "fixed", "scheduled", "SearchState", "advance", "iterate",
+           "make_step"]
 __dir__ = public_dir(globals())

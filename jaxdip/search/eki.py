@@ -1,4 +1,4 @@
-"""Ensemble Kalman inversion (thesis §2.6.3, eqs. (2.21)-(2.22)), generic over the performance map.
+"""Ensemble Kalman inversion (thesis §2.6.3, eqs. (2.21)-(2.22)) over a performance map of pytree members.
 
 Minimises 1/2 ||G(v) - yhat||^2 over v with an ensemble {v^j}. Each iteration:
 
@@ -11,12 +11,16 @@ Sign: (2.22) is printed with (y^j - yhat^j), which would push members *away* fro
 rule (and the thesis's own description, "a minimizer of the difference") needs yhat^j - y^j. We use the latter;
 a test checks that the mean converges to the least-squares solution of a linear problem.
 
-Members are pytrees (flattened internally). A member whose performance is not finite gets ``penalty`` (the
-thesis's rule: a diverged simulation scores 1000), so one failure never poisons the statistics with NaN.
-``failure="resample"`` goes further, as EnsembleKalmanProcesses.jl does: failed members are left out of the
-statistics and redrawn from the Gaussian of the successful ones, so a cliff of penalties cannot drag the
-ensemble over it; iterations with too few successes are skipped, and a whole chunk of them stops the run with a clear error. The PRNG key
-lives in the state, so a run is reproducible and resumable from any checkpoint.
+``EKI`` is the problem (the performance map over pytree members, the objective, how members are evaluated over
+devices, re-projected and sign-aligned) around one composed step of ``jaxdip.search.steps``: by default the
+thesis's configuration (``variant="eki"``, a fixed step dt = 1, no localiser), with the fields ``variant``,
+``schedule``, ``localiser`` and ``accelerate`` choosing any other. A member whose performance is not finite gets
+``penalty`` (the thesis's rule: a diverged simulation scores 1000), so one failure never poisons the statistics
+with NaN. ``failure="resample"`` goes further, as EnsembleKalmanProcesses.jl does: failed members are left out
+of the statistics and redrawn from the Gaussian of the successful ones; ``failure="ignore"`` leaves them out and
+in place. In those two modes an iteration with fewer than ``min_success`` successes is skipped, and more than
+``patience`` skipped in a row stop the search with a status, which ``run_eki`` raises as ``SearchStopped``
+(one line). The PRNG key lives in the state, so a run is reproducible and resumable from any checkpoint.
 """
 
 from __future__ import annotations
@@ -28,59 +32,21 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-
+from jaxdip.search.failures import OK, Failure, SearchStopped, sanitize, status_message
+from jaxdip.search.schedules import Schedule
+from jaxdip.search.steps import SearchState, Step, iterate, make_step
+from jaxdip.search.variants import ensemble_update
 
 from jaxdip._public import public_dir
 
-__all__ = ["EKIState", "ensemble_update", "ensemble_update_resample", "sanitize", "EKI", "run_eki", "align_signs"]
+__all__ = ["EKIState", "ensemble_update", "sanitize", "EKI", "run_eki", "align_signs"]
 __dir__ = public_dir(globals())
 
-
-class EKIState(NamedTuple):
-    members: jnp.ndarray  # (J, p) flattened members
-    key: jnp.ndarray
-    iteration: jnp.ndarray
-
-
-def ensemble_update(V, Y, Yhat, R, W):
-    """(2.22) with the Kalman sign, for given perturbed objectives Yhat (J, m) and perturbations W (J, p)."""
-    J = V.shape[0]
-    dV = V - V.mean(axis=0)
-    dY = Y - Y.mean(axis=0)
-    Cvy = dV.T @ dY / (J - 1)
-    Cyy = dY.T @ dY / (J - 1)
-    # (C_yy + R) is SPD: solve rather than invert
-    gain_T = jnp.linalg.solve(Cyy + R, Cvy.T)  # (m, p)
-    return V + (Yhat - Y) @ gain_T + W
-
-
-def ensemble_update_resample(V, Y, Yhat, R, W, ok, key):
-    """(2.22) over the successful members only (``ok``); failed members are redrawn from the Gaussian of the
-    updated successful members (the EnsembleKalmanProcesses.jl failure handling). Needs >= 2 successes."""
-    w = ok.astype(V.dtype)
-    n = jnp.maximum(w.sum(), 2.0)
-    vbar = (w[:, None] * V).sum(0) / w.sum()
-    ybar = (w[:, None] * Y).sum(0) / w.sum()
-    dV = (V - vbar) * w[:, None]
-    dY = (Y - ybar) * w[:, None]
-    Cvy = dV.T @ dY / (n - 1)
-    Cyy = dY.T @ dY / (n - 1)
-    gain_T = jnp.linalg.solve(Cyy + R, Cvy.T)
-    Vn = V + (Yhat - Y) @ gain_T + W
-    mu = (w[:, None] * Vn).sum(0) / w.sum()
-    D = (Vn - mu) * w[:, None]
-    cov = D.T @ D / (n - 1) + 1e-12 * jnp.eye(V.shape[1])
-    L = jnp.linalg.cholesky(cov)
-    draws = mu + jax.random.normal(key, V.shape) @ L.T
-    return jnp.where(ok[:, None], Vn, draws)
-
-
-def sanitize(Y, penalty):
-    return jnp.where(jnp.isfinite(Y), Y, penalty)
+EKIState = SearchState  # the state of an EKI search (one state type for every composed step)
 
 
 class EKI(NamedTuple):
-    """An EKI process over members shaped like ``template`` (a pytree)."""
+    """An ensemble Kalman search over members shaped like ``template`` (a pytree)."""
 
     G: Callable  # G(member_pytree, key) -> (m,) performance; key shared by the ensemble unless member_keys
     template: object
@@ -89,22 +55,35 @@ class EKI(NamedTuple):
     sigma_w: float = 0.0
     penalty: float = 1000.0
     project: Optional[Callable] = None  # member pytree -> member pytree, after each update (re-orthonormalise)
-    failure: str = "penalty"  # "penalty" (thesis) or "resample" (failed members redrawn from the successful ones)
-    min_success: int = 2  # resample mode: an iteration with fewer successes leaves the ensemble unchanged
+    failure: str = "penalty"  # "penalty" (thesis), "resample" or "ignore" (failed members left out)
+    min_success: int = 2  # resample/ignore: an iteration with fewer successes leaves the ensemble unchanged
     align: Optional[Callable] = None  # (J, p) flat ensemble -> (J, p), e.g. resolve v ~ -v sign symmetries
     # run_eki evaluates the members split over this process's devices (one XLA device per core under the
     # CLI); None: when there is more than one and they divide J
     shard: Optional[bool] = None
     member_keys: bool = False  # True: member j is evaluated with fold_in(key, j) (its own x0 and noise)
+    variant: object = "eki"  # "eki", "etki", "uki" or a jaxdip.search.variants.Variant
+    schedule: Optional[Schedule] = None  # None: the thesis's fixed step dt = 1
+    localiser: Optional[Callable] = None
+    accelerate: Optional[str] = None  # None or "nesterov"
+    patience: int = 9  # resample/ignore: skipped iterations in a row tolerated before the search stops
 
     def unravel(self):
         return ravel_pytree(self.template)[1]
+
+    def kalman(self) -> Step:
+        """The composed step of this search (``jaxdip.search.steps.make_step``)."""
+        # the thesis's penalty rule never stops: every member enters the update with its penalty
+        floor = 0 if self.failure == "penalty" else max(2, self.min_success)
+        return make_step(self.variant, schedule=self.schedule, localiser=self.localiser,
+                         failure=Failure(self.failure, floor, self.patience, self.penalty),
+                         accelerate=self.accelerate, sigma_w=self.sigma_w)
 
     def init(self, members_tree, key) -> EKIState:
         flat = jax.vmap(lambda m: ravel_pytree(m)[0])(members_tree)
         if self.align is not None:
             flat = self.align(flat)
-        return EKIState(flat, key, jnp.zeros((), jnp.int32))
+        return self.kalman().init(flat, key)
 
     def evaluate(self, state: EKIState, key, axis: Optional[str] = None):
         """Y (J, m). ``axis``: inside ``shard_map`` over that mesh axis, each device evaluates its block of
@@ -129,46 +108,36 @@ class EKI(NamedTuple):
     def step(self, state: EKIState, axis: Optional[str] = None):
         """One iteration; returns (new state, performances of the members before the update).
 
-        With ``failure="resample"``, a member is failed when any of its performances reaches ``penalty``; when
-        fewer than two succeed the ensemble is left unchanged (``run_eki`` then stops with an error).
+        An ensemble variant's members are re-projected (``project``) and sign-aligned (``align``) after the
+        update; UKI's sigma points are left as drawn (its mean is projected by ``mean``).
         """
-        k_eval, k_obj, k_w, k_res = jax.random.split(jax.random.fold_in(state.key, state.iteration), 4)
-        Y = self.evaluate(state, k_eval, axis)
-        J, m = Y.shape
-        Lr = jnp.linalg.cholesky(self.R)
-        Yhat = self.y_target + jax.random.normal(k_obj, (J, m)) @ Lr.T
-        W = self.sigma_w * jax.random.normal(k_w, state.members.shape)
-        if self.failure == "resample":
-            ok = jnp.all(Y < self.penalty, axis=1)
-            # a shared initial state that (nearly) every member fails on says more about the state than the
-            # members: skip such an iteration rather than collapse the ensemble onto the few survivors
-            enough = ok.sum() >= max(2, self.min_success)
-            V = jnp.where(enough, ensemble_update_resample(state.members, Y, Yhat, self.R, W, ok, k_res),
-                          state.members)
-        elif self.failure == "penalty":
-            V = ensemble_update(state.members, Y, Yhat, self.R, W)
-        else:
-            raise ValueError(f"failure must be 'penalty' or 'resample', got {self.failure!r}")
-        if self.project is not None:
-            unravel = self.unravel()
-            V = jax.vmap(lambda v: ravel_pytree(self.project(unravel(v)))[0])(V)
-        if self.align is not None:
-            V = self.align(V)
-        return EKIState(V, state.key, state.iteration + 1), Y
+        kalman = self.kalman()
+        Y = self.evaluate(state, kalman.eval_key(state), axis)
+        state = kalman.update(state, Y, self.y_target, self.R)
+        V = state.members
+        if kalman.variant.ensemble:
+            if self.project is not None:
+                unravel = self.unravel()
+                V = jax.vmap(lambda v: ravel_pytree(self.project(unravel(v)))[0])(V)
+            if self.align is not None:
+                V = self.align(V)
+        return state._replace(members=V), Y
 
     def mean(self, state: EKIState):
-        m = self.unravel()(state.members.mean(axis=0))
+        flat = state.aux["mean"] if "mean" in state.aux else state.members.mean(axis=0)
+        m = self.unravel()(flat)
         return self.project(m) if self.project is not None else m
 
 
 def run_eki(eki: EKI, state: EKIState, iterations: int, *, chunk: int = 10, progress=None, checkpoint=None,
             stop: Optional[Callable] = None):
-    """Iterate ``eki`` to ``iterations`` in jitted chunks.
+    """Iterate ``eki`` to ``iterations`` (or the end of its schedule) in jitted chunks.
 
     ``progress``: a ``Progress`` to update; ``checkpoint(state, history)`` is called after every chunk;
     ``stop(history) -> bool`` ends early (checked between chunks, so results do not depend on the chunking
     only if ``stop`` is None or deterministic in the history). Returns (state, history) where history holds
-    the ensemble-mean performance per iteration (numpy, (n, m)).
+    the ensemble-mean performance per iteration (numpy, (n, m)). A search whose status leaves OK (too few
+    successes, a non-finite update) is checkpointed and raises ``SearchStopped`` with a one-line message.
     """
 
     devices = jax.local_devices()
@@ -178,13 +147,11 @@ def run_eki(eki: EKI, state: EKIState, iterations: int, *, chunk: int = 10, prog
         raise ValueError(f"shard=True needs the ensemble size ({J}) to be a multiple of the number of devices "
                          f"({len(devices)})")
     axis = "members" if shard else None
+    kalman = eki.kalman()
+    end = kalman.schedule.end
 
     def advance(st, n_dummy):
-        def body(s, _):
-            s, Y = eki.step(s, axis)
-            return s, (Y.mean(axis=0), jnp.sum(jnp.all(Y < eki.penalty, axis=1)))
-
-        return jax.lax.scan(body, st, None, length=n_dummy.shape[0])
+        return iterate(lambda s: eki.step(s, axis), st, n_dummy.shape[0], end=end, penalty=eki.penalty)
 
     if shard:
         from jax.sharding import Mesh, NamedSharding, PartitionSpec
@@ -201,20 +168,19 @@ def run_eki(eki: EKI, state: EKIState, iterations: int, *, chunk: int = 10, prog
 
     history = []
     done = int(state.iteration)
-    while done < iterations:
+    while done < iterations and float(state.time) < end and int(state.status) == OK:
         n = min(chunk, iterations - done)
-        state, (ys, n_ok) = advance(state, jnp.zeros(n))
-        ys = np.asarray(ys)
-        if eki.failure == "resample" and int(np.max(n_ok)) < max(2, eki.min_success):
-            raise RuntimeError(f"EKI: fewer than {max(2, eki.min_success)} ensemble members succeeded in every one "
-                               f"of iterations {done + 1}..{done + n}; cannot update (widen or move the initial "
-                               "ensemble, or relax the failure bound)")
+        state, ys, n_done = advance(state, jnp.zeros(n))
+        ys = np.asarray(ys)[: int(n_done)]
         history.append(ys)
-        done += n
+        done += int(n_done)
         if progress is not None:
-            progress.update(n, postfix=f"mean perf {np.array2string(ys[-1], precision=3)}")
+            progress.update(int(n_done), postfix=f"mean perf {np.array2string(ys[-1], precision=3)}")
         if checkpoint is not None:
             checkpoint(state, np.concatenate(history))
+        if int(state.status) != OK:
+            raise SearchStopped(status_message(int(state.status), done, int(state.n_ok), kalman.failure),
+                                int(state.status), state, np.concatenate(history))
         if stop is not None and stop(np.concatenate(history)):
             break
     hist = np.concatenate(history) if history else np.zeros((0, int(eki.y_target.shape[0])))

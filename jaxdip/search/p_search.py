@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import jaxdip as jd
 from jaxdip.control.projection import RelaxedProjection
 from jaxdip.control.spd import P_v, P_Vs, orthonormalize
+from jaxdip.search import steps
 
 
 from jaxdip._public import public_dir
@@ -173,14 +174,12 @@ def performances(plant, cfg: ContinuousSearch, member: BasisMember, key, n: int,
 
 
 def iterate(eki, state, iterations: int):
-    """``iterations`` EKI steps as one pure scan (vmappable: a batch of searches is a vmap of this); returns
-    (state, ensemble-mean performance per iteration). ``run_eki`` is the host-side, checkpointed form."""
-
-    def body(s, _):
-        s, Y = eki.step(s)
-        return s, Y.mean(axis=0)
-
-    return jax.lax.scan(body, state, None, length=iterations)
+    """``iterations`` EKI steps as one pure loop (vmappable: a batch of searches is a vmap of this); returns
+    (state, ensemble-mean performance per iteration, NaN after an early stop). ``run_eki`` is the host-side,
+    checkpointed form."""
+    state, hist, _ = steps.iterate(eki.step, state, iterations, end=eki.kalman().schedule.end,
+                                   penalty=eki.penalty)
+    return state, hist
 
 
 def lowest_y1(eki, vs, key, n_states: int):
