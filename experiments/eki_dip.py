@@ -46,7 +46,7 @@ from jaxdip.runner.summaries import failure_lines, loop_summary
 from jaxdip.plants import dip
 from jaxdip.progress import Progress
 from jaxdip.scenarios import eki_dip as S
-from jaxdip.search import EKI, run_eki
+from jaxdip.search import EKI, data_misfit, run_eki
 from jaxdip.search.eki import align_signs
 from jaxdip.search.p_search import (
     BasisMember, continuous_performance, member_blocks, member_P, performances, project_member,
@@ -80,10 +80,21 @@ class EkiDipConfig:
     log_performance: bool = C.field(True, doc="search on log(2.24) (then y_target and R are on the log scale); "
                                               "(2.24) spans orders of magnitude and the EKI's linear update needs "
                                               "the log to make steady progress")
-    failure: str = C.field("penalty", C.one_of("penalty", "resample"),
+    failure: str = C.field("penalty", C.one_of("penalty", "resample", "ignore"),
                            doc="failed members: the thesis's penalty (on the log scale a bounded cliff the update "
-                               "steers away from), or redrawn from the successful ones (loses that information)")
-    min_success: int = C.field(20, C.positive, doc="resample mode: fewer successes skip the iteration")
+                               "steers away from), redrawn from the successful ones (loses that information), or "
+                               "left out of the update and in place")
+    min_success: int = C.field(20, C.positive, doc="resample/ignore: fewer successes skip the iteration (ten "
+                                                   "skipped in a row stop the search with an error)")
+    variant: str = C.field("eki", C.one_of("eki", "uki"),
+                           doc="ensemble Kalman variant: perturbed-observation EKI (thesis) or unscented UKI "
+                               "(2p + 1 sigma points instead of the ensemble; failure must be penalty)")
+    schedule: str = C.field("fixed", C.one_of("fixed", "adaptive"),
+                            doc="step: the thesis's fixed dt = 1, or the data-misfit controller (the search also "
+                                "stops at algorithmic time 1)")
+    adaptive_end: float = C.field(1.0, C.positive_finite,
+                                  doc="algorithmic time at which the adaptive schedule stops (Iglesias & Yang: 1, "
+                                      "prior to posterior; larger values keep minimising)")
     y_target: float = C.field(-8.0, C.finite, doc="performance objective yhat (log scale: 3.4e-4)")
     R: float = C.field(1.0, C.positive_finite, doc="variance of the objective's perturbation")
     sigma_w: float = C.field(1e-4, C.nonneg_finite, doc="std of the members' random perturbation")
@@ -124,6 +135,9 @@ class EkiDipConfig:
     def validate(self):
         if self.t_star >= self.T:
             raise C.ConfigError("t_star", f"must be below T = {self.T}")
+        if self.variant == "uki" and self.failure != "penalty":
+            raise C.ConfigError("failure", "variant 'uki' moves a Gaussian, not an ensemble: failure must be "
+                                           f"'penalty', got {self.failure!r}")
 
 
 def projection(cfg):
@@ -195,7 +209,8 @@ def build(cfg: EkiDipConfig, base):
               R=jnp.array([[cfg.R]]), sigma_w=cfg.sigma_w, project=projection(cfg), failure=cfg.failure,
               min_success=cfg.min_success, penalty=float(np.log(scfg.penalty)) if cfg.log_performance else scfg.penalty,
               align=lambda V: align_signs(V, member_blocks(cfg.free_vectors, 6)),
-              member_keys=cfg.x0_draw == "per_member")
+              member_keys=cfg.x0_draw == "per_member", variant=cfg.variant,
+              schedule=data_misfit(cfg.adaptive_end) if cfg.schedule == "adaptive" else None)
     return plant, scfg, eki, eki.init(members0, jax.random.fold_in(base, 2)), members0, v1_lqr
 
 
@@ -274,7 +289,7 @@ def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
         "P_singular_values": np.exp(np.asarray(found.log_s)).tolist(),
         "v1_lqr": np.asarray(v1_lqr).tolist(),
         "iterations": iters,
-        "simulations": iters * cfg.ensemble * cfg.n_x0,
+        "simulations": iters * int(state.members.shape[0]) * cfg.n_x0,  # members, or UKI's sigma points
         "stabilized_fraction": judged["stabilized_fraction"],
         "stabilized_fraction_ci95": judged["stabilized_fraction_ci95"],
         "judge": judged,
@@ -309,7 +324,7 @@ def figure(cfg, history, grad):
 def report(cfg, r, timing):
     j = r["judge"]
     lines = [
-        f"Ensemble Kalman search on the printed DIP: J = {cfg.ensemble}, up to {cfg.iterations} iterations "
+        f"Ensemble Kalman search ({cfg.variant}, {cfg.schedule} step) on the printed DIP: J = {cfg.ensemble}, up to {cfg.iterations} iterations "
         f"(stopped at {r['iterations']}), T = {cfg.T} s, t* = {cfg.t_star} s, gamma = {cfg.gamma}, state noise std "
         f"{cfg.noise_std} every {cfg.dt * 1e3:g} ms. Wall time of the search: **{timing['search_wall_s']:.1f} s** on this "
         f"machine ({r['simulations']} closed-loop simulations of {cfg.T} s; the thesis used a 12-core cluster)."

@@ -32,7 +32,7 @@ from jaxdip.control.projection import RelaxedProjection, projected_closed_loop
 from jaxdip.control.spd import P_v
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
 from jaxdip.plants import examples2d
-from jaxdip.search import EKI
+from jaxdip.search import EKI, data_misfit
 from jaxdip.search.eki import align_signs
 from jaxdip.search.p_search import direction_search, discrete_performance
 
@@ -71,6 +71,16 @@ class EkiExampleConfig:
     judge_std: float = C.field(1.0, C.positive_finite, doc="std of those initial states")
     judge_steps: int = C.field(200, C.positive, doc="steps of those simulations")
     judge_tol: float = C.field(1e-3, C.positive_finite, doc="final |x| below this counts as stabilised")
+    variant: str = C.field("eki", C.one_of("eki", "uki"),
+                           doc="ensemble Kalman variant: perturbed-observation EKI (thesis) or unscented UKI")
+    schedule: str = C.field("fixed", C.one_of("fixed", "adaptive"),
+                            doc="step: the thesis's fixed dt = 1 for `iterations`, or the data-misfit controller "
+                                "(stops at algorithmic time 1, at most `iterations`)")
+    adaptive_end: float = C.field(1.0, C.positive_finite,
+                                  doc="algorithmic time at which the adaptive schedule stops (Iglesias & Yang: 1, "
+                                      "prior to posterior; larger values keep minimising)")
+    compare_seeds: int = C.field(100, C.nonneg,
+                                 doc="searches per row of the variant x schedule table (0: no table)")
 
     def loads(self) -> list[Load]:
         # searches run in Monte Carlo batches of up to 250 (with their restarts side by side)
@@ -93,7 +103,8 @@ def make_eki(cfg):
                              n_x0=cfg.n_x0)
     return EKI(G=G, template=jnp.zeros(2), y_target=jnp.asarray(cfg.y_target), R=jnp.diag(jnp.asarray(cfg.R)),
                sigma_w=cfg.sigma_w, project=lambda v: v / jnp.linalg.norm(v), align=align_signs,
-               member_keys=cfg.x0_draw == "per_member")
+               member_keys=cfg.x0_draw == "per_member", variant=cfg.variant,
+               schedule=data_misfit(cfg.adaptive_end) if cfg.schedule == "adaptive" else None)
 
 
 def search(cfg, key):
@@ -168,6 +179,38 @@ def search_success(cfg, base):
     return stats.wilson(int(ok.sum()), len(ok))
 
 
+ROWS = (("eki", "fixed"), ("eki", "adaptive"), ("uki", "fixed"), ("uki", "adaptive"))
+
+
+def compare_variants(cfg, base):
+    """The variant x schedule table: per row, ``compare_seeds`` searches (seeds 1.. as in ``search_success``):
+    the fraction ending with a stabilising P, the mean iterations and forward evaluations (members or sigma
+    points times initial states, times restarts) to the stopping rule (the fixed row: all ``iterations``; the
+    adaptive rows: algorithmic time ``adaptive_end``), and the wall time of the batch (compilation included; in ``timing``)."""
+    import time
+
+    rows, walls = {}, {}
+    n_judge = min(cfg.judge_states, 200)
+    for variant, schedule in ROWS:
+        c = dataclasses.replace(cfg, variant=variant, schedule=schedule)
+
+        def trial(key, c=c):
+            v, hist = search(c, key)
+            done = jnp.sum(jnp.all(jnp.isfinite(hist), axis=1))
+            return stabilizes(c, v, jax.random.fold_in(key, 1), n_judge)[0], done
+
+        t0 = time.perf_counter()
+        ok, done = jd.monte_carlo(trial, base, cfg.compare_seeds, offset=1, chunk=min(cfg.compare_seeds, 50))
+        ok, done = np.asarray(ok), np.asarray(done)
+        walls[f"{variant}_{schedule}"] = time.perf_counter() - t0
+        points = cfg.ensemble if variant == "eki" else 2 * 2 + 1
+        rows[f"{variant}_{schedule}"] = {
+            "stabilizing_fraction": float(ok.mean()), "stabilizing_fraction_ci95": stats.wilson(int(ok.sum()), len(ok))[1],
+            "mean_iterations": float(done.mean()),
+            "mean_forward_evaluations": float(done.mean() * points * cfg.n_x0 * cfg.restarts)}
+    return rows, walls
+
+
 def _steps(s: dict, k: str) -> str:
     return str(s[k]) if k in s else "not within the simulated steps"
 
@@ -196,6 +239,9 @@ def run(cfg: EkiExampleConfig, ctx: RunContext | None = None) -> Outcome:
         "search_seeds": cfg.seeds, "stabilizing_fraction": frac, "stabilizing_fraction_ci95": ci,
         "restarts": cfg.restarts,
     }
+    timing = {}
+    if cfg.compare_seeds > 0:
+        results["variants"], timing["variants_wall_s"] = compare_variants(cfg, base)
     if single is not None:
         results["stabilizing_fraction_single_ensemble"] = single[0]
         results["stabilizing_fraction_single_ensemble_ci95"] = single[1]
@@ -264,10 +310,29 @@ def run(cfg: EkiExampleConfig, ctx: RunContext | None = None) -> Outcome:
     axh.legend()
     axh.set_title("ensemble-mean performance")
     figs["search_history"] = fig_h
-    return Outcome(results, report(cfg, results), figs)
+    return Outcome(results, report(cfg, results, timing), figs, timing=timing)
 
 
-def report(cfg, r):
+def variants_table(cfg, r, timing) -> list[str]:
+    """The report's variant x schedule rows, the thesis's fixed-step EKI first (wall times measured under
+    whatever load the machine had, compilation included)."""
+    if "variants" not in r:
+        return []
+    lines = ["", f"Variants ({cfg.compare_seeds} searches per row, seeds 1.., at most {cfg.iterations} iterations; "
+             f"adaptive: the data-misfit controller, stopping at algorithmic time {cfg.adaptive_end:g}):", "",
+             "| variant | schedule | stabilising fraction [95% CI] | mean iterations | mean forward evaluations "
+             "| wall time (s) |", "|---|---|---|---|---|---|"]
+    for key, row in r["variants"].items():
+        variant, schedule = key.split("_")
+        lo, hi = row["stabilizing_fraction_ci95"]
+        ref = " (thesis)" if key == "eki_fixed" else ""
+        lines.append(f"| {variant}{ref} | {schedule} | {row['stabilizing_fraction']:.3f} [{lo:.3f}, {hi:.3f}] | "
+                     f"{row['mean_iterations']:.1f} | {row['mean_forward_evaluations']:.0f} | "
+                     f"{timing.get('variants_wall_s', {}).get(key, float('nan')):.1f} |")
+    return lines
+
+
+def report(cfg, r, timing=None):
     ex = cfg.example
     lines = [
         f"Ensemble Kalman search for P_v on the {ex} example of thesis §2.7: J = {cfg.ensemble}, K = {cfg.K}, "
@@ -301,7 +366,7 @@ def report(cfg, r):
             "The thesis (Fig. 2.1-2.2): relaxed projection is slower than LQR to approach the origin, with less "
             "overshoot, then converges faster once near it. Compare the step counts above and Fig. 2.2.",
         ]
-    return "\n".join(lines)
+    return "\n".join(lines + variants_table(cfg, r, timing or {}))
 
 
 @dataclass
@@ -321,10 +386,10 @@ class EkiNonlinearConfig(EkiExampleConfig):
 
 EXPERIMENTS = (
     Experiment(id="eki-linear", title="ensemble Kalman search for P, linear example of §2.7",
-                    config_cls=EkiExampleConfig, run=run, quick={"seeds": 20, "iterations": 60},
-                    source="thesis §2.7.1, Fig. 2.1-2.2", quick_cost_s=9),
+                    config_cls=EkiExampleConfig, run=run, quick={"seeds": 20, "iterations": 60, "compare_seeds": 8},
+                    source="thesis §2.7.1, Fig. 2.1-2.2", quick_cost_s=28),
     Experiment(id="eki-nonlinear", title="ensemble Kalman search for P, nonlinear example of §2.7",
                     config_cls=EkiNonlinearConfig, run=run,
-                    quick={"seeds": 10, "iterations": 80, "judge_states": 100},
+                    quick={"seeds": 10, "iterations": 80, "judge_states": 100, "compare_seeds": 0},
                     source="thesis §2.7.2, Fig. 2.3", quick_cost_s=7),
 )

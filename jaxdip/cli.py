@@ -190,6 +190,7 @@ def cmd_run(args, argv=None) -> int:
     from jaxdip.config import ConfigError
     from jaxdip.control.riccati import RiccatiError
     from jaxdip.engine.checks import ArgumentError
+    from jaxdip.search.failures import SearchStopped
     from jaxdip.runner import run_experiment
     from jaxdip.runner.experiment import run_context
     from jaxdip.runner.results import ResultError
@@ -217,6 +218,8 @@ def cmd_run(args, argv=None) -> int:
             return error("--resume", str(e))
         except RiccatiError as e:
             return error(riccati_keys(cfg), str(e))
+        except SearchStopped as e:
+            return error(e.key, e.why)
         except ArgumentError as e:
             return component_refusal(cfg, e, exp.id)
         except (np.linalg.LinAlgError, ArithmeticError, ValueError) as e:
@@ -242,6 +245,7 @@ def cmd_reproduce(args, argv=None) -> int:
     from jaxdip.config import ConfigError
     from jaxdip.control.riccati import RiccatiError
     from jaxdip.engine.checks import ArgumentError
+    from jaxdip.search.failures import SearchStopped
     from jaxdip.runner import registry, run_experiment
     from jaxdip.outdir import OutputError
 
@@ -316,6 +320,8 @@ def cmd_reproduce(args, argv=None) -> int:
                 return error(e.key, e.why)
             except RiccatiError as e:
                 return error(exp_id, f"{riccati_keys(cfgs[exp_id])}: {e}")
+            except SearchStopped as e:
+                return error(exp_id, e.why)
             except ArgumentError as e:
                 return component_refusal(cfgs[exp_id], e, exp_id, f"{exp_id}: ")
             except (np.linalg.LinAlgError, ArithmeticError, ValueError) as e:

@@ -82,3 +82,16 @@ def test_one_free_vector_keeps_its_singular_value_and_per_member_keys_are_wired(
     np.testing.assert_allclose(float(jnp.linalg.norm(m.V[0])), 1.0, rtol=1e-12)
     with pytest.raises(C.ConfigError):
         C.from_dict(E.EkiDipConfig, {"free_vectors": 3})
+
+
+def test_uki_reading_is_wired_and_refuses_resampling():
+    import experiments.eki_dip as E
+
+    with pytest.raises(C.ConfigError, match="failure"):
+        C.from_dict(E.EkiDipConfig, {"variant": "uki", "failure": "resample"})
+    cfg = C.from_dict(E.EkiDipConfig, {"variant": "uki", "schedule": "adaptive", "ensemble": 4, "T": 0.2,
+                                       "t_star": 0.1})
+    _, _, eki, state, members0, _ = E.build(cfg, jax.random.PRNGKey(0))
+    p = int(state.aux["mean"].shape[0])
+    # UKI evaluates 2p + 1 sigma points of the Gaussian fitted to the initial ensemble, whatever J is
+    assert state.members.shape == (2 * p + 1, p) and eki.kalman().schedule.name == "data_misfit"

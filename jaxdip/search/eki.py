@@ -35,7 +35,7 @@ from jax.flatten_util import ravel_pytree
 from jaxdip.search.failures import OK, Failure, SearchStopped, sanitize, status_message
 from jaxdip.search.schedules import Schedule
 from jaxdip.search.spread import AXIS, by_member, member_devices, on_devices, to_local
-from jaxdip.search.steps import SearchState, Step, iterate, make_step
+from jaxdip.search.steps import SearchState, Step, make_step, run_steps
 from jaxdip.search.variants import ensemble_update
 
 from jaxdip._public import public_dir
@@ -91,6 +91,9 @@ class EKI(NamedTuple):
         """Y (J, m). ``axis``: inside ``shard_map`` over that mesh axis, each device evaluates its block of
         members and the blocks are gathered, so every device returns the whole Y (``spread.by_member``)."""
         unravel = self.unravel()
+        if self.project is not None and not self.kalman().variant.ensemble:
+            # UKI's sigma points stay as drawn (the update needs them): G sees them projected
+            unravel = lambda v, u=self.unravel(): self.project(u(v))  # noqa: E731
 
         def forward(V, key, first):
             if self.member_keys:
@@ -105,7 +108,7 @@ class EKI(NamedTuple):
         """One iteration; returns (new state, performances of the members before the update).
 
         An ensemble variant's members are re-projected (``project``) and sign-aligned (``align``) after the
-        update; UKI's sigma points are left as drawn (its mean is projected by ``mean``).
+        update; UKI's sigma points are left as drawn (``evaluate`` and ``mean`` project them).
         """
         kalman = self.kalman()
         Y = self.evaluate(state, kalman.eval_key(state), axis)
@@ -142,7 +145,7 @@ def run_eki(eki: EKI, state: EKIState, iterations: int, *, chunk: int = 10, prog
     end = kalman.schedule.end
 
     def advance(st, n_dummy):
-        return iterate(lambda s: eki.step(s, axis), st, n_dummy.shape[0], end=end, penalty=eki.penalty)
+        return run_steps(lambda s: eki.step(s, axis), st, n_dummy.shape[0], end=end, penalty=eki.penalty)
 
     advance, state = on_devices(advance, state, devices)
 

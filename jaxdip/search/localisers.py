@@ -5,9 +5,11 @@ With J members and p parameters, the sample cross-covariance C_vy carries spurio
 function ``localise(Cvy, Cyy, var_v, J) -> (Cvy, Cyy)`` (``var_v``: the (p,) sample variances of the
 parameters, for correlations), applied before the gain is formed. Two kinds:
 
-* ``schur(kernel)``: the Schur (entrywise) product of C_vy with a (p, m) kernel, e.g. ``distance_kernel`` of
-  the parameters' and the outputs' positions (Gaspari-Cohn or Gaussian taper), or the identity for outputs
-  that observe one parameter each (EnsembleKalmanProcesses.jl's ``Delta``);
+* ``schur(kernel_vy, kernel_yy)``: the Schur (entrywise) products of C_vy with a (p, m) kernel and of C_yy with an
+  (m, m) one, e.g. ``distance_kernel`` of the parameters' and the outputs' positions (Gaspari-Cohn or Gaussian
+  taper), or the identity for outputs that observe one parameter each (EnsembleKalmanProcesses.jl's
+  ``Delta``). Localise C_yy too when the step is large: a tapered C_vy has components outside the ensemble's
+  span, which (C_yy + R / dt)^-1 amplifies by dt / R where the rank-(J - 1) C_yy is zero;
 * sampling-error correction, which needs no positions: ``sec(alpha, r0)`` shrinks every correlation r to
   r |r|^alpha and cuts those below r0 (Lee 2021); ``sec_fisher()`` shrinks r by Q^2 / (1 + Q^2), Q = r / sigma_r,
   sigma_r its sampling spread for J members from the Fisher transform (Flowerdew 2015, as used by Lee 2021).
@@ -29,10 +31,11 @@ __dir__ = public_dir(globals())
 Localiser = Callable  # (Cvy (p, m), Cyy (m, m), var_v (p,), J) -> (Cvy, Cyy)
 
 
-def schur(kernel) -> Localiser:
-    """C_vy multiplied entrywise by ``kernel`` (p, m); C_yy kept."""
-    kernel = jnp.asarray(kernel)
-    return lambda Cvy, Cyy, var_v, J: (Cvy * kernel, Cyy)
+def schur(kernel_vy, kernel_yy=None) -> Localiser:
+    """C_vy multiplied entrywise by ``kernel_vy`` (p, m), and C_yy by ``kernel_yy`` (m, m; None: kept)."""
+    kvy = jnp.asarray(kernel_vy)
+    kyy = None if kernel_yy is None else jnp.asarray(kernel_yy)
+    return lambda Cvy, Cyy, var_v, J: (Cvy * kvy, Cyy if kyy is None else Cyy * kyy)
 
 
 def distance_kernel(positions_v, positions_y, length: float, shape: str = "gaspari_cohn") -> jnp.ndarray:

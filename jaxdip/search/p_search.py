@@ -25,7 +25,7 @@ from jaxdip._public import public_dir
 
 __all__ = ["discrete_performance", "BasisMember", "project_member", "member_P", "member_blocks", "ContinuousSearch",
            "NoiseStream", "QuadraticFrom", "performance_loop", "rp_performance", "continuous_performance",
-           "performances", "iterate", "lowest_y1", "direction_search"]
+           "performances", "lowest_y1", "direction_search"]
 __dir__ = public_dir(globals())
 
 
@@ -173,15 +173,6 @@ def performances(plant, cfg: ContinuousSearch, member: BasisMember, key, n: int,
     return jax.vmap(lambda k: G(member, k)[0])(jax.random.split(key, n))
 
 
-def iterate(eki, state, iterations: int):
-    """``iterations`` EKI steps as one pure loop (vmappable: a batch of searches is a vmap of this); returns
-    (state, ensemble-mean performance per iteration, NaN after an early stop). ``run_eki`` is the host-side,
-    checkpointed form."""
-    state, hist, _ = steps.iterate(eki.step, state, iterations, end=eki.kalman().schedule.end,
-                                   penalty=eki.penalty)
-    return state, hist
-
-
 def lowest_y1(eki, vs, key, n_states: int):
     """The row of ``vs`` (candidate unit vectors) with the lowest mean y_1 = ||x_K||^2 over ``n_states`` initial
     states common to all candidates (keys ``split(key, n_states)``)."""
@@ -212,7 +203,9 @@ def direction_search(eki, key, *, ensemble: int, init_var: float, iterations: in
         d = eki.template.shape[0]
         members = jnp.sqrt(init_var) * jax.random.normal(k_init, (ensemble, d))
         members = members / jnp.linalg.norm(members, axis=1, keepdims=True)
-        st, hist = iterate(eki, eki.init(members, k_run), iterations)
+        # the pure loop of the composed step (vmappable: a batch of searches is a vmap of it)
+        st, hist, _ = steps.run_steps(eki.step, eki.init(members, k_run), iterations,
+                                      end=eki.kalman().schedule.end, penalty=eki.penalty)
         if final == "best_member":
             unravel = eki.unravel()
             vs = jax.vmap(lambda m: eki.project(unravel(m)) if eki.project is not None else unravel(m))(st.members)

@@ -9,16 +9,17 @@ of three pure functions:
   to evaluate: the ensemble, UKI's sigma points, or Nesterov's extrapolated ensemble), ``y`` the data and ``R``
   its noise covariance.
 
-A search is then ``Y = G(state.members); state = step.update(state, Y, y, R)`` until ``done(state)``; ``iterate``
-(with the body ``advance(step, forward, y, R)``; ``forward(points, key) -> Y``) is that loop as one ``lax.while_loop`` (jit- and vmap-able), and it ends within the iteration whose update set
-a status other than ``OK`` (``jaxdip.search.failures``) or took the algorithmic time to the schedule's end::
+A search is then ``Y = G(state.members); state = step.update(state, Y, y, R)`` until ``done(state)``;
+``run_steps`` (with the body ``step_body(step, forward, y, R)``, ``forward(points, key) -> Y``) is that loop as
+one ``lax.while_loop`` (jit- and vmap-able), and it ends within the iteration whose update set a status other
+than ``OK`` (``jaxdip.search.failures``) or took the algorithmic time to the schedule's end::
 
-    step = make_step(uki(), schedule=data_misfit(), failure=Failure("ignore", min_success=5))
+    step = make_step("eki", schedule=data_misfit(), localiser=sec(), failure=Failure("ignore", min_success=5))
     state = step.init(ensemble0, key)
-    state, history, n = iterate(advance(step, forward, y, R), state, 100, end=step.schedule.end)
+    state, history, n = run_steps(step_body(step, forward, y, R), state, 100, end=step.schedule.end)
 
 Any variant (``eki``, ``etki``, ``uki``) combines with any schedule (``fixed``, ``scheduled``, ``data_misfit``),
-localiser (``schur``, ``sec``, ``sec_fisher``; not ETKI, which never forms the cross-covariance), failure policy
+localiser (``schur``, ``sec``, ``sec_fisher``: for EKI, whose sample covariances they correct), failure policy
 and, for the ensemble variants, Nesterov acceleration (``accelerate="nesterov"``: the momentum rule of
 EnsembleKalmanProcesses.jl's ``NesterovAccelerator``, theta_k from theta_{k-1}^2 (1 - theta_k) dt_k =
 dt_{k-1} theta_k^2 and v = u_k + theta_k (1/theta_{k-1} - 1)(u_k - u_{k-1})). Tikhonov regularisation (TEKI) and
@@ -41,7 +42,7 @@ from jaxdip.search.schedules import Schedule, fixed
 from jaxdip.search.variants import Variant, eki, etki, uki
 from jaxdip._public import public_dir
 
-__all__ = ["SearchState", "Step", "make_step", "advance", "iterate", "done"]
+__all__ = ["SearchState", "Step", "make_step", "step_body", "run_steps", "done"]
 __dir__ = public_dir(globals())
 
 VARIANTS = {"eki": eki, "etki": etki, "uki": uki}
@@ -108,9 +109,11 @@ def make_step(variant="eki", *, schedule: Optional[Schedule] = None, localiser: 
     if not variant.ensemble and (failure.kind != "penalty" or accelerate is not None):
         raise ArgumentError(f"make_step: variant {variant.name!r} moves a Gaussian, not an ensemble: it takes "
                             f"failure kind 'penalty' and no accelerator, got {failure.kind!r} and {accelerate!r}")
-    if variant.name == "etki" and localiser is not None:
-        raise ArgumentError("make_step: variant 'etki' never forms the cross-covariance a localiser corrects; "
-                            "use variant 'eki' with a localiser")
+    if variant.name != "eki" and localiser is not None:
+        # ETKI never forms the (p, m) cross-covariance; UKI's covariance update with a localised gain is not
+        # positive semidefinite in general (its next sigma points would not exist)
+        raise ArgumentError(f"make_step: a localiser corrects the sample covariances of variant 'eki'; variant "
+                            f"{variant.name!r} takes none")
 
     def init(start, key) -> SearchState:
         aux = variant.init(start, key)
@@ -160,7 +163,7 @@ def done(state: SearchState, end: float = math.inf):
     return (state.status != OK) | (state.time >= end)
 
 
-def advance(step: Step, forward: Callable, y, R) -> Callable:
+def step_body(step: Step, forward: Callable, y, R) -> Callable:
     """The loop body ``state -> (state, Y)``: evaluate ``forward(state.members, step.eval_key(state))`` and
     update with it."""
 
@@ -171,9 +174,9 @@ def advance(step: Step, forward: Callable, y, R) -> Callable:
     return body
 
 
-def iterate(body: Callable, state: SearchState, iterations: int, *, end: float = math.inf,
+def run_steps(body: Callable, state: SearchState, iterations: int, *, end: float = math.inf,
             penalty: float = 1000.0):
-    """Up to ``iterations`` calls of ``body(state) -> (state, Y)`` (e.g. ``advance(step, forward, y, R)``) as one
+    """Up to ``iterations`` calls of ``body(state) -> (state, Y)`` (e.g. ``step_body(step, forward, y, R)``) as one
     ``lax.while_loop`` (jit- and vmap-able). Ends early after the iteration that set a status other than OK or
     took the algorithmic time to ``end`` (``step.schedule.end``). Returns (state, history (iterations, m): the
     mean output per iteration, non-finite outputs counted as ``penalty``, NaN after the last; iterations done)."""
@@ -190,5 +193,7 @@ def iterate(body: Callable, state: SearchState, iterations: int, *, end: float =
         return s, i + 1, hist.at[i].set(sanitize(Y.reshape(Y.shape[0], -1), penalty).mean(axis=0))
 
     hist = jnp.full((iterations, m), jnp.nan, state.members.dtype)
+    if iterations == 0:  # nothing to run (the loop body could not even index its empty history)
+        return state, hist, jnp.zeros((), jnp.int32)
     state, n, hist = jax.lax.while_loop(cond, loop, (state, jnp.zeros((), jnp.int32), hist))
     return state, hist, n

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 
 from jaxdip._public import public_dir
 
-__all__ = ["Variant", "eki", "etki", "uki", "ensemble_update", "sigma_points"]
+__all__ = ["Variant", "eki", "etki", "uki", "ensemble_update", "unscented_points"]
 __dir__ = public_dir(globals())
 
 
@@ -103,9 +103,6 @@ def etki() -> Variant:
     """Ensemble-transform Kalman inversion (deterministic square-root update)."""
 
     def analysis(V, Y, ok, y, R, dt, key, localise, weighted, aux):
-        if localise is not None:
-            raise ValueError("etki: a localiser needs the (p, m) cross-covariance, which ETKI never forms; use "
-                             "variant 'eki' with a localiser")
         dV, dY, n = _moments(V, Y, ok, True)  # always weighted: with every member ok it is the plain mean
         X, Z = dV / jnp.sqrt(n - 1), dY / jnp.sqrt(n - 1)
         RiZ = jnp.linalg.solve(R, Z.T) * dt  # (m, J): (R / dt)^-1 Z^T
@@ -120,11 +117,15 @@ def etki() -> Variant:
     return Variant("etki", lambda start, key: {}, lambda aux, members: members, analysis)
 
 
-def sigma_points(mean, cov):
-    """(2p + 1, p): the centre, then mean + c L_i and mean - c L_i (L L^T = cov), c^2 = min(p, 4)."""
+def unscented_points(mean, cov):
+    """(2p + 1, p): the centre, then mean + c L_i and mean - c L_i (L L^T = cov), c^2 = min(p, 4).
+
+    L is the symmetric square root with negative eigenvalues (rounding, or a covariance estimated from fewer
+    members than parameters) clipped to zero, so a semidefinite covariance still has its points."""
     p = mean.shape[0]
     c = jnp.sqrt(min(p, 4.0))
-    L = jnp.linalg.cholesky(0.5 * (cov + cov.T))
+    lam, Q = jnp.linalg.eigh(0.5 * (cov + cov.T))
+    L = (Q * jnp.sqrt(jnp.maximum(lam, 0.0))) @ Q.T
     return jnp.concatenate([mean[None], mean + c * L.T, mean - c * L.T])
 
 
@@ -141,7 +142,7 @@ def uki() -> Variant:
         return {"mean": mean, "cov": cov, "cov_pred": 2.0 * cov}
 
     def points(aux, members):
-        return sigma_points(aux["mean"], aux["cov_pred"])
+        return unscented_points(aux["mean"], aux["cov_pred"])
 
     def analysis(V, Y, ok, y, R, dt, key, localise, weighted, aux):
         p = V.shape[1]
@@ -149,15 +150,13 @@ def uki() -> Variant:
         dV, dY = V[1:] - V[0], Y[1:] - Y[0]
         Cvy = wc * dV.T @ dY
         Cyy = wc * dY.T @ dY
-        if localise is not None:
-            Cvy, Cyy = localise(Cvy, Cyy, jnp.diag(aux["cov_pred"]), V.shape[0])
         S = Cyy + (1.0 + 1.0 / dt) * R
         gain_T = jnp.linalg.solve(S, Cvy.T)  # (m, p)
         mean = V[0] + (y - Y[0]) @ gain_T
         cov = aux["cov_pred"] - Cvy @ gain_T
         cov = 0.5 * (cov + cov.T)
         new = {"mean": mean, "cov": cov, "cov_pred": (1.0 + dt) * cov}
-        points = sigma_points(mean, new["cov_pred"])
+        points = unscented_points(mean, new["cov_pred"])
         return points, new, jnp.all(jnp.isfinite(points)) & jnp.all(jnp.isfinite(cov))
 
     return Variant("uki", init, points, analysis, ensemble=False)
