@@ -34,6 +34,7 @@ from jax.flatten_util import ravel_pytree
 
 from jaxdip.search.failures import OK, Failure, SearchStopped, sanitize, status_message
 from jaxdip.search.schedules import Schedule
+from jaxdip.search.spread import AXIS, by_member, member_devices, on_devices, to_local
 from jaxdip.search.steps import SearchState, Step, make_step, run_steps
 from jaxdip.search.variants import ensemble_update
 
@@ -59,7 +60,8 @@ class EKI(NamedTuple):
     min_success: int = 2  # resample/ignore: an iteration with fewer successes leaves the ensemble unchanged
     align: Optional[Callable] = None  # (J, p) flat ensemble -> (J, p), e.g. resolve v ~ -v sign symmetries
     # run_eki evaluates the members split over this process's devices (one XLA device per core under the
-    # CLI); None: when there is more than one and they divide J
+    # CLI), and with jax.distributed over those of every process; None: when there is more than one and they
+    # divide J, and always with jax.distributed (jaxdip.search.spread.member_devices)
     shard: Optional[bool] = None
     member_keys: bool = False  # True: member j is evaluated with fold_in(key, j) (its own x0 and noise)
     variant: object = "eki"  # "eki", "etki", "uki" or a jaxdip.search.variants.Variant
@@ -87,25 +89,19 @@ class EKI(NamedTuple):
 
     def evaluate(self, state: EKIState, key, axis: Optional[str] = None):
         """Y (J, m). ``axis``: inside ``shard_map`` over that mesh axis, each device evaluates its block of
-        members and the blocks are gathered, so every device returns the whole Y."""
+        members and the blocks are gathered, so every device returns the whole Y (``spread.by_member``)."""
         unravel = self.unravel()
-        V = state.members
-        first = jnp.zeros((), jnp.int32)
-        if axis is not None:
-            n = jax.lax.psum(1, axis)
-            J = V.shape[0] // n
-            first = jax.lax.axis_index(axis) * J
-            V = jax.lax.dynamic_slice_in_dim(V, first, J)
         if self.project is not None and not self.kalman().variant.ensemble:
             # UKI's sigma points stay as drawn (the update needs them): G sees them projected
             unravel = lambda v, u=self.unravel(): self.project(u(v))  # noqa: E731
-        if self.member_keys:
-            keys = jax.vmap(lambda j: jax.random.fold_in(key, j))(first + jnp.arange(V.shape[0]))
-            Y = jax.vmap(lambda v, k: self.G(unravel(v), k))(V, keys)
-        else:
-            Y = jax.vmap(lambda v: self.G(unravel(v), key))(V)
-        if axis is not None:
-            Y = jax.lax.all_gather(Y, axis, tiled=True)
+
+        def forward(V, key, first):
+            if self.member_keys:
+                keys = jax.vmap(lambda j: jax.random.fold_in(key, j))(first + jnp.arange(V.shape[0]))
+                return jax.vmap(lambda v, k: self.G(unravel(v), k))(V, keys)
+            return jax.vmap(lambda v: self.G(unravel(v), key))(V)
+
+        Y = by_member(forward, axis)(state.members, key)
         return sanitize(jnp.atleast_2d(Y.reshape(state.members.shape[0], -1)), self.penalty)
 
     def step(self, state: EKIState, axis: Optional[str] = None):
@@ -143,31 +139,15 @@ def run_eki(eki: EKI, state: EKIState, iterations: int, *, chunk: int = 10, prog
     successes, a non-finite update) is checkpointed and raises ``SearchStopped`` with a one-line message.
     """
 
-    devices = jax.local_devices()
-    J = int(state.members.shape[0])
-    shard = eki.shard if eki.shard is not None else (len(devices) > 1 and J % len(devices) == 0)
-    if shard and J % len(devices):
-        raise ValueError(f"shard=True needs the ensemble size ({J}) to be a multiple of the number of devices "
-                         f"({len(devices)})")
-    axis = "members" if shard else None
+    devices = member_devices(int(state.members.shape[0]), eki.shard)
+    axis = AXIS if devices is not None else None
     kalman = eki.kalman()
     end = kalman.schedule.end
 
     def advance(st, n_dummy):
         return run_steps(lambda s: eki.step(s, axis), st, n_dummy.shape[0], end=end, penalty=eki.penalty)
 
-    if shard:
-        from jax.sharding import Mesh, NamedSharding, PartitionSpec
-
-        # every device holds the whole ensemble, evaluates its block of members and runs the (small) update
-        # itself on the gathered performances: one collective per iteration, the same numbers everywhere
-        mesh = Mesh(np.array(devices), (axis,))
-        advance = jax.shard_map(advance, mesh=mesh, in_specs=PartitionSpec(), out_specs=PartitionSpec(),
-                                check_vma=False)
-        # the first chunk's state laid out as the chunks return it (whole on every device), so the second
-        # chunk finds the program the first compiled instead of compiling it again
-        state = jax.device_put(state, NamedSharding(mesh, PartitionSpec()))
-    advance = jax.jit(advance)
+    advance, state = on_devices(advance, state, devices)
 
     history = []
     done = int(state.iteration)
@@ -180,14 +160,15 @@ def run_eki(eki: EKI, state: EKIState, iterations: int, *, chunk: int = 10, prog
         if progress is not None:
             progress.update(int(n_done), postfix=f"mean perf {np.array2string(ys[-1], precision=3)}")
         if checkpoint is not None:
-            checkpoint(state, np.concatenate(history))
+            checkpoint(to_local(state), np.concatenate(history))
         if int(state.status) != OK:
             raise SearchStopped(status_message(int(state.status), done, int(state.n_ok), kalman.failure),
-                                int(state.status), state, np.concatenate(history))
+                                int(state.status), to_local(state), np.concatenate(history))
         if stop is not None and stop(np.concatenate(history)):
             break
     hist = np.concatenate(history) if history else np.zeros((0, int(eki.y_target.shape[0])))
-    return state, hist
+    # with jax.distributed: the state (whole and the same on every process) as this process's plain arrays
+    return to_local(state), hist
 
 
 def align_signs(V, blocks=None):

@@ -25,6 +25,7 @@ from typing import Any, Callable, Optional
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxdip.engine.driver import monte_carlo
 
@@ -38,14 +39,28 @@ __dir__ = public_dir(globals())
 class Objective:
     """J(theta, key) = mean over seeds of ``per_seed(theta, key)``; ``diverged(theta, key)`` (optional) flags
     the seeds whose trajectories failed. A plain object rather than attributes stuck on a function, so what an
-    objective offers is visible in its type."""
+    objective offers is visible in its type. ``seeds`` and ``on_seeds(seeds) -> Objective`` (both or neither):
+    the seed indices it averages over and the same objective over a subset of them, which lets ``tune`` split
+    the seed batch over the processes of ``jax.distributed`` (``share``)."""
 
-    def __init__(self, per_seed: Callable, diverged: Callable | None = None):
+    def __init__(self, per_seed: Callable, diverged: Callable | None = None, *, seeds=None,
+                 on_seeds: Callable | None = None):
         self.per_seed = per_seed
         self.diverged = diverged
+        self.seeds = None if seeds is None else [int(s) for s in seeds]
+        self.on_seeds = on_seeds
 
     def __call__(self, theta, key):
         return jnp.mean(self.per_seed(theta, key))
+
+    def share(self, index: int, count: int) -> tuple[Optional["Objective"], float]:
+        """Block ``index`` of ``count`` near-equal consecutive blocks of the seeds, as (objective over it, its
+        fraction of the seeds): J is the sum over the blocks of fraction x block objective. ``None`` for an
+        empty block (fewer seeds than blocks)."""
+        if self.seeds is None or self.on_seeds is None:
+            raise ValueError("this objective does not know its seeds (build it with mc_objective)")
+        block = [int(s) for s in np.array_split(np.asarray(self.seeds), count)[index]]
+        return (self.on_seeds(block) if block else None), len(block) / len(self.seeds)
 
 
 def seed_runs(seeds) -> list[tuple[int, int]]:
@@ -121,4 +136,7 @@ def mc_objective(make_fn: Callable, seeds, loss: Optional[Callable] = None, *, d
     def flags(theta, key):
         return monte_carlo_at(fn(theta), key, seeds, then=diverged, **monte_carlo_kw)
 
-    return Objective(per_seed, flags if diverged is not None else None)
+    def on_seeds(subset):
+        return mc_objective(make_fn, subset, loss, diverged=diverged, chunk=chunk, **monte_carlo_kw)
+
+    return Objective(per_seed, flags if diverged is not None else None, seeds=seeds, on_seeds=on_seeds)

@@ -17,9 +17,11 @@ from typing import Any, Callable, NamedTuple, Optional
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.flatten_util import ravel_pytree
 
 from jaxdip import checkpoint as ckpt
 from jaxdip.progress import Progress
+from jaxdip.tune.objective import Objective
 from jaxdip.tune.transforms import unconstrained_spec, to_constrained, to_unconstrained
 
 
@@ -88,6 +90,30 @@ def value_and_grad_fn(f: Callable, mode: str = "forward") -> Callable:
     return vg
 
 
+def _over_processes(objective, spec, mode: str) -> Optional[Callable]:
+    """With ``jax.distributed`` and an objective that knows its seeds (``mc_objective``): (loss, gradient) with
+    the seed batch split over the processes, each evaluating its block (``Objective.share``), the
+    fraction-weighted blocks summed in process order, the same numbers on every process. ``None`` otherwise
+    (every process then evaluates the whole objective itself)."""
+    if jax.process_count() == 1 or not isinstance(objective, Objective) or objective.seeds is None:
+        return None
+    from jax.experimental import multihost_utils
+
+    part, weight = objective.share(jax.process_index(), jax.process_count())
+    local = None if part is None else jax.jit(value_and_grad_fn(lambda u, k: part(to_constrained(spec, u), k), mode))
+
+    def value_and_grad(u, k):
+        if local is None:
+            loss, g = jnp.zeros(()), jax.tree_util.tree_map(jnp.zeros_like, u)
+        else:
+            loss, g = local(u, k)
+        flat, unravel = ravel_pytree((loss, g))
+        total = np.asarray(multihost_utils.process_allgather(weight * np.asarray(flat))).sum(axis=0)
+        return unravel(jnp.asarray(total))
+
+    return value_and_grad
+
+
 def tune(objective: Callable, init_params, key, *, steps: int = 100, lr: float = 0.05, spec=None,
          optimizer=None, clip: Optional[float] = 1.0, common_random_numbers: bool = True,
          early_stop_patience: Optional[int] = None, min_delta: float = 0.0,
@@ -107,6 +133,9 @@ def tune(objective: Callable, init_params, key, *, steps: int = 100, lr: float =
     ``project(theta) -> theta``: applied after every update (projected gradient descent, e.g. re-orthonormalising
     a basis), in the constrained space. ``zero_nonfinite_grads``: non-finite gradient entries count as 0 (a
     trajectory that fails inside the loss gives NaN derivatives through the engine's freeze).
+    With ``jax.distributed``, an ``mc_objective``'s seed batch is split over the processes (each evaluates the
+    loss and gradient of its block, the weighted blocks are summed), so every process takes the same steps as
+    one process would, to rounding; any other objective is evaluated whole on every process.
     """
     if steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps}")
@@ -117,7 +146,7 @@ def tune(objective: Callable, init_params, key, *, steps: int = 100, lr: float =
     def j_of_u(u, k):
         return objective(to_constrained(spec, u), k)
 
-    value_and_grad = jax.jit(value_and_grad_fn(j_of_u, mode))
+    value_and_grad = _over_processes(objective, spec, mode) or jax.jit(value_and_grad_fn(j_of_u, mode))
 
     @jax.jit
     def apply(st: _State, loss, g):
