@@ -30,6 +30,7 @@ from jaxdip import stats
 from jaxdip.control import StateFeedback, dlqr
 from jaxdip.control.projection import RelaxedProjection, projected_closed_loop
 from jaxdip.control.spd import P_v
+from experiments._eki_variants_table import variants_table
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
 from jaxdip.runner.per_seed import PerSeed, fraction_of
 from jaxdip.plants import examples2d
@@ -318,25 +319,6 @@ def run(cfg: EkiExampleConfig, ctx: RunContext | None = None) -> Outcome:
     axh.set_title("ensemble-mean performance")
     figs["search_history"] = fig_h
     return Outcome(results, report(cfg, results, timing), figs, timing=timing, per_seed=data)
-
-
-def variants_table(cfg, r, timing) -> list[str]:
-    """The report's variant x schedule rows, the thesis's fixed-step EKI first (wall times measured under
-    whatever load the machine had, compilation included)."""
-    if "variants" not in r:
-        return []
-    lines = ["", f"Variants ({cfg.compare_seeds} searches per row, seeds 1.., at most {cfg.iterations} iterations; "
-             f"adaptive: the data-misfit controller, stopping at algorithmic time {cfg.adaptive_end:g}):", "",
-             "| variant | schedule | stabilising fraction [95% CI] | mean iterations | mean forward evaluations "
-             "| wall time (s) |", "|---|---|---|---|---|---|"]
-    for key, row in r["variants"].items():
-        variant, schedule = key.split("_")
-        lo, hi = row["stabilizing_fraction_ci95"]
-        ref = " (thesis)" if key == "eki_fixed" else ""
-        lines.append(f"| {variant}{ref} | {schedule} | {row['stabilizing_fraction']:.3f} [{lo:.3f}, {hi:.3f}] | "
-                     f"{row['mean_iterations']:.1f} | {row['mean_forward_evaluations']:.0f} | "
-                     f"{timing.get('variants_wall_s', {}).get(key, float('nan')):.1f} |")
-    return lines
 
 
 def report(cfg, r, timing=None):
