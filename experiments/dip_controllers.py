@@ -22,7 +22,8 @@ from jaxdip import config as C
 from jaxdip.control.spd import P_v, surface_normal
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
 from jaxdip.runner.results import fmt_ci
-from jaxdip.runner.summaries import failure_lines, loop_summary
+from jaxdip.runner.per_seed import stacked
+from jaxdip.runner.summaries import failure_lines, loop_per_seed, loop_summary
 from jaxdip.runner.weights import weight_matrix
 from jaxdip.plants import dip
 from jaxdip.theory import published_p
@@ -173,12 +174,15 @@ def run(cfg: DipControllersConfig, ctx: RunContext | None = None, progress: bool
     import matplotlib.pyplot as plt
 
     sols, clean, (A, B, P_pub, P_lib, c) = simulate(cfg, progress)
-    results, traj = {}, {}
+    results, traj, parts = {}, {}, {}
     for name in NAMES:
         x, u = (np.asarray(a)[0] for a in clean[name].saved)
         div = bool(np.asarray(clean[name].result)[0] != jd.RESULTS.ok)
         traj[name] = (x, u[:, 0], div)
-        r = loop_summary(sols[name], dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt, bound=cfg.state_bound)
+        parts[name] = loop_per_seed(sols[name], dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt,
+                                    state_units=dip.STATE_UNITS, input_units="V")
+        r = loop_summary(sols[name], dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt, bound=cfg.state_bound,
+                         per_seed=parts[name])
         r["from_thesis_x0"] = {"diverged": div,
                                "stabilized": (not div) and bool(np.all(np.abs(x[-1][1:3]) < cfg.stabilized_tol)),
                                "max_abs_u": float(np.max(np.abs(u[:, 0])))}
@@ -214,7 +218,8 @@ def run(cfg: DipControllersConfig, ctx: RunContext | None = None, progress: bool
     axes[-1].set_xlabel("time (s)")
     axes[0].set_title("DIP from the thesis's x0 (Fig. 3.3), no noise")
     fig.tight_layout()
-    return Outcome(results=results, report=report(cfg, results), figures={"fig3_3_controllers": fig})
+    return Outcome(results=results, report=report(cfg, results), figures={"fig3_3_controllers": fig},
+                   per_seed=stacked(parts, "controller"))
 
 
 def _reading_text(cfg) -> str:

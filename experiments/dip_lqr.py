@@ -19,7 +19,7 @@ from jaxdip import config as C
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
 from jaxdip.runner.figures import band_figure
 from jaxdip.runner.results import fmt_ci
-from jaxdip.runner.summaries import failure_lines, loop_summary
+from jaxdip.runner.summaries import failure_lines, loop_per_seed, loop_summary
 from jaxdip.runner.weights import weight_matrix
 from jaxdip.plants import dip
 from jaxdip.scenarios.dip_lqr import dip_lqr
@@ -73,8 +73,20 @@ def simulate(cfg: DipLqrConfig, progress: bool = True, shard: bool | None = None
                           desc="dip-lqr")
 
 
-def summarize(cfg: DipLqrConfig, sol: jd.Solution) -> dict:
-    return loop_summary(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt, bound=cfg.state_bound)
+def per_seed(cfg: DipLqrConfig, sol: jd.Solution):
+    """The per-seed arrays behind ``summarize``; the saved angles as trajectories (seed, time, angle)."""
+    data = loop_per_seed(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt, state_units=dip.STATE_UNITS,
+                         input_units="V")
+    data.coords["time"] = np.arange(np.shape(sol.saved)[1]) * cfg.dt * cfg.record_every
+    data.coords["angle"] = ["alpha", "theta"]
+    data.variables["saved"] = (("seed", "time", "angle"), np.asarray(sol.saved),
+                               {"units": "rad", "long_name": "alpha and theta every record_every periods"})
+    return data
+
+
+def summarize(cfg: DipLqrConfig, sol: jd.Solution, data=None) -> dict:
+    return loop_summary(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt, bound=cfg.state_bound,
+                        per_seed=data)
 
 
 # Thesis Table 3.1, LQR column: the laboratory system over a typical 20 s interval (units not printed).
@@ -113,13 +125,14 @@ def report(cfg: DipLqrConfig, r: dict) -> str:
 
 def run(cfg: DipLqrConfig, ctx: RunContext | None = None) -> Outcome:
     sol = simulate(cfg)
-    results = summarize(cfg, sol)
+    data = per_seed(cfg, sol)
+    results = summarize(cfg, sol, data)
     ok = np.asarray(sol.result) == jd.RESULTS.ok
     rec = np.asarray(sol.saved)[ok]  # (seeds, T, 2)
     t = np.arange(rec.shape[1]) * cfg.dt * cfg.record_every
     fig = band_figure(t, {"alpha": rec[:, :, 0], "theta": rec[:, :, 1]}, "(rad)",
                       title=f"dip-lqr: {int(ok.sum())} of {cfg.seeds} trajectories (diverged ones left out)")
-    return Outcome(results=results, report=report(cfg, results), figures={"band_alpha_theta": fig})
+    return Outcome(results=results, report=report(cfg, results), figures={"band_alpha_theta": fig}, per_seed=data)
 
 
 EXPERIMENT = Experiment(

@@ -42,7 +42,8 @@ from jaxdip import checkpoint
 from jaxdip import config as C
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
 from jaxdip.runner.results import fmt_ci
-from jaxdip.runner.summaries import failure_lines, loop_summary
+from jaxdip.runner.per_seed import prefixed
+from jaxdip.runner.summaries import failure_lines, loop_per_seed, loop_summary
 from jaxdip.plants import dip
 from jaxdip.progress import Progress
 from jaxdip.scenarios import eki_dip as S
@@ -160,12 +161,16 @@ def initial_ensemble(cfg, A, B, key):
     return jax.vmap(projection(cfg))(members), v1
 
 
-def judge(cfg, member, key_seed):
-    """Monte Carlo of RP with the found P: stabilised fraction over ``seeds`` near-upright states."""
+def judge(cfg, member, key_seed, name: str = "judge", path: str = "judge"):
+    """Monte Carlo of RP with the found P: stabilised fraction over ``seeds`` near-upright states; the summary and
+    its per-seed arrays (variables ``<name>.*``, summarised under ``results[path]``)."""
     rollout = S.judge_rollout(member_P(member), gamma=cfg.judge_gamma, dt=cfg.dt, duration=cfg.judge_duration,
                               radius=cfg.judge_radius, noise_std=cfg.noise_std)
     sol = jd.monte_carlo(rollout, jax.random.PRNGKey(key_seed), cfg.seeds, progress=True, desc="eki-dip judge")
-    return loop_summary(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt, bound=S.STATE_BOUND)
+    data = loop_per_seed(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt, state_units=dip.STATE_UNITS,
+                         input_units="V")
+    r = loop_summary(sol, dip.STATE_NAMES, (1, 2), cfg.stabilized_tol, dt=cfg.dt, bound=S.STATE_BOUND, per_seed=data)
+    return r, prefixed(data, name, path, seeds_key=f"PRNGKey({key_seed})")
 
 
 class GradientLoss(NamedTuple):
@@ -265,10 +270,12 @@ def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
                 "steps": cfg.grad_steps, "simulations": cfg.grad_steps * cfg.grad_x0,
                 "performance": eval_perf(m), "loss_history": [float(x) for x in res.loss_history]}
         grad_wall = time.perf_counter() - tg
-        grad["judge"] = judge(cfg, m, cfg.seed + 7)
+        grad["judge"], grad_data = judge(cfg, m, cfg.seed + 7, "gradient_judge", "gradient.judge")
         grad["stabilized_fraction"] = grad["judge"]["stabilized_fraction"]
 
-    judged = judge(cfg, found, cfg.seed + 7)
+    judged, data = judge(cfg, found, cfg.seed + 7)
+    if grad:
+        data.update(grad_data)
     results = {
         "P_basis": np.asarray(found.V).tolist(),
         "P_singular_values": np.exp(np.asarray(found.log_s)).tolist(),
@@ -285,7 +292,7 @@ def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
     }
     timing = {"search_wall_s": eki_wall, **({"gradient_search_wall_s": grad_wall} if grad else {})}
     return Outcome(results, report(cfg, results, timing), {"search_history": figure(cfg, history, grad)},
-                   timing=timing)
+                   timing=timing, per_seed=data)
 
 
 def figure(cfg, history, grad):

@@ -320,10 +320,10 @@ class EkiNonlinearConfig(EkiExampleConfig):
 
 
 EXPERIMENTS = (
-    Experiment(id="eki-linear", title="ensemble Kalman search for P, linear example of §2.7",
+    Experiment(per_seed=False, id="eki-linear", title="ensemble Kalman search for P, linear example of §2.7",
                     config_cls=EkiExampleConfig, run=run, quick={"seeds": 20, "iterations": 60},
                     source="thesis §2.7.1, Fig. 2.1-2.2", quick_cost_s=9),
-    Experiment(id="eki-nonlinear", title="ensemble Kalman search for P, nonlinear example of §2.7",
+    Experiment(per_seed=False, id="eki-nonlinear", title="ensemble Kalman search for P, nonlinear example of §2.7",
                     config_cls=EkiNonlinearConfig, run=run,
                     quick={"seeds": 10, "iterations": 80, "judge_states": 100},
                     source="thesis §2.7.2, Fig. 2.3", quick_cost_s=7),

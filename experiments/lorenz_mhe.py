@@ -10,9 +10,9 @@ matrix exponential over h (``jaxdip.estimators.linearized``):
   scpx subspace centred proximal MHE, gamma = 50, p = 2      (``LinearizedCPX``, keep=p)
   ekf  EKF with the true noise levels (0.1, 5)
   ekf2 EKF with sigma_eta = 0.005, sigma_eps = 10 (the thesis's tuned values)
-They run on the same data in one loop (``jd.FanOut``; the wiring is ``jaxdip.scenarios.lorenz_mhe``). The truth and all four estimators start from the same draws:
-x_0 = x0_mean + x0_std N(0, I), and every estimator from xhat_0 = x_0 + init_error_std N(0, I) (the thesis
-gives neither; the EKFs' P_0 = init_error_std^2 I).
+They run on the same data in one loop (``jd.FanOut``; the wiring is ``jaxdip.scenarios.lorenz_mhe``). The truth
+and all four estimators start from the same draws: x_0 = x0_mean + x0_std N(0, I), and every estimator from
+xhat_0 = x_0 + init_error_std N(0, I) (the thesis gives neither; the EKFs' P_0 = init_error_std^2 I).
 
 Errors (the thesis's e and e_xL): the time average over the samples k = 0..n-1 of ||x_k - xtilde_k|| and
 |x_L,k - xtilde_L,k|. For CPX/SCPX xtilde_k is the model prediction handed out at sample k - 1
@@ -36,6 +36,7 @@ from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
 from jaxdip.runner.records import loop_record
+from jaxdip.runner.per_seed import PerSeed, mean_of
 from jaxdip.runner.results import fmt_ci
 from jaxdip.plants import lorenz
 from jaxdip.scenarios import lorenz_mhe as scenario
@@ -161,29 +162,37 @@ def record_trial(cfg: LorenzMheConfig):
     return t, [rec[:, j] for j in range(rec.shape[1])]
 
 
-def summarize(cfg: LorenzMheConfig, s: dict) -> tuple[dict, dict]:
-    div = s["diverged"]
-    n = np.maximum(s["n"], 1)
-    per_trial = {}
-    results = {}
+def per_seed(cfg: LorenzMheConfig, s: dict) -> PerSeed:
+    """Each trial's time-averaged errors per estimator, what ``summarize`` averages (NaN: no current estimate)."""
+    n, c = np.maximum(s["n"], 1), len(scenario.PREDICTORS) if cfg.alignment != "filtered" else 0  # METHODS[:c]
+    d = PerSeed(coords={"estimator": list(METHODS)})
+    d.add("ok", ("seed", "estimator"), ~s["diverged"], "1", "the estimate stayed finite and within divergence_bound")
+    d.add("has_extrema", ("seed", "estimator"), ~s["diverged"] & (s["n_ext"] > 0), "1", "ok, and xL had an extremum")
+    for name, v, over, text in (
+            ("mean_norm_error", s["norm"] / n, "ok", "|x_hat - x|"), ("mean_xL_error", s["xl"] / n, "ok", "|xL_hat - xL|"),
+            ("mean_xL_error_at_extrema", s["xl_ext"] / np.maximum(s["n_ext"], 1), "has_extrema", "|xL_hat - xL| at extrema"),
+            ("mean_norm_error_current", np.concatenate([s["norm_cur"] / n[:, :c], np.nan * n[:, c:]], 1), "ok", "|x_hat - x| now"),
+            ("mean_xL_error_current", np.concatenate([s["xl_cur"] / n[:, :c], np.nan * n[:, c:]], 1), "ok", "|xL_hat - xL| now")):
+        d.add(name, ("seed", "estimator"), v, "1", f"average of {text}", **mean_of(f"{{estimator}}.{name}", over))
+    return d
+
+
+def summarize(cfg: LorenzMheConfig, s: dict) -> tuple[dict, dict, PerSeed]:
+    v = (data := per_seed(cfg, s)).arrays()
+    per_trial, results = {}, {}
     for j, m in enumerate(METHODS):
-        ok = ~div[:, j]
-        e = s["norm"][:, j] / n[:, j]
-        ex = s["xl"][:, j] / n[:, j]
-        ext = s["xl_ext"][:, j] / np.maximum(s["n_ext"][:, j], 1)
+        ok, e, ex = v["ok"][:, j], v["mean_norm_error"][:, j], v["mean_xL_error"][:, j]
         per_trial[m] = (e[ok], ex[ok])
         r = {**stats.with_ci("mean_norm_error", e, ok), **stats.with_ci("mean_xL_error", ex, ok),
-             **stats.with_ci("mean_xL_error_at_extrema", ext, ok & (s["n_ext"][:, j] > 0)),
-             "diverged": int(div[:, j].sum())}
+             **stats.with_ci("mean_xL_error_at_extrema", v["mean_xL_error_at_extrema"][:, j], v["has_extrema"][:, j]),
+             "diverged": int((~ok).sum())}
         if m in scenario.PREDICTORS and cfg.alignment != "filtered":
-            r.update(stats.with_ci("mean_norm_error_current", s["norm_cur"][:, j] / n[:, j], ok))
-            r.update(stats.with_ci("mean_xL_error_current", s["xl_cur"][:, j] / n[:, j], ok))
+            r.update({**stats.with_ci("mean_norm_error_current", v["mean_norm_error_current"][:, j], ok),
+                      **stats.with_ci("mean_xL_error_current", v["mean_xL_error_current"][:, j], ok)})
         results[m] = r
-    if div.any():
-        # a method's trial diverges when its estimate becomes non-finite or its error passes divergence_bound
-        results["failures"] = {"bound": cfg.divergence_bound,
-                               "diverged": {m: int(div[:, j].sum()) for j, m in enumerate(METHODS)}}
-    return results, per_trial
+    if (~v["ok"]).any():  # a method's trial diverges when its estimate is non-finite or beyond divergence_bound
+        results["failures"] = {"bound": cfg.divergence_bound, "diverged": {m: results[m]["diverged"] for m in METHODS}}
+    return results, per_trial, data
 
 
 def _fmt(v, ci):
@@ -382,14 +391,14 @@ def figures(cfg: LorenzMheConfig, per_trial: dict, rec):
 
 def run(cfg: LorenzMheConfig, ctx: RunContext | None = None) -> Outcome:
     sums = simulate(cfg)
-    results, per_trial = summarize(cfg, sums)
+    results, per_trial, data = summarize(cfg, sums)
     rec = record_trial(cfg)
     records = {}
     if cfg.record_seed >= 0:
         records[f"seed{cfg.record_seed}"] = loop_record(
             build(cfg, ukf=True), jax.random.fold_in(jax.random.PRNGKey(cfg.seed), cfg.record_seed))
     return Outcome(results=results, report=report(cfg, results), figures=figures(cfg, per_trial, rec),
-                   records=records)
+                   records=records, per_seed=data)
 
 
 EXPERIMENT = Experiment(

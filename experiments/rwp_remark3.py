@@ -18,6 +18,7 @@ import numpy as np
 
 from jaxdip import config as C
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.per_seed import PerSeed, mean_of
 from jaxdip.runner.results import fmt_ci
 from jaxdip.resources import Load
 
@@ -53,7 +54,9 @@ class RwpRemark3Config:
             raise C.ConfigError("wheel_biases", "must list at least one bias")
 
 
-def compute(cfg: RwpRemark3Config) -> dict:
+def compute(cfg: RwpRemark3Config) -> tuple[dict, PerSeed]:
+    """The results and their per-seed arrays: per case (the reference, the wheel biases on ``wheel_case``, the
+    contrast) each seed's tail-mean error, its result code, the seeds kept and the paired difference."""
     import equinox as eqx
     import jax
     import jax.numpy as jnp
@@ -78,28 +81,47 @@ def compute(cfg: RwpRemark3Config) -> dict:
 
     e0, r0 = wheel_speed_error(0.0)
     ok0 = r0 == 0
+    data = PerSeed()
+    err = "mean of (theta_r' estimate - theta_r') over the tail"
+    data.add("reference.result", ("seed",), r0, "1", "result code (jaxdip.RESULTS) at d_r = d = 0")
+    data.add("reference.ok", ("seed",), ok0, "1", "the seed did not diverge at d_r = d = 0")
+    data.add("reference.error", ("seed",), e0, "rad/s", err,
+             **mean_of("reference.error_mean", "reference.ok", "reference.error_ci95"))
     m0, ci0 = stats.mean_ci(e0[ok0])
     out = {"theta0": cfg.theta0, "duration_s": cfg.duration, "tail_s": cfg.tail, "tolerance": cfg.tolerance,
            "reference": {"d_r": 0.0, "d": 0.0, "error_mean": m0, "error_ci95": ci0,
                          "diverged": int((~ok0).sum())}}
 
-    def case(d_r, d):
+    def case(d_r, d, name, where):
         e, res = wheel_speed_error(d_r, d)
         ok = (res == 0) & ok0
+        dims = ("seed",) if name == "contrast" else ("seed", "wheel_case")
+        for var, values, units, text, stat in (
+                ("result", res, "1", "result code (jaxdip.RESULTS)", {}),
+                ("kept", ok, "1", "the seed diverged neither here nor at d_r = 0", {}),
+                ("error", e, "rad/s", err, mean_of(f"{where}.error_mean", f"{name}.kept", f"{where}.error_ci95")),
+                ("paired", e - e0, "rad/s", "error minus the same seed's error at d_r = 0",
+                 mean_of(f"{where}.paired_mean", f"{name}.kept", f"{where}.paired_ci95"))):
+            columns.setdefault(f"{name}.{var}", (dims, [], {"units": units, "long_name": text, **stat}))[1].append(values)
         m, ci = stats.mean_ci(e[ok])
         dm, dci = stats.mean_ci(e[ok] - e0[ok])
         h = ok.any() and ((dci[0] <= 0 <= dci[1]) or (abs(dci[0]) <= cfg.tolerance and abs(dci[1]) <= cfg.tolerance))
         return {"d_r": d_r, "d": d, "error_mean": m, "error_ci95": ci, "paired_mean": dm, "paired_ci95": dci,
                 "diverged": int((res != 0).sum()), "kept": int(ok.sum()), "holds": bool(h)}
 
-    out["wheel"] = [case(d_r, 0.0) for d_r in cfg.wheel_biases]
+    columns = {}  # the per-seed variables of the cases, one column per wheel bias
+    out["wheel"] = [case(d_r, 0.0, "wheel", "wheel.{wheel_case}") for d_r in cfg.wheel_biases]
     if cfg.pendulum_bias != 0:
-        out["contrast"] = case(0.0, cfg.pendulum_bias)
+        out["contrast"] = case(0.0, cfg.pendulum_bias, "contrast", "contrast")
+    for name, (dims, values, attrs) in columns.items():
+        data.variables[name] = (dims, np.stack(values, axis=1) if len(dims) == 2 else values[0], attrs)
+    data.coords["wheel_case"] = np.arange(len(cfg.wheel_biases))
+    data.coords["wheel_bias"] = ("wheel_case", list(cfg.wheel_biases))
     rows = [out["reference"], *out["wheel"], *([out["contrast"]] if "contrast" in out else [])]
     if any(c["diverged"] for c in rows):  # a seed diverged in a row: its pairs are left out of every comparison
         out["failures"] = {"diverged": {f"d_r={c['d_r']:g}, d={c['d']:g}": c["diverged"] for c in rows},
                            "of_seeds": cfg.seeds}
-    return out
+    return out, data
 
 
 def _ci(v, ci) -> str:
@@ -132,8 +154,8 @@ def report(cfg: RwpRemark3Config, r: dict) -> str:
 
 
 def run(cfg: RwpRemark3Config, ctx: RunContext | None = None) -> Outcome:
-    r = compute(cfg)
-    return Outcome(results=r, report=report(cfg, r))
+    r, data = compute(cfg)
+    return Outcome(results=r, report=report(cfg, r), per_seed=data)
 
 
 EXPERIMENT = Experiment(

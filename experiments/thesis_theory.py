@@ -127,6 +127,7 @@ def run(cfg: ThesisTheoryConfig, ctx: RunContext | None = None) -> Outcome:
 
 
 EXPERIMENT = Experiment(
+    per_seed=False,  # no Outcome.per_seed yet (docs/data.md)
     id="thesis-theory",
     title="thesis ch. 1-2: Thm 1.3.2 with (1.9), Prop. 1.4.1, Prop. 2.4.2 by computation (fidelity readings)",
     config_cls=ThesisTheoryConfig,

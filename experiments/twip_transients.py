@@ -215,6 +215,7 @@ def run(cfg: TwipTransientsConfig, ctx: RunContext | None = None) -> Outcome:
 
 
 EXPERIMENT = Experiment(
+    per_seed=False,  # no Outcome.per_seed yet (docs/data.md)
     id="twip-transients",
     title="TWIP transients: §8.1's 15 s and 5 deg, Fig. 5.5's swing (fidelity readings)",
     config_cls=TwipTransientsConfig,

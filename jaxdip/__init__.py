@@ -7,7 +7,8 @@ wants float32 passes explicit float32 arrays; nothing in jaxdip silently downcas
 The public namespace is flat (``import jaxdip as jd``): the engine (``jd.simulate``, ``jd.monte_carlo``,
 ``jd.Loop``, ``jd.Rollout``, the roles ``jd.Plant``, ``jd.Sensor``, ... and ``jd.metrics``) and the
 subpackages ``jd.plants``, ``jd.sensors``, ``jd.estimators``, ``jd.control``, ``jd.stats``; ``jd.summary`` reduces a
-Monte Carlo result to means and intervals, ``jd.FunctionPlant`` makes a plant of a plain function. See docs/engine.md.
+Monte Carlo result to means and intervals, ``jd.to_dataset`` labels its per-seed numbers (xarray, the
+``data`` extra), ``jd.FunctionPlant`` makes a plant of a plain function. See docs/engine.md.
 """
 
 from importlib import import_module as _import_module
@@ -23,13 +24,13 @@ __version__ = "0.1.0"
 # no module depends on the package root: the layers (docs/architecture.md) hold for the imports Python runs too.
 _SUBMODULES = {"control": "jaxdip.control", "engine": "jaxdip.engine", "estimators": "jaxdip.estimators",
                "plants": "jaxdip.plants", "sim": "jaxdip.sim", "sensors": "jaxdip.sim.sensors",
-               "stats": "jaxdip.stats"}
+               "stats": "jaxdip.stats", "dataset": "jaxdip.dataset"}
 _NAMES = {
     **dict.fromkeys((
         "RESULTS", "ArgumentError", "ArgumentTypeError", "Actuator", "Aux", "Ball", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux",
         "FunctionPlant", "Identity", "KeySchedule", "Loop", "Passthrough", "Plant", "Rollout", "Sample", "Sensor",
         "Solution", "State", "Summary", "init_state", "linearize", "metrics", "monte_carlo", "param", "simulate",
-        "split_lanes", "summary"), "jaxdip.engine"),
+        "split_lanes", "summary", "to_dataset"), "jaxdip.engine"),
     "run_estimator": "jaxdip.estimators.recorded", "EstimatorRun": "jaxdip.estimators.recorded",
     "read_csv": "jaxdip.runner.records", "write_csv": "jaxdip.runner.records",
     "Discrete": "jaxdip.sim.discretize", "zoh": "jaxdip.sim.discretize",

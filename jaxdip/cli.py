@@ -6,7 +6,6 @@ import json
 import os
 import re
 import shlex
-import signal
 import sys
 import time
 
@@ -14,7 +13,8 @@ import numpy as np
 
 from jaxdip import xla_flags
 from jaxdip.cli_args import check_paths, parser, special_kind
-from jaxdip.cli_errors import component_refusal, emit, error, guarded, note, numerical, out_of_memory, riccati_keys, warn
+from jaxdip.cli_errors import (Signals, component_refusal, emit, error, guarded, note, numerical, riccati_keys,
+                               run_refusal, warn)
 from jaxdip.messages import listing, unknown
 from jaxdip.reproduce_pool import run_parallel
 
@@ -81,6 +81,8 @@ def _distributed(args) -> int:
              if v is not None]
     if not args.distributed:
         return error(given[0], "only with --distributed") if given else 0
+    if getattr(args, "sweep", None):
+        return error("--sweep", "not with --distributed: a sweep runs its points one after another in one process")
     if args.cmd == "reproduce":
         if args.jobs is not None and args.jobs != 1:
             return error("--jobs", "--distributed runs the experiments one after another in this process; "
@@ -100,32 +102,6 @@ def _distributed(args) -> int:
     if pid != 0:
         os.environ["JAXDIP_NO_PROGRESS"] = "1"  # one progress bar, process 0's
     return 0
-
-
-class _Signals:
-    """SIGINT and SIGTERM stop a run: the first raises KeyboardInterrupt and is remembered, so a run whose
-    library code swallowed it still refuses to write its folder (``run_experiment``'s ``stop_requested``)."""
-
-    def __init__(self):
-        self.hit = None
-        self._old = {}
-
-    def _handler(self, signum, frame):
-        self.hit = signum
-        raise KeyboardInterrupt
-
-    def __enter__(self):
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            self._old[sig] = signal.signal(sig, self._handler)
-        return self
-
-    def __exit__(self, *exc):
-        for sig, h in self._old.items():
-            signal.signal(sig, h)
-        return False
-
-    def requested(self) -> bool:
-        return self.hit is not None
 
 
 def _flag_keys(args) -> dict:
@@ -186,14 +162,9 @@ def _set_effort(args) -> int:
 
 
 def cmd_run(args, argv=None) -> int:
-    from jaxdip.checkpoint import CheckpointError
     from jaxdip.config import ConfigError
-    from jaxdip.control.riccati import RiccatiError
-    from jaxdip.engine.checks import ArgumentError
     from jaxdip.runner import run_experiment
     from jaxdip.runner.experiment import run_context
-    from jaxdip.runner.results import ResultError
-    from jaxdip.outdir import OutputError
 
     flags = _flag_keys(args)
     try:
@@ -203,30 +174,34 @@ def cmd_run(args, argv=None) -> int:
     except KeyError as e:
         return _unknown(args.id, e)
     out = args.out or os.path.join("results", exp.id)
+    if args.per_seed:
+        from jaxdip import dataset
+
+        if not exp.per_seed:
+            return error("--per-seed", f"{exp.id} keeps no per-seed data yet")
+        try:
+            dataset.require()
+        except dataset.MissingExtra as e:
+            return error("--per-seed", str(e))
+    if args.sweep:
+        from jaxdip.cli_sweep import cmd_sweep
+
+        return cmd_sweep(args, exp, shlex.join(["jaxdip", *(sys.argv[1:] if argv is None else argv)]))
     ckpt = None
-    with _Signals() as sig:
+    with Signals() as sig:
         try:
             level = xla_flags.effort()
             ckpt = run_context(exp, cfg, out, compile_effort=level).checkpoint_path
             metrics = run_experiment(exp, cfg, out, resume=args.resume, force=args.force,
                                      flag_keys=flags, stop_requested=sig.requested, compile_effort=level,
-                                     quick=args.quick)
-        except (ConfigError, OutputError, ResultError) as e:
-            return error(e.key, e.why)
-        except CheckpointError as e:
-            return error("--resume", str(e))
-        except RiccatiError as e:
-            return error(riccati_keys(cfg), str(e))
-        except ArgumentError as e:
-            return component_refusal(cfg, e, exp.id)
-        except (np.linalg.LinAlgError, ArithmeticError, ValueError) as e:
-            return numerical(cfg, e)
+                                     quick=args.quick, per_seed=args.per_seed,
+                                     command=shlex.join(["jaxdip", *(sys.argv[1:] if argv is None else argv)]))
         except KeyboardInterrupt:
             return _interrupted(ckpt, argv)
         except Exception as e:
-            if out_of_memory(e):
-                return error("--seeds", "the run ran out of memory; lower --seeds, shorten the run or save less")
-            raise
+            if (code := run_refusal(e, cfg, exp.id)) is None:
+                raise
+            return code
     from jaxdip.distributed import is_main
 
     if is_main():
@@ -280,6 +255,15 @@ def cmd_reproduce(args, argv=None) -> int:
         refused = refused or OutputError("--out", f"process 0 cannot write {args.out} (see its error)")
     if refused is not None:
         return error(refused.key, refused.why)
+    kept = set()
+    if args.resume:
+        from jaxdip.runner.experiment import is_complete
+
+        kept = {exp_id for exp_id, exp in reg
+                if is_complete(exp, cfgs[exp_id], os.path.join(args.out, exp_id), xla_flags.effort())}
+        for exp_id, _ in reg:
+            if exp_id in kept:
+                print(f"== {exp_id}: complete, kept", file=sys.stderr)
 
     t0 = time.perf_counter()
     rows, sections = [], []
@@ -295,23 +279,23 @@ def cmd_reproduce(args, argv=None) -> int:
             body = fh.read()
         sections.append(re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", rf"![\1]({exp_id}/\2)", body))
 
-    if jobs > 1 and len(reg) > 1:
-        with _Signals():
-            code = run_parallel(args, reg, jobs)
+    todo = [(exp_id, exp) for exp_id, exp in reg if exp_id not in kept]
+    stopped = (f"interrupted: the experiments finished before it are in {args.out}; "
+               f"add --resume to the same command to continue")
+    if jobs > 1 and len(todo) > 1:
+        with Signals():
+            code = run_parallel(args, todo, jobs, stopped)
         if code:
             return code
-        for exp_id, exp in reg:
-            collect(exp_id, exp)
     else:
-        with _Signals() as sig:
+        with Signals() as sig:
             try:
-                for exp_id, exp in reg:
+                for exp_id, exp in todo:
                     out = os.path.join(args.out, exp_id)
                     if main:
                         print(f"== {exp_id}", file=sys.stderr)
                     run_experiment(exp, cfgs[exp_id], out, force=args.force, stop_requested=sig.requested,
                                    compile_effort=xla_flags.effort(), quick=args.quick)
-                    collect(exp_id, exp)
             except (ConfigError, OutputError) as e:
                 return error(e.key, e.why)
             except RiccatiError as e:
@@ -321,14 +305,18 @@ def cmd_reproduce(args, argv=None) -> int:
             except (np.linalg.LinAlgError, ArithmeticError, ValueError) as e:
                 return numerical(cfgs[exp_id], e, f"{exp_id}: ")
             except KeyboardInterrupt:
-                note(f"interrupted: the experiments finished before it are in {args.out}")
+                note(stopped)
                 return 130
     wall = time.perf_counter() - t0
     if not main:
         return 0
+    for exp_id, exp in reg:  # in the registry's order, the kept ones with the rest
+        collect(exp_id, exp)
     text = (
         f"# jaxdip reproduction{' (quick)' if args.quick else ''}\n\n"
-        f"Total wall time {wall:.1f} s.\n\n| experiment | what | seeds | wall (s) |\n|---|---|---|---|\n"
+        f"Total wall time {wall:.1f} s"
+        + (f" ({len(kept)} of {len(reg)} experiments kept from an earlier run)" if kept else "")
+        + ".\n\n| experiment | what | seeds | wall (s) |\n|---|---|---|---|\n"
         + "\n".join(rows) + "\n\n" + "\n\n---\n\n".join(sections)
     )
     try:  # again: the user had the whole reproduction to put a REPORT.md of their own there
@@ -348,7 +336,7 @@ def cmd_bench(args, argv=None) -> int:
         check_outputs(args.out)
     except outdir.OutputError as e:
         return error(e.key, e.why)
-    with _Signals():
+    with Signals():
         try:
             run_bench(quick=args.quick, out=args.out)
         except outdir.OutputError as e:
@@ -366,6 +354,9 @@ def _command(args, argv) -> int:
         if args.cmd != "bench" and (code := _set_effort(args)):
             return code
         _compile_cache(not args.no_compile_cache)
+    if args.cmd == "reproduce" and args.resume and args.distributed:
+        # each process would judge the folders on its own disk, and they must agree on the experiments that run
+        return error("--resume", "not with --distributed: resume a single-process reproduction")
     if args.cmd in ("run", "reproduce") and (code := _distributed(args)):
         return code
     if args.cmd == "list":
@@ -379,6 +370,10 @@ def _command(args, argv) -> int:
         from jaxdip.cli_config import cmd_config
 
         return cmd_config(args, _unknown)
+    if args.cmd == "compare":
+        from jaxdip.cli_compare import cmd_compare
+
+        return cmd_compare(args)
     return {"run": cmd_run, "reproduce": cmd_reproduce, "bench": cmd_bench}[args.cmd](args, argv)
 
 

@@ -83,8 +83,26 @@ def _seconds(text: str) -> float:
     return s
 
 
+def _tolerance(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {shown(text)}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"must be finite and >= 0, got {shown(text, 24)}")
+    return v
+
+
+def _level(text: str) -> float:
+    v = _tolerance(text)
+    if not 0 < v < 1:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 1, got {shown(text, 24)}")
+    return v
+
+
 DESCRIPTION = ("Run the experiments of jaxdip (differentiable estimation and control of pendulums in JAX): list "
-               "them, run one, print their configs, time the closed loop, or reproduce them all into one report. "
+               "them, run one or sweep its config, print their configs, compare two result folders, time the closed loop, "
+               "or reproduce them all into one report. "
                "'jaxdip COMMAND --help' describes a command.")
 
 
@@ -106,16 +124,33 @@ def parser(description: str = DESCRIPTION) -> Parser:
     r.add_argument("--seeds", type=_whole, help="number of Monte Carlo seeds")
     r.add_argument("--out", help="output folder (default results/<id>)")
     r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override one config key")
+    r.add_argument("--sweep", action="append", default=[], metavar="KEY=V1,V2,...",
+                   help="run every value (repeat for a grid: the product) into <out>/points/<key=value,...>/ and "
+                        "write <out>/sweep.md, sweep.json and a figure per headline result; points already "
+                        "complete are kept, so an interrupted sweep continues (default out results/<id>-sweep)")
     r.add_argument("--quick", action="store_true", help="reduced run: few seeds, short horizon")
     r.add_argument("--resume", action="store_true", help="continue an interrupted search from its checkpoint")
     r.add_argument("--force", action="store_true",
                    help="replace a jaxdip result folder of another experiment (a user's files are never replaced)")
+    r.add_argument("--per-seed", nargs="?", const="final", choices=("final", "trajectories"), default=None,
+                   help="also write per_seed.nc, every seed's final values, metrics and failures as a labelled "
+                        "netCDF dataset (trajectories: with the saved trajectories); needs pip install -e '.[data]'")
 
     c = _command(sub, "config", "print an experiment's default config as TOML, or write every one's")
     c.add_argument("id", nargs="?", help="the experiment (jaxdip list prints the ids)")
     c.add_argument("--write", metavar="DIR",
                    help="write DIR/<id>.toml for every experiment (the repository's configs/), replacing only files "
                         "this command wrote")
+
+    cmp = _command(sub, "compare", "compare two result folders statistic by statistic (exit 0: no significant "
+                                   "difference, 1: differences, 2: not comparable)")
+    cmp.add_argument("a", metavar="A", help="a result folder (jaxdip run --out)")
+    cmp.add_argument("b", metavar="B", help="the result folder to compare it with")
+    cmp.add_argument("--rtol", type=_tolerance, default=1e-9, help="relative tolerance of 'equal' (default 1e-9)")
+    cmp.add_argument("--atol", type=_tolerance, default=0.0, help="absolute tolerance of 'equal' (default 0)")
+    cmp.add_argument("--alpha", type=_level, default=0.05,
+                     help="family-wise significance level of the two-sample tests, Holm-corrected over the "
+                          "statistics (default 0.05)")
 
     b = _command(sub, "bench", "closed-loop throughput against a plain NumPy loop")
     b.add_argument("--quick", action="store_true", help="fewer seeds and steps")
@@ -127,6 +162,9 @@ def parser(description: str = DESCRIPTION) -> Parser:
     rp.add_argument("--out", default="results", help="output folder: <out>/<id>/ and <out>/REPORT.md "
                                                       "(default results)")
     rp.add_argument("--force", action="store_true", help="replace jaxdip result folders of other experiments")
+    rp.add_argument("--resume", action="store_true",
+                    help="keep every experiment whose folder under --out is a complete, unchanged jaxdip result of "
+                         "the same config and run settings, run the rest, and write REPORT.md from all of them")
     rp.add_argument("--jobs", type=_jobs, default=None,
                     help="experiments run side by side in worker processes (default: one per CPU core, "
                          f"at most 2; at most {MAX_JOBS}; compilation is single-threaded, so a second job uses the "

@@ -9,7 +9,9 @@
   process killed by SIGPIPE); a terminal that cannot encode a character gets it escaped; a full disk or any
   other failed write, and running out of memory, end in one line (``guarded``).
 - A component's ``ArgumentError`` while a run builds its scenario (a config value that passed the config's checks
-  but not the component's) is a refusal like a config error: one line, status 2 (``component_refusal``).
+  but not the component's) is a refusal like a config error: one line, status 2 (``component_refusal``); every
+  refusal a run can end in is mapped to its line in one place (``run_refusal``), for ``run`` and its sweeps.
+- SIGINT and SIGTERM stop a run (``Signals``) with exit status 130.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import dataclasses
 import errno
 import logging
 import os
+import signal
 import sys
 import warnings
 from typing import Callable
@@ -256,3 +259,57 @@ def numerical(cfg, e: Exception, where: str = "") -> int:
     if isinstance(e, np.linalg.LinAlgError):
         return error(f"{where}{riccati_keys(cfg)}", f"the computation failed on these values ({first})")
     raise e
+
+
+def run_refusal(e: Exception, cfg, exp_id: str) -> int | None:
+    """The one line for an exception a run of ``exp_id`` with ``cfg`` raised, as its exit status: a refusal of the
+    config, destination, checkpoint or results, a component's, a failed design or an out-of-memory. None for
+    anything else (a bug: the caller re-raises it, keeping its traceback)."""
+    import numpy as np
+
+    from jaxdip.checkpoint import CheckpointError
+    from jaxdip.config import ConfigError
+    from jaxdip.control.riccati import RiccatiError
+    from jaxdip.engine.checks import ArgumentError
+    from jaxdip.outdir import OutputError
+    from jaxdip.runner.results import ResultError
+
+    if isinstance(e, (ConfigError, OutputError, ResultError)):
+        return error(e.key, e.why)
+    if isinstance(e, CheckpointError):
+        return error("--resume", str(e))
+    if isinstance(e, RiccatiError):
+        return error(riccati_keys(cfg), str(e))
+    if isinstance(e, ArgumentError):
+        return component_refusal(cfg, e, exp_id)
+    if isinstance(e, (np.linalg.LinAlgError, ArithmeticError, ValueError)):
+        return numerical(cfg, e)
+    if out_of_memory(e):
+        return error("--seeds", OUT_OF_MEMORY)
+    return None
+
+
+class Signals:
+    """SIGINT and SIGTERM stop a run: the first raises KeyboardInterrupt and is remembered, so a run whose
+    library code swallowed it still refuses to write its folder (``run_experiment``'s ``stop_requested``)."""
+
+    def __init__(self):
+        self.hit = None
+        self._old = {}
+
+    def _handler(self, signum, frame):
+        self.hit = signum
+        raise KeyboardInterrupt
+
+    def __enter__(self):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._old[sig] = signal.signal(sig, self._handler)
+        return self
+
+    def __exit__(self, *exc):
+        for sig, h in self._old.items():
+            signal.signal(sig, h)
+        return False
+
+    def requested(self) -> bool:
+        return self.hit is not None

@@ -64,8 +64,9 @@ def close(w):
             pass
 
 
-def run_parallel(args, reg, jobs: int) -> int:
-    """Run the experiments ``reg`` (``[(id, Experiment)]``) in ``jobs`` workers; 0 or the exit code."""
+def run_parallel(args, reg, jobs: int, stopped: str) -> int:
+    """Run the experiments ``reg`` (``[(id, Experiment)]``) in ``jobs`` workers; 0 or the exit code (on an
+    interrupt after the one-line note ``stopped``)."""
     order = sorted(reg, key=lambda r: -r[1].quick_cost_s) if args.quick else list(reg)
     pending = [exp_id for exp_id, _ in order]
     failed: list = []
@@ -127,7 +128,7 @@ def run_parallel(args, reg, jobs: int) -> int:
                 w["proc"].send_signal(signal.SIGINT)  # once: the workers are in their own sessions
         pool.close()
         shutil.rmtree(logs, ignore_errors=True)
-        note(f"interrupted: the experiments finished before it are in {args.out}")
+        note(stopped)
         return 130
     pool.close()
     if not failed:

@@ -3,7 +3,9 @@
 ``mean_ci``, what the experiments report, uses the normal approximation (mean +- 1.96 s / sqrt(n)), which is what
 "95% interval over seeds" means at the hundreds-to-thousands of seeds they run; ``t_interval`` (``jd.summary``'s)
 uses Student's t quantile instead, the same there and honest at a handful of seeds; fractions use the Wilson
-score interval (``wilson``), which stays inside [0, 1] and is honest at 0 or n successes. Public as ``jd.stats``.
+score interval (``wilson``), which stays inside [0, 1] and is honest at 0 or n successes. Two samples are compared
+by Welch's t-test (``welch``, p-values by ``t_pvalue``, for any positive degrees of freedom; ``z_pvalue`` for the
+normal), as ``jaxdip compare`` does with per-seed data. Public as ``jd.stats``.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from numpy.typing import ArrayLike
 
 from jaxdip._public import public_dir
 
-__all__ = ["Z95", "mean_ci", "wilson", "with_ci", "t_quantile", "t_interval"]
+__all__ = ["Z95", "mean_ci", "wilson", "with_ci", "t_quantile", "t_interval", "t_pvalue", "welch", "z_pvalue"]
 __dir__ = public_dir(globals())
 
 Z95 = 1.959963984540054
@@ -124,3 +126,64 @@ def t_interval(values: ArrayLike, mask: Optional[ArrayLike] = None, *, axis: int
         t = np.vectorize(lambda k: t_quantile(level, int(k) - 1) if k > 1 else np.nan, otypes=[np.float64])(n)
         half = t * np.sqrt(var / n)
     return mean, mean - half, mean + half, n
+
+
+def _betacf(a: float, b: float, x: float) -> float:
+    # the continued fraction of the regularised incomplete beta function (modified Lentz), as in Numerical Recipes
+    tiny, qab, qap, qam = 1e-300, a + b, a + 1.0, a - 1.0
+    c, d = 1.0, 1.0 - qab * x / qap
+    d = 1.0 / (d if abs(d) > tiny else tiny)
+    h = d
+    for m in range(1, 10_000):
+        m2 = 2 * m
+        for aa in (m * (b - m) * x / ((qam + m2) * (a + m2)), -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))):
+            d = 1.0 + aa * d
+            d = 1.0 / (d if abs(d) > tiny else tiny)
+            c = 1.0 + aa / c
+            c = c if abs(c) > tiny else tiny
+            h *= d * c
+        if abs(d * c - 1.0) < 1e-15:
+            break
+    return h
+
+
+def _betainc(a: float, b: float, x: float) -> float:
+    if x <= 0.0 or x >= 1.0:
+        return 0.0 if x <= 0.0 else 1.0
+    ln = math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x) + b * math.log1p(-x)
+    if x < (a + 1.0) / (a + b + 2.0):
+        return math.exp(ln) * _betacf(a, b, x) / a
+    return 1.0 - math.exp(ln) * _betacf(b, a, 1.0 - x) / b
+
+
+def t_pvalue(t: float, df: float) -> float:
+    """Two-sided p-value P(|T| >= |t|) of Student's t with ``df`` (> 0, not necessarily whole; infinite: the
+    normal) degrees of freedom."""
+    if not df > 0:
+        raise ValueError(f"t_pvalue: df must be > 0, got {df}")
+    if math.isinf(t):
+        return 0.0
+    if math.isinf(df):
+        return z_pvalue(t)
+    return _betainc(df / 2.0, 0.5, df / (df + t * t))
+
+
+def z_pvalue(z: float) -> float:
+    """Two-sided p-value P(|Z| >= |z|) of the standard normal."""
+    return math.erfc(abs(z) / math.sqrt(2.0))
+
+
+def welch(a: ArrayLike, b: ArrayLike) -> tuple[float, float, float]:
+    """Welch's two-sample t-test of equal means without assuming equal variances: ``(t, df, p)``, p two-sided,
+    df by the Welch-Satterthwaite formula. Both samples need two values; with both variances zero, p is 1 when
+    the means agree and 0 when they do not."""
+    x, y = np.asarray(a, dtype=np.float64).ravel(), np.asarray(b, dtype=np.float64).ravel()
+    if x.size < 2 or y.size < 2:
+        raise ValueError(f"welch: each sample needs at least two values, got {x.size} and {y.size}")
+    vx, vy = x.var(ddof=1) / x.size, y.var(ddof=1) / y.size
+    diff = float(x.mean() - y.mean())
+    if vx + vy == 0.0:
+        return (0.0 if diff == 0 else math.copysign(math.inf, diff)), math.inf, 1.0 if diff == 0 else 0.0
+    t = diff / math.sqrt(vx + vy)
+    df = (vx + vy) ** 2 / (vx**2 / (x.size - 1) + vy**2 / (y.size - 1))
+    return t, df, t_pvalue(t, df)

@@ -15,7 +15,7 @@ from jaxdip.messages import suggestion
 from jaxdip.runner import get, registry
 from jaxdip.runner.scale import CUSTOM, FULL, QUICK, quick_changes, scale, scale_line
 
-COMMANDS = ["list", "run", "config", "bench", "reproduce"]  # written out: a command missing from the parser fails
+COMMANDS = ["list", "run", "config", "compare", "bench", "reproduce"]  # written out: a command missing from the parser fails
 MARKUP = re.compile(r"``|`|:func:|:class:|\*\*|\\\\")  # reStructuredText and Markdown a terminal shows as written
 HINT = re.compile(r" \(did you mean '[^']+'\?\)")
 

@@ -2,7 +2,7 @@
 names only (no ``jax``, ``jnp``, ``eqx``, ``np``, ``annotations``), and one name means one object across the public
 modules (a name in two of them is the same object re-exported, never two different things).
 
-Public: the root, the engine, plants, sim, estimators, control, tune, search and stats, with all their modules
+Public: the root, the engine, plants, sim, estimators, control, tune, search, stats and dataset, with all their modules
 (found by walking the packages, so a new module is public by default). Not public: the command line and its
 workers, the experiment runner, the scenarios, theory and immune layers (reached by experiments), the bench, and
 the foundations other than stats (output folders, checkpoints, configs, progress, messages, XLA flags), whose
@@ -18,9 +18,10 @@ import jaxdip
 
 PUBLIC_PACKAGES = ["jaxdip.engine", "jaxdip.plants", "jaxdip.sim", "jaxdip.estimators", "jaxdip.control",
                    "jaxdip.tune", "jaxdip.search"]
-PUBLIC_MODULES = ["jaxdip", "jaxdip.stats"]
+PUBLIC_MODULES = ["jaxdip", "jaxdip.stats", "jaxdip.dataset"]
 NOT_PUBLIC = ["jaxdip.bench", "jaxdip.runner", "jaxdip.scenarios", "jaxdip.theory", "jaxdip.immune", "jaxdip.outdir",
-              "jaxdip.checkpoint", "jaxdip.cli", "jaxdip.cli_args", "jaxdip.cli_config", "jaxdip.cli_errors",
+              "jaxdip.checkpoint", "jaxdip.cli", "jaxdip.cli_args", "jaxdip.cli_compare", "jaxdip.cli_config",
+              "jaxdip.cli_errors", "jaxdip.cli_sweep",
               "jaxdip.config", "jaxdip.config_toml", "jaxdip.distributed", "jaxdip.messages", "jaxdip.progress",
               "jaxdip.reproduce_pool", "jaxdip.reproduce_worker", "jaxdip.resources", "jaxdip.xla_flags"]
 

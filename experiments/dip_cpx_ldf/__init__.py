@@ -29,6 +29,7 @@ from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.per_seed import PerSeed, fraction_of, mean_of, stacked
 from jaxdip.runner.results import fmt, fmt_ci, na
 from jaxdip.runner.summaries import failure_lines, failure_summary
 from jaxdip.runner.weights import weight_matrix
@@ -166,10 +167,33 @@ def summarize(cfg, sol: jd.Solution) -> dict:
     return out
 
 
+def per_seed(cfg, sol: jd.Solution) -> PerSeed:
+    """``summarize``'s per-seed values, in its units (cm, deg), beside the engine's per-seed variables."""
+    from jaxdip.engine.dataset import solution_variables
+
+    data = PerSeed(solution_variables(sol, dip.STATE_NAMES, dt=cfg.dt, dims={"u": ("input",)}))
+    v = data.arrays()
+    data.add("stabilized", ("seed",), v["ok"] & np.all(v["tail"][:, [1, 2]] < cfg.stabilized_tol, axis=1), "1",
+             "ok, and max |alpha|, |theta| over the tail below stabilized_tol", **fraction_of("stabilized_fraction"))
+    for name in ("xc", "alpha", "theta"):
+        k, unit = SCALE[name]
+        i = dip.STATE_NAMES.index(name)
+        for key, values, units in ((f"{name}_mean_{unit}", k * v["x.mean"][:, i], unit),
+                                   (f"{name}_var", k**2 * v["x.var"][:, i], f"{unit}^2"),
+                                   (f"{name}_abs_trial_mean_{unit}", k * np.abs(v["x.mean"][:, i]), unit)):
+            data.add(key, ("seed",), values, units, f"per-trial {key}", **mean_of(key))
+    for name in ("xc_dot", "alpha_dot", "theta_dot"):
+        data.add(f"{name}_rms_err", ("seed",), v["err"][:, dip.STATE_NAMES.index(name)], "m/s or rad/s",
+                 f"RMS error of the {name} estimate", **mean_of(f"{name}_rms_err"))
+    data.add("u_var", ("seed",), v["u.var"][:, 0], "V^2", "variance of u", **mean_of("u_var"))
+    return data
+
+
 # ---- the gamma sweep: one monte_carlo call, one compiled program ------------------------------------------
 
 
-def gamma_sweep(cfg, rollout: jd.Rollout, progress=True) -> dict:
+def gamma_sweep(cfg, rollout: jd.Rollout, progress=True) -> tuple[dict, PerSeed]:
+    """The sweep's statistics per gamma and their per-seed values (``gamma_sweep.*`` on sweep_seed, gamma_index)."""
     gammas = np.geomspace(cfg.sweep_min, cfg.sweep_max, cfg.sweep_points)
     weights = np.asarray(scenario(cfg).effective_gamma(gammas))  # the leaf is the proximal weight
     sol = jd.monte_carlo(rollout, jax.random.PRNGKey(cfg.seed), cfg.sweep_seeds, progress=progress,
@@ -189,7 +213,16 @@ def gamma_sweep(cfg, rollout: jd.Rollout, progress=True) -> dict:
         out["theta_dot_rms_err"].append(na(e))
         out["diverged_fraction"].append(f)
         out["diverged_fraction_ci95"].append(fci)
-    return out
+    data = PerSeed(coords={"gamma_index": np.arange(len(gammas)), "gamma": ("gamma_index", gammas)})
+    dims, at = ("sweep_seed", "gamma_index"), "gamma_sweep.{}.{{gamma_index}}".format
+    data.add("gamma_sweep.ok", dims, ~divs.T, "1", "the seed did not diverge at this gamma")
+    data.add("gamma_sweep.diverged", dims, divs.T, "1", "the seed diverged at this gamma",
+             **fraction_of(at("diverged_fraction"), at("diverged_fraction_ci95")))
+    data.add("gamma_sweep.theta_var", dims, DEG**2 * m["x"]["var"][:, :, i_th].T, "deg^2", "per-trial variance of theta",
+             **mean_of(at("theta_var"), "gamma_sweep.ok", at("theta_var_ci95")))
+    data.add("gamma_sweep.theta_dot_rms_err", dims, m["err"][:, :, i_thd].T, "rad/s", "RMS error of theta_dot",
+             **mean_of(at("theta_dot_rms_err"), "gamma_sweep.ok", interval=""))
+    return out, data
 
 
 # ---- one trial's velocity estimates (thesis Fig. 3.5) ------------------------------------------------------
@@ -220,15 +253,19 @@ def velocity_trial(cfg, gamma_crit) -> dict:
 def run(cfg: DipCpxLdfConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:
     rollouts = build(cfg)
     crit = gamma_criterion(cfg)
-    results = {}
+    results, parts = {}, {}
     for name, r in rollouts.items():
         sol = jd.monte_carlo(r, jax.random.PRNGKey(cfg.seed), cfg.seeds, progress=progress,
                              desc=f"dip-cpx-ldf {name}")
         results[name] = summarize(cfg, sol)
+        parts[name] = per_seed(cfg, sol)
+    data = stacked(parts, "estimator")
+    data.coords["state"] = list(dip.STATE_NAMES)
     results["gamma_criterion"] = crit
     figures = {}
     if cfg.sweep_points:
-        results["gamma_sweep"] = gamma_sweep(cfg, rollouts["cpx"], progress)
+        results["gamma_sweep"], sweep_data = gamma_sweep(cfg, rollouts["cpx"], progress)
+        data.update(sweep_data)
         figures["gamma_sweep"] = sweep_figure(cfg, results["gamma_sweep"], crit["gamma"])
     if cfg.velocity_trial:
         tr = velocity_trial(cfg, crit["gamma"])
@@ -238,7 +275,7 @@ def run(cfg: DipCpxLdfConfig, ctx: RunContext | None = None, progress: bool = Tr
                                      "theta_dot_rms_err_ldf": rms(tr["ldf"]), "theta_dot_rms_err_cpx": rms(tr["cpx"]),
                                      "theta_dot_rms_err_cpx_criterion": rms(tr["cpx_crit"])}
         figures["velocity_estimates"] = velocity_figure(cfg, tr, crit["gamma"])
-    return Outcome(results=results, report=report(cfg, results), figures=figures)
+    return Outcome(results=results, report=report(cfg, results), figures=figures, per_seed=data)
 
 
 def _row(label, r):

@@ -36,6 +36,7 @@ from experiments.ifn_protection.problem import (f_curves, f_properties, flat_cas
                                                        level_set_extent, num,
                                                        theorem_check)
 import experiments.ifn_protection.report as R  # the module: its report() would shadow it as an attribute
+from experiments.ifn_protection.per_seed import cells_data
 from jaxdip.immune import quadrature as Q
 from jaxdip.immune import tuning as Tn
 from jaxdip.immune.autonomous import CellAutonomous, theta_of_r
@@ -344,7 +345,8 @@ def run(cfg: IfnProtectionConfig, ctx: RunContext | None = None) -> Outcome:
         "tuning": Fg.fig_tuning(tq, tm, x),
     }
     lap("figures")
-    return Outcome(results=results, report=R.report(cfg, results), figures=figures, timing=timing)
+    return Outcome(results=results, report=R.report(cfg, results), figures=figures, timing=timing,
+                   per_seed=cells_data(Z, I, names, partners))
 
 
 EXPERIMENT = Experiment(

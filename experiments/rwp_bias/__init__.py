@@ -324,6 +324,7 @@ def run(cfg: RwpBiasConfig, ctx: RunContext | None = None) -> Outcome:
 
 
 EXPERIMENT = Experiment(
+    per_seed=False,  # no Outcome.per_seed yet (docs/data.md)
     id="rwp-bias",
     title="Reaction-wheel pendulum: homogeneous differentiators, bias propagation, bias observers",
     config_cls=RwpBiasConfig,

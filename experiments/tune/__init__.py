@@ -37,6 +37,7 @@ from jaxdip import checkpoint as ckpt
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.per_seed import PerSeed, mean_of
 from jaxdip.runner.results import fmt_ci
 from experiments.tune.config import HELDOUT_OFFSET, TuneConfig
 from jaxdip.scenarios.tune_targets import make_target
@@ -85,13 +86,15 @@ def run(cfg: TuneConfig, ctx: RunContext | None = None, progress: bool = True) -
     step_cost = float(np.median(sw) / np.median(ew)) if sw.size and ew.size else float("nan")
 
     t0 = time.perf_counter()
-    evals, per_seed = {}, {}
+    evals, per_seed, fell = {}, {}, {}
     for name, th in (("paper", tg.paper), ("tuned", res.theta), ("random_search", rs.theta)):
         per_seed[name] = np.asarray(held(th, key))
         evals[name] = stats.mean_ci(per_seed[name])
         if held_div is not None:
-            evals[name] += (int(np.sum(held_div(th, key))),)
+            fell[name] = np.asarray(held_div(th, key))
+            evals[name] += (int(np.sum(fell[name])),)
     diff = stats.mean_ci(per_seed["tuned"] - per_seed["paper"])  # paired: the same held-out seeds' noise
+    data = heldout_data(cfg, held_seeds, per_seed, fell)
     eval_wall = time.perf_counter() - t0
     land = [float(J_eval(th, key)) for th in tg.grid(cfg.landscape_points)]
     grid = [float(th[tg.param]) for th in tg.grid(cfg.landscape_points)]
@@ -132,7 +135,23 @@ def run(cfg: TuneConfig, ctx: RunContext | None = None, progress: bool = True) -
     results = {cfg.target: out}
     figures = {"tune_" + cfg.target: figure(cfg, tg, out)}
     return Outcome(results=results, report=report(cfg, out, timing), figures=figures,
-                   timing={cfg.target: timing})
+                   timing={cfg.target: timing}, per_seed=data)
+
+
+def heldout_data(cfg, held_seeds, losses: dict, fell: dict) -> PerSeed:
+    """The held-out evaluation's per-seed losses at each value (paper, tuned, random search): the per-seed part of
+    the results. The searches themselves (loss histories, the random search's samples) are not per-seed
+    aggregates: they stay in metrics.json."""
+    names, at = list(losses), f"{cfg.target}."
+    data = PerSeed(coords={"heldout_seed": held_seeds, "theta": names})
+    data.add("heldout_loss", ("heldout_seed", "theta"), np.stack([losses[n] for n in names], 1), "1",
+             f"held-out loss of the seed ({cfg.target}) at each value", **mean_of(at + "loss_{theta}", None))
+    data.add("loss_tuned_minus_paper", ("heldout_seed",), losses["tuned"] - losses["paper"], "1",
+             "the tuned value's held-out loss minus the paper's, the same seed", **mean_of(at + "loss_tuned_minus_paper", None))
+    if fell:
+        data.add("heldout_diverged", ("heldout_seed", "theta"), np.stack([fell[n] for n in names], 1), "1",
+                 "the seed diverged at this value")
+    return data
 
 
 def figure(cfg, tg, r):

@@ -68,7 +68,9 @@ import jaxdip as jd
 from jaxdip import stats
 from jaxdip.control.twip_lqr import TwipDesign
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.per_seed import PerSeed
 from experiments.twip_dmso.config import TwipDmsoConfig
+from experiments.twip_dmso.per_seed import per_seed
 import experiments.twip_dmso.report as R  # the module: its report() would shadow it as an attribute
 from experiments.twip_dmso.report import ESTIMATORS, STATES, UNCERTAIN_NAMES, UNITS, findings
 from jaxdip.scenarios import twip_dmso as S
@@ -329,7 +331,7 @@ def simulate(cfg: TwipDmsoConfig, progress: bool = False) -> dict:
 def run(cfg: TwipDmsoConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:
     specs = case_specs(cfg)
     sim = simulate(cfg, progress)
-    results, figures = {}, {}
+    results, figures, data = {}, {}, PerSeed()
     for spec in specs:
         d = design(cfg, spec.dt)
         res = {"section": spec.section, "truth": spec.truth,
@@ -341,6 +343,7 @@ def run(cfg: TwipDmsoConfig, ctx: RunContext | None = None, progress: bool = Tru
         for est in spec.estimators:
             m, div, first = sim[(spec.name, est)]
             res[est] = summarize(m, div, est, spec)
+            data.update(per_seed(m, div, spec.name, est))
             traces[est] = first
         if spec.name == "param_gamma_variant" and "param" in results:
             res["kf"] = results["param"]["kf"]  # the KF does not depend on Gamma
@@ -361,7 +364,7 @@ def run(cfg: TwipDmsoConfig, ctx: RunContext | None = None, progress: bool = Tru
     results["findings"] = findings(results)
     if fell:  # seeds whose |phi| passed tilt_bound_deg (or whose state became non-finite), per case and estimator
         results["failures"] = {"diverged": fell, "tilt_bound_deg": cfg.tilt_bound_deg}
-    return Outcome(results=results, report=R.report(cfg, results), figures=figures)
+    return Outcome(results=results, report=R.report(cfg, results), figures=figures, per_seed=data)
 
 
 EXPERIMENT = Experiment(

@@ -55,6 +55,7 @@ import jaxdip as jd
 from jaxdip import stats
 from jaxdip.control.extra_control import ExtraControl, desired_state
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.per_seed import PerSeed, fraction_of, mean_of
 from experiments.twip_extra_control.config import (DEG, FIGS, STATES, SYSTEMS, THESIS,
                                                           TwipExtraControlConfig, variant_config)
 from jaxdip.scenarios import twip_extra as S
@@ -180,6 +181,35 @@ def summarize_variant(s, d, lqr_s, lqr_d) -> dict:
             **versus_lqr(s, d, lqr_s, lqr_d)}
 
 
+def per_seed(cfg: TwipExtraControlConfig, res: dict) -> PerSeed:
+    """Each seed's score and divergence per case and system or variant, and its paired improvement over the
+    perturbed LQR: what ``summarize_case`` and ``summarize_variant`` average."""
+    d = PerSeed(coords={"case": list(cfg.cases), "system": list(SYSTEMS), "variant": list(cfg.variants)})
+    grid = lambda names, i: np.stack([np.stack([res[(c, n)][i] for n in names], 1) for c in cfg.cases], 1)
+    i_lqr, i_extra = SYSTEMS.index("lqr"), SYSTEMS.index("extra")
+    sc, dv = grid(SYSTEMS, 0), grid(SYSTEMS, 1)  # (seed, case, system)
+    lqr_s, lqr_d = sc[:, :, i_lqr, None], dv[:, :, i_lqr, None]
+    score = "the seed's score (the sum over the periods of the distance to the desired state)"
+    dims, at = ("seed", "case", "system"), "{case}.{system}."
+    d.add("ok", dims, ~dv, "1", "the seed stayed within tilt_bound_deg and state_bound, and finite")
+    d.add("diverged", dims, dv, "1", "the seed diverged", **fraction_of(at + "diverged_fraction"))
+    d.add("score", dims, sc, "1", score, **mean_of(at + "score_mean", "ok", at + "score_ci95"))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d.add("paired_ok", ("seed", "case"), ~dv[:, :, i_extra] & ~lqr_d[:, :, 0], "1", "neither extra nor lqr diverged")
+        d.add("improvement_paired", ("seed", "case"), 1.0 - sc[:, :, i_extra] / lqr_s[:, :, 0], "1",
+              "1 - extra's score / lqr's, the same seed", **mean_of("{case}.improvement_paired_mean", "paired_ok",
+                                                                    "{case}.improvement_paired_ci95"))
+        if cfg.variants:
+            vs, vd = grid(cfg.variants, 0), grid(cfg.variants, 1)
+            dims, at = ("seed", "case", "variant"), "{case}.variants.{variant}."
+            d.add("variant_ok", dims, ~vd, "1", "the variant's seed did not diverge")
+            d.add("variant_score", dims, vs, "1", score, **mean_of(at + "score_mean", "variant_ok", at + "score_ci95"))
+            d.add("variant_paired_ok", dims, ~vd & ~lqr_d, "1", "neither the variant nor lqr diverged")
+            d.add("variant_improvement_paired", dims, 1.0 - vs / lqr_s, "1", "1 - the variant's score / lqr's",
+                  **mean_of(at + "improvement_paired_mean", "variant_paired_ok", at + "improvement_paired_ci95"))
+    return d
+
+
 def run(cfg: TwipExtraControlConfig, ctx: RunContext | None = None, progress: bool = True) -> Outcome:
     res, traces = simulate(cfg, progress)
     results, figures = {}, {}
@@ -202,7 +232,7 @@ def run(cfg: TwipExtraControlConfig, ctx: RunContext | None = None, progress: bo
     results["horizon_s"] = cfg.duration
     results["dt_s"] = cfg.dt
     results["score_terms"] = n_steps(cfg)
-    return Outcome(results=results, report=report(cfg, results), figures=figures)
+    return Outcome(results=results, report=report(cfg, results), figures=figures, per_seed=per_seed(cfg, res))
 
 
 def fig_variants(cfg, r):

@@ -14,6 +14,7 @@ from jaxdip.engine.simulate import (
 from jaxdip.engine.driver import Ball, Gaussian, Rollout, device_mesh, monte_carlo
 from jaxdip.engine.function_plant import FunctionPlant
 from jaxdip.engine.summary import MetricSummary, Summary, summary
+from jaxdip.engine.dataset import to_dataset
 
 from jaxdip._public import public_dir
 
@@ -23,5 +24,6 @@ __all__ = [
     "KeySchedule", "Loop", "split_lanes",
     "Sample", "Solution", "State", "init_state", "simulate", "Ball", "Rollout", "device_mesh", "monte_carlo",
     "Gaussian", "FunctionPlant", "MetricSummary", "Summary", "summary", "ArgumentError", "ArgumentTypeError",
+    "to_dataset",
 ]
 __dir__ = public_dir(globals())

@@ -34,6 +34,7 @@ __all__ = ["cart_force", "cart_mass", "solve_sym3", "f_printed", "kinetic_energy
 __dir__ = public_dir(globals())
 
 STATE_NAMES = ("xc", "alpha", "theta", "xc_dot", "alpha_dot", "theta_dot")
+STATE_UNITS = ("m", "rad", "rad", "m/s", "rad/s", "rad/s")
 
 
 def cart_force(p: "DIP", xc_dot, V):

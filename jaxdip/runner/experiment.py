@@ -24,8 +24,10 @@ import jax
 
 from jaxdip import checkpoint
 from jaxdip import config as cfgmod
-from jaxdip import distributed, outdir, resources
+from jaxdip import dataset, distributed, outdir, resources
 from jaxdip.runner import records
+from jaxdip.runner.per_seed import PerSeed, without_trajectories
+from jaxdip.runner.provenance import png_metadata, provenance_block
 from jaxdip.runner.results import ResultError, check_writable, drop_missing
 from jaxdip.runner.scale import scale, scale_line
 
@@ -45,6 +47,9 @@ class RunContext:
     exp_id: str = "run"
     fingerprint: str = ""
     info: dict | None = None  # what the fingerprint is made of, recorded in the checkpoint
+    # what of the per-seed data is written (None, "final" or "trajectories"): an experiment that would keep
+    # trajectories only for per_seed.nc keeps them when this says "trajectories"
+    per_seed: str | None = None
 
     @property
     def checkpoint_path(self) -> str:
@@ -68,6 +73,7 @@ class Outcome:
     # name -> record (``runner.records``), written to record-NAME.csv (the output folder holds plain files only:
     # its marker digests each one, ``jaxdip.outdir``)
     records: dict = field(default_factory=dict)
+    per_seed: PerSeed | None = None  # the per-seed arrays behind results (runner.per_seed), for per_seed.nc
 
 
 @dataclass(frozen=True)
@@ -86,6 +92,8 @@ class Experiment:
     # cold --quick wall time (s) in the parallel reproduce on a 2-core CPU at the quick compile effort: the
     # parallel reproduce starts the long ones first (10 where not measured)
     quick_cost_s: float = 10.0
+    # False for an experiment whose run gives no Outcome.per_seed yet: --per-seed is refused before it runs
+    per_seed: bool = True
 
 
 def _jsonable(o):
@@ -206,9 +214,23 @@ def _difference(theirs: dict, ours: dict) -> str:
     return ", ".join(diff[:3]) or "different settings"
 
 
+def write_per_seed(path: str, exp: Experiment, part: PerSeed | None, what: str, prov: dict, config_text: str) -> None:
+    """per_seed.nc: the experiment's per-seed variables (without trajectories unless ``what`` asks for them), the
+    provenance and the resolved config as global attributes."""
+    if part is None:
+        raise ResultError("--per-seed", f"{exp.id} keeps no per-seed data")
+    if what != "trajectories":
+        part = without_trajectories(part)
+    head = {"experiment": exp.id, "title": exp.title, "source": exp.source, "what": what,
+            **{k: v for k, v in prov.items() if k != "packages"},
+            **{f"version_{k}": v for k, v in prov["packages"].items()}, "config_toml": config_text}
+    dataset.write(dataset.build(part.variables, part.coords, head), path)
+
+
 def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, force: bool = False,
                    flag_keys: dict[str, str] | None = None, stop_requested: Callable[[], bool] | None = None,
-                   compile_effort: str = "full", quick: bool = False) -> dict:
+                   compile_effort: str = "full", quick: bool = False, per_seed: str | None = None,
+                   command: str | None = None) -> dict:
     """Run an experiment with a validated config and write its folder; returns metrics.json's content.
 
     Raises ``ConfigError`` (resources), ``outdir.OutputError`` (destination) or ``CheckpointError`` (``resume``
@@ -221,15 +243,25 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
     leaves no folder behind. ``compile_effort``: the level this process compiles at (``jaxdip.xla_flags.effort()``;
     results agree across levels to the last bits), recorded in the provenance. ``quick``: ``cfg`` holds the
     experiment's ``--quick`` overrides; metrics.json's ``scale`` and the report's first line say so
-    (``runner.scale``).
+    (``runner.scale``). ``per_seed``: also write ``per_seed.nc`` (``"final"``: final values, per-seed metrics and
+    failures; ``"trajectories"``: with the saved trajectories), a ``dataset.MissingExtra`` before anything runs
+    without the ``data`` extra. ``command``: the command line, recorded in the provenance (default: the command
+    that regenerates the folder from its config.toml).
     """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if per_seed not in (None, "final", "trajectories"):
+        raise ValueError(f"per_seed must be None, 'final' or 'trajectories', got {per_seed!r}")
+    if per_seed:
+        if not exp.per_seed:
+            raise ResultError("--per-seed", f"{exp.id} keeps no per-seed data yet")
+        dataset.require()
     check_resources(cfg, flag_keys)
     ctx = run_context(exp, cfg, out_dir, resume, compile_effort)
+    ctx.per_seed = per_seed
     # With jax.distributed every process runs the experiment (its Monte Carlo is split over all of them) and
     # process 0 alone writes; the others learn whether process 0 could prepare its folder before computing.
     main = distributed.is_main()
@@ -255,8 +287,10 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
             raise ResultError(e.key, f"{e.why}; nothing replaced" + (f"; results kept in {kept}" if kept else "")) from None
         seeds = getattr(cfg, "seeds", 1)
         kind = scale(exp, cfg, quick)
-        metrics = {**provenance(exp.id, seeds, wall, compile_effort), "scale": kind, "results": outcome.results,
-                   "timing": outcome.timing}
+        config_text = config_toml(exp, cfg, compile_effort)
+        prov = provenance_block(exp.id, cfg, config_text, out_dir, command)
+        metrics = {**provenance(exp.id, seeds, wall, compile_effort), "scale": kind, "provenance": prov,
+                   "results": outcome.results, "timing": outcome.timing}
         if not main:
             for fig in outcome.figures.values():
                 plt.close(fig)
@@ -276,13 +310,17 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
             fh.write(header + outcome.report.strip() + "\n")
             if outcome.figures:
                 fh.write("\n## Figures\n\n" + "".join(f"![{n}]({n}.png)\n" for n in outcome.figures))
+            fh.write(f"\n---\n\nRegenerate this folder: `{prov['command']}`"
+                     + (f" (or from its own resolved config: `{prov['regenerate']}`)" if command else "") + "\n")
         with open(os.path.join(tmp, "config.toml"), "w") as fh:
-            fh.write(config_toml(exp, cfg, compile_effort))
+            fh.write(config_text)
         for name, rec in outcome.records.items():
             records.write_csv(os.path.join(tmp, f"record-{name}.csv"), rec)
         for name, fig in outcome.figures.items():
-            fig.savefig(os.path.join(tmp, f"{name}.png"), dpi=120, bbox_inches="tight")
+            fig.savefig(os.path.join(tmp, f"{name}.png"), dpi=120, bbox_inches="tight", metadata=png_metadata(prov))
             plt.close(fig)
+        if per_seed:
+            write_per_seed(os.path.join(tmp, "per_seed.nc"), exp, outcome.per_seed, per_seed, prov, config_text)
         if stop_requested is not None and stop_requested():
             raise KeyboardInterrupt
         staging.commit()
@@ -293,3 +331,23 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
             staging.discard()  # a no-op once committed
     checkpoint.remove_own(ctx.checkpoint_path, owner)  # never a checkpoint another run keeps there
     return metrics
+
+
+def is_complete(exp: Experiment, cfg, folder: str, compile_effort: str, per_seed: str | None = None) -> bool:
+    """Whether ``folder`` holds a finished run of ``exp`` with ``cfg``: a jaxdip folder of the experiment with
+    its files unchanged (the marker's digests), the config.toml this run would write (config and run settings),
+    and per_seed.nc when ``per_seed`` asks for it. A sweep keeps such points, ``reproduce --resume`` such
+    experiments."""
+    try:
+        verdict = outdir.check_destination(folder, exp.id)
+    except outdir.OutputError:
+        return False
+    if verdict.kind != "ours" or (per_seed and "per_seed.nc" not in verdict.files):
+        return False
+    try:
+        with open(os.path.join(folder, "config.toml")) as fh:
+            written = fh.read()
+        with open(os.path.join(folder, "metrics.json")) as fh:
+            return written == config_toml(exp, cfg, compile_effort) and "results" in json.load(fh)
+    except (OSError, ValueError):
+        return False

@@ -3,7 +3,6 @@ stabilised fraction with its Wilson interval, and how the failed seeds failed.""
 
 from __future__ import annotations
 
-import jax
 import numpy as np
 
 
@@ -72,30 +71,61 @@ def diverged_counts(results: dict, key: str = "diverged", where: str = "") -> di
     return out
 
 
-def loop_summary(sol, state_names, stab_idx, stab_tol, *, dt: float | None = None, bound=None) -> dict:
+def loop_per_seed(sol, state_names, stab_idx, stab_tol, *, dt: float | None = None, state_units=None,
+                  input_units: str = ""):
+    """The per-seed arrays ``loop_summary`` reduces (a ``runner.per_seed.PerSeed``): the engine's result codes,
+    failure times and final states (``jaxdip.engine.dataset.solution_variables``), the metrics ``x.*``, ``u.*``
+    and ``tail``, and ``stabilized`` (ok, and the ``stab_idx`` states' tail maxima below ``stab_tol``), each
+    labelled with the statistic of ``results`` it is summarised into. Saved samples are kept on (seed, time, ...)
+    for a ``--per-seed trajectories`` run. ``state_units`` (one per state) become the coordinate ``state_units``
+    that the state variables' ``units`` refer to; ``input_units``: those of u."""
+    from jaxdip.engine.dataset import solution_variables
+    from jaxdip.runner.per_seed import PerSeed, fraction_of, mean_of
+
+    names = list(state_names)
+    per_state, squared, u2 = "state_units", "state_units^2", f"{input_units}^2" if input_units else ""
+    units = {"final_x": per_state, "x.mean": per_state, "x.mean_abs": per_state, "x.var": squared,
+             "x.var_abs": squared, "x.mean_sq": squared, "tail": per_state, "u.mean": input_units,
+             "u.mean_abs": input_units, "u.var": u2, "u.var_abs": u2, "u.mean_sq": u2, "x.count": "1", "u.count": "1"}
+    out = PerSeed(solution_variables(sol, names, dt=dt, dims={"u": ("input",)}, units=units), {"state": names})
+    if state_units is not None:
+        out.coords["state_units"] = ("state", list(state_units))
+    for stat in ("mean", "var", "mean_abs", "var_abs"):
+        out.variables[f"x.{stat}"][2].update(mean_of(f"states.{{state}}.{stat}"))
+    for stat in ("mean_abs", "var", "var_abs"):
+        out.variables[f"u.{stat}"][2].update(mean_of(f"u.{stat}"))
+    ok = out.variables["ok"][1]
+    tail = out.variables["tail"][1]
+    out.add("stabilized", ("seed",), ok & np.all(tail[:, list(stab_idx)] < stab_tol, axis=1), "1",
+            f"ok, and max |{', '.join(names[i] for i in stab_idx)}| over the tail window below {stab_tol}",
+            **fraction_of("stabilized_fraction"))
+    return out
+
+
+def loop_summary(sol, state_names, stab_idx, stab_tol, *, dt: float | None = None, bound=None,
+                 per_seed=None) -> dict:
     """``trajectory_summary`` for a ``jaxdip.monte_carlo`` Solution whose metrics are ``{"x": Moments("x"),
-    "u": Moments("u"), "tail": Window(MaxAbs("x"), ...)}``: the same quantities, keys and formulas.
+    "u": Moments("u"), "tail": Window(MaxAbs("x"), ...)}``: the same quantities, keys and formulas, computed from
+    ``loop_per_seed``'s arrays (``per_seed``, when the caller already has them).
 
     Statistics are over the seeds that did not fail; when every seed failed they are left out (no NaN or
     null), and with ``dt`` and ``bound`` a ``failures`` block says how the seeds failed."""
     from jaxdip import stats
-    from jaxdip.engine import RESULTS
 
-    m = jax.tree_util.tree_map(np.asarray, sol.metrics)
-    failed = np.asarray(sol.result) != RESULTS.ok
-    ok = ~failed
-    stab = ok & np.all(m["tail"][:, list(stab_idx)] < stab_tol, axis=1)
+    v = (per_seed or loop_per_seed(sol, state_names, stab_idx, stab_tol, dt=dt)).arrays()
+    ok = v["ok"]
+    failed = ~ok
+    stab = v["stabilized"]
     frac, ci = stats.wilson(int(stab.sum()), len(stab))
     out = {"stabilized_fraction": frac, "stabilized_fraction_ci95": ci, "diverged": int(failed.sum()), "states": {}}
     if dt is not None and failed.any():
         out["failures"] = failure_summary(sol, state_names, dt, np.inf if bound is None else bound)
     if not ok.any():
         return out
-    x, u = m["x"], m["u"]
     for i, name in enumerate(state_names):
-        out["states"][name] = {**stats.with_ci("mean", x["mean"][:, i], ok), **stats.with_ci("var", x["var"][:, i], ok),
-                               **stats.with_ci("mean_abs", x["mean_abs"][:, i], ok),
-                               **stats.with_ci("var_abs", x["var_abs"][:, i], ok)}
-    out["u"] = {**stats.with_ci("mean_abs", u["mean_abs"][:, 0], ok), **stats.with_ci("var", u["var"][:, 0], ok),
-                **stats.with_ci("var_abs", u["var_abs"][:, 0], ok)}
+        out["states"][name] = {**stats.with_ci("mean", v["x.mean"][:, i], ok), **stats.with_ci("var", v["x.var"][:, i], ok),
+                               **stats.with_ci("mean_abs", v["x.mean_abs"][:, i], ok),
+                               **stats.with_ci("var_abs", v["x.var_abs"][:, i], ok)}
+    out["u"] = {**stats.with_ci("mean_abs", v["u.mean_abs"][:, 0], ok), **stats.with_ci("var", v["u.var"][:, 0], ok),
+                **stats.with_ci("var_abs", v["u.var_abs"][:, 0], ok)}
     return out
