@@ -12,7 +12,7 @@ with ``jax.random.normal`` (threefry bits, then a float64 inverse error function
 - ``box_muller``: the same keys, float64 uniforms turned into normals by Box-Muller instead of ``erfinv``;
 - ``float32``: the same keys, ``jax.random.normal`` in float32, cast to float64;
 - ``block``: one draw per seed and chunk of periods, ``normal(fold_in(base, chunk), (chunk, 6))``, the loop
-  reading row k of it (no per-period key derivation at all).
+  reading row k of it (no per-period key derivation at all), and with it ``float32`` or ``unsafe_rbg``.
 
 ``CANDIDATES`` maps each name to ``(key impl, draw, block)``; ``noise`` draws a (seeds, steps, 6) array of one
 candidate's stream, which the tests (tests/test_noise_streams.py) check statistically against today's. Timings
@@ -28,6 +28,7 @@ import statistics
 import time
 from typing import Callable, NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -74,6 +75,8 @@ CANDIDATES = {
     "box_muller": Candidate("threefry2x32", box_muller, False),
     "float32": Candidate("threefry2x32", float32_normal, False),
     "block": Candidate("threefry2x32", erfinv_normal, True),
+    "block_float32": Candidate("threefry2x32", float32_normal, True),
+    "block_unsafe_rbg": Candidate("unsafe_rbg", erfinv_normal, True),
 }
 
 
@@ -158,6 +161,30 @@ def measure(names, seeds: int = 1024, steps: int = 1000, chunk: int = 100, round
             for name in names}
 
 
+def engine_rates(seeds: int = 1024, steps: int = 1000, rounds: int = 5) -> dict:
+    """ns per seed-period (median CPU time, interleaved rounds) of the library's own dip-lqr loop
+    (``jd.monte_carlo`` of the scenario's rollout, one RK4 step, no recording): today's keys, ``unsafe_rbg`` keys
+    (a typed key given to ``monte_carlo``: the whole key schedule on that generator), and
+    ``WhiteNoise(draw_dtype="float32")``."""
+    from jaxdip.scenarios.dip_lqr import dip_lqr
+
+    r = dip_lqr(duration=steps * DT, substeps=1, record_every=None)
+    r32 = eqx.tree_at(lambda r: r.loop.sensor, r, jd.sensors.WhiteNoise(NOISE_STD, draw_dtype="float32"))
+    cases = {"threefry": (r, jax.random.PRNGKey(0)), "unsafe_rbg": (r, jax.random.key(0, impl="unsafe_rbg")),
+             "float32": (r32, jax.random.PRNGKey(0))}
+    progs = {name: jax.jit(lambda key, r=rollout: jd.monte_carlo(r, key, seeds).metrics)
+             for name, (rollout, _) in cases.items()}
+    for name, f in progs.items():
+        jax.block_until_ready(f(cases[name][1]))
+    times: dict = {name: [] for name in cases}
+    for _ in range(rounds):
+        for name, f in progs.items():
+            t = time.process_time()
+            jax.block_until_ready(f(cases[name][1]))
+            times[name].append(time.process_time() - t)
+    return {name: statistics.median(v) * 1e9 / (seeds * steps) for name, v in times.items()}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=1024)
@@ -169,10 +196,14 @@ def main() -> None:
     ref = res["threefry"]
     print(f"{jax.devices()[0].platform}, {args.seeds} seeds x {args.steps} periods, chunk {args.chunk}, "
           f"median of {args.rounds} interleaved rounds, CPU ns per seed-period")
-    print(f"{'candidate':<12}{'noise ns':>10}{'x today':>9}{'loop ns':>10}{'periods/s':>12}{'x today':>9}")
+    print(f"{'candidate':<18}{'noise ns':>10}{'x today':>9}{'loop ns':>10}{'periods/s':>12}{'x today':>9}")
     for name, r in res.items():
-        print(f"{name:<12}{r['noise']:>10.1f}{ref['noise'] / r['noise']:>9.2f}{r['loop']:>10.1f}"
+        print(f"{name:<18}{r['noise']:>10.1f}{ref['noise'] / r['noise']:>9.2f}{r['loop']:>10.1f}"
               f"{1e9 / r['loop']:>12.3g}{ref['loop'] / r['loop']:>9.2f}")
+    eng = engine_rates(args.seeds, args.steps, args.rounds)
+    print("the library's loop (jd.monte_carlo of the dip-lqr rollout), CPU ns per seed-period")
+    for name, v in eng.items():
+        print(f"{name:<18}{v:>10.1f}{1e9 / v:>12.3g}{eng['threefry'] / v:>9.2f}")
 
 
 if __name__ == "__main__":
