@@ -16,7 +16,7 @@ from jaxdip.cli_args import check_paths, parser, special_kind
 from jaxdip.cli_errors import (Signals, component_refusal, emit, error, guarded, note, numerical, riccati_keys,
                                run_refusal, warn)
 from jaxdip.messages import listing, unknown
-from jaxdip.reproduce_pool import run_parallel
+from jaxdip.reproduce_pool import run_argv, run_parallel
 
 
 def _use_all_cores(processes: int = 1):
@@ -295,7 +295,8 @@ def cmd_reproduce(args, argv=None) -> int:
                     if main:
                         print(f"== {exp_id}", file=sys.stderr)
                     run_experiment(exp, cfgs[exp_id], out, force=args.force, stop_requested=sig.requested,
-                                   compile_effort=xla_flags.effort(), quick=args.quick)
+                                   compile_effort=xla_flags.effort(), quick=args.quick,
+                                   command=shlex.join(["jaxdip", *run_argv(args, exp_id)]))
             except (ConfigError, OutputError) as e:
                 return error(e.key, e.why)
             except RiccatiError as e:

@@ -64,6 +64,16 @@ def close(w):
             pass
 
 
+def run_argv(args, exp_id: str) -> list[str]:
+    """The ``jaxdip run`` arguments that make ``exp_id``'s folder of a reproduction (a worker runs them; an
+    experiment run in the reproduction's own process records them as its command, so a folder's report reads
+    the same whichever way it was made)."""
+    argv = ["run", exp_id, "--out", os.path.join(args.out, exp_id)]
+    argv += ["--quick"] * bool(args.quick) + ["--force"] * bool(args.force)
+    argv += ["--no-compile-cache"] * bool(args.no_compile_cache)
+    return argv + (["--compile-effort", args.compile_effort] if args.compile_effort else [])
+
+
 def run_parallel(args, reg, jobs: int, stopped: str) -> int:
     """Run the experiments ``reg`` (``[(id, Experiment)]``) in ``jobs`` workers; 0 or the exit code (on an
     interrupt after the one-line note ``stopped``)."""
@@ -80,10 +90,7 @@ def run_parallel(args, reg, jobs: int, stopped: str) -> int:
 
     def give(w):
         exp_id = pending.pop(0)
-        argv = ["run", exp_id, "--out", os.path.join(args.out, exp_id)]
-        argv += ["--quick"] * bool(args.quick) + ["--force"] * bool(args.force)
-        argv += ["--no-compile-cache"] * bool(args.no_compile_cache)
-        argv += ["--compile-effort", args.compile_effort] if args.compile_effort else []
+        argv = run_argv(args, exp_id)
         w["task"], w["t"] = exp_id, time.perf_counter()
         w["given"] = True
         try:

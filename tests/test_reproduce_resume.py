@@ -160,3 +160,28 @@ def test_killed_reproduction_resumes(tmp_path):
     for exp_id in ids.split(","):
         assert _results(tmp_path / "cut" / exp_id) == _results(tmp_path / "whole" / exp_id)
     assert _report(tmp_path / "cut") == _report(tmp_path / "whole")
+
+
+@pytest.mark.slow
+def test_terminated_parallel_reproduction_resumes(tmp_path):
+    """The parallel path: SIGTERM once one experiment is written stops the workers (exit 130, the --resume
+    line); the same command with --resume keeps what was finished and runs the rest in workers."""
+    ids = "dip-lqr,eki-linear,twip-extra-control"
+    cmd = [sys.executable, "-m", "jaxdip.cli", "reproduce", "--quick", "--jobs", "2", "--only", ids, "--out",
+           str(tmp_path / "cut")]
+    p = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+    while p.poll() is None and not any((tmp_path / "cut" / i / "metrics.json").exists() for i in ids.split(",")):
+        time.sleep(0.05)
+    p.send_signal(signal.SIGTERM)
+    err = p.communicate()[1]
+    finished = [i for i in ids.split(",") if (tmp_path / "cut" / i / "metrics.json").exists()]
+    if p.returncode == 130:
+        assert err.strip().splitlines()[-1].endswith("add --resume to the same command to continue"), err
+    r = subprocess.run([*cmd, "--resume"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert all(f"== {i}: complete, kept" in r.stderr for i in finished) and finished
+    w = subprocess.run([*cmd[:-1], str(tmp_path / "whole")], capture_output=True)  # uninterrupted, 2 workers
+    assert w.returncode == 0
+    for exp_id in ids.split(","):
+        assert _results(tmp_path / "cut" / exp_id) == _results(tmp_path / "whole" / exp_id)
+    assert _report(tmp_path / "cut") == _report(tmp_path / "whole")
