@@ -16,8 +16,8 @@ with ``jax.random.normal`` (threefry bits, then a float64 inverse error function
 
 ``CANDIDATES`` maps each name to ``(key impl, draw, block)``; ``noise`` draws a (seeds, steps, 6) array of one
 candidate's stream, which the tests (tests/test_noise_streams.py) check statistically against today's. Timings
-are CPU seconds of this process (``time.process_time``), so other load on the machine enters less than in wall
-time; not part of the test suite.
+on a CPU are CPU seconds of this process (``time.process_time``), so other load on the machine enters less than
+in wall time; on an accelerator they are wall seconds. Not part of the test suite.
 """
 
 from __future__ import annotations
@@ -137,6 +137,10 @@ def _program(name: str, steps: int, chunk: int, with_plant: bool):
     return jax.jit(jax.vmap(one))
 
 
+def _clock() -> Callable[[], float]:
+    return time.process_time if jax.default_backend() == "cpu" else time.perf_counter
+
+
 def measure(names, seeds: int = 1024, steps: int = 1000, chunk: int = 100, rounds: int = 5) -> dict:
     """ns per seed-period (median CPU time over ``rounds`` interleaved rounds) of the noise alone and of the loop
     with it, per candidate."""
@@ -151,11 +155,12 @@ def measure(names, seeds: int = 1024, steps: int = 1000, chunk: int = 100, round
             jax.block_until_ready(f(keys, x0))  # compile and warm
             progs[name, part] = (f, keys)
     times: dict = {k: [] for k in progs}
+    clock = _clock()
     for _ in range(rounds):
         for k, (f, keys) in progs.items():
-            t = time.process_time()
+            t = clock()
             jax.block_until_ready(f(keys, x0))
-            times[k].append(time.process_time() - t)
+            times[k].append(clock() - t)
     per = 1e9 / (seeds * steps)
     return {name: {part: statistics.median(times[name, part]) * per for part in ("noise", "loop")}
             for name in names}
@@ -177,11 +182,12 @@ def engine_rates(seeds: int = 1024, steps: int = 1000, rounds: int = 5) -> dict:
     for name, f in progs.items():
         jax.block_until_ready(f(cases[name][1]))
     times: dict = {name: [] for name in cases}
+    clock = _clock()
     for _ in range(rounds):
         for name, f in progs.items():
-            t = time.process_time()
+            t = clock()
             jax.block_until_ready(f(cases[name][1]))
-            times[name].append(time.process_time() - t)
+            times[name].append(clock() - t)
     return {name: statistics.median(v) * 1e9 / (seeds * steps) for name, v in times.items()}
 
 
@@ -195,13 +201,14 @@ def main() -> None:
     res = measure(list(CANDIDATES), args.seeds, args.steps, args.chunk, args.rounds)
     ref = res["threefry"]
     print(f"{jax.devices()[0].platform}, {args.seeds} seeds x {args.steps} periods, chunk {args.chunk}, "
-          f"median of {args.rounds} interleaved rounds, CPU ns per seed-period")
+          f"median of {args.rounds} interleaved rounds, "
+          f"{'CPU' if jax.default_backend() == 'cpu' else 'wall'} ns per seed-period")
     print(f"{'candidate':<18}{'noise ns':>10}{'x today':>9}{'loop ns':>10}{'periods/s':>12}{'x today':>9}")
     for name, r in res.items():
         print(f"{name:<18}{r['noise']:>10.1f}{ref['noise'] / r['noise']:>9.2f}{r['loop']:>10.1f}"
               f"{1e9 / r['loop']:>12.3g}{ref['loop'] / r['loop']:>9.2f}")
     eng = engine_rates(args.seeds, args.steps, args.rounds)
-    print("the library's loop (jd.monte_carlo of the dip-lqr rollout), CPU ns per seed-period")
+    print("the library's loop (jd.monte_carlo of the dip-lqr rollout), ns per seed-period")
     for name, v in eng.items():
         print(f"{name:<18}{v:>10.1f}{1e9 / v:>12.3g}{eng['threefry'] / v:>9.2f}")
 
