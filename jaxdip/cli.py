@@ -16,7 +16,7 @@ from jaxdip.cli_args import check_paths, parser, special_kind
 from jaxdip.cli_errors import (Signals, component_refusal, emit, error, guarded, note, numerical, riccati_keys,
                                run_refusal, warn)
 from jaxdip.messages import listing, unknown
-from jaxdip.reproduce_pool import run_parallel
+from jaxdip.reproduce_pool import run_argv, run_parallel
 
 
 def _use_all_cores(processes: int = 1):
@@ -256,6 +256,15 @@ def cmd_reproduce(args, argv=None) -> int:
         refused = refused or OutputError("--out", f"process 0 cannot write {args.out} (see its error)")
     if refused is not None:
         return error(refused.key, refused.why)
+    kept = set()
+    if args.resume:
+        from jaxdip.runner.experiment import is_complete
+
+        kept = {exp_id for exp_id, exp in reg
+                if is_complete(exp, cfgs[exp_id], os.path.join(args.out, exp_id), xla_flags.effort())}
+        for exp_id, _ in reg:
+            if exp_id in kept:
+                print(f"== {exp_id}: complete, kept", file=sys.stderr)
 
     t0 = time.perf_counter()
     rows, sections = [], []
@@ -271,23 +280,24 @@ def cmd_reproduce(args, argv=None) -> int:
             body = fh.read()
         sections.append(re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", rf"![\1]({exp_id}/\2)", body))
 
-    if jobs > 1 and len(reg) > 1:
+    todo = [(exp_id, exp) for exp_id, exp in reg if exp_id not in kept]
+    stopped = (f"interrupted: the experiments finished before it are in {args.out}; "
+               f"add --resume to the same command to continue")
+    if jobs > 1 and len(todo) > 1:
         with Signals():
-            code = run_parallel(args, reg, jobs)
+            code = run_parallel(args, todo, jobs, stopped)
         if code:
             return code
-        for exp_id, exp in reg:
-            collect(exp_id, exp)
     else:
         with Signals() as sig:
             try:
-                for exp_id, exp in reg:
+                for exp_id, exp in todo:
                     out = os.path.join(args.out, exp_id)
                     if main:
                         print(f"== {exp_id}", file=sys.stderr)
                     run_experiment(exp, cfgs[exp_id], out, force=args.force, stop_requested=sig.requested,
-                                   compile_effort=xla_flags.effort(), quick=args.quick)
-                    collect(exp_id, exp)
+                                   compile_effort=xla_flags.effort(), quick=args.quick,
+                                   command=shlex.join(["jaxdip", *run_argv(args, exp_id)]))
             except (ConfigError, OutputError) as e:
                 return error(e.key, e.why)
             except RiccatiError as e:
@@ -299,14 +309,18 @@ def cmd_reproduce(args, argv=None) -> int:
             except (np.linalg.LinAlgError, ArithmeticError, ValueError) as e:
                 return numerical(cfgs[exp_id], e, f"{exp_id}: ")
             except KeyboardInterrupt:
-                note(f"interrupted: the experiments finished before it are in {args.out}")
+                note(stopped)
                 return 130
     wall = time.perf_counter() - t0
     if not main:
         return 0
+    for exp_id, exp in reg:  # in the registry's order, the kept ones with the rest
+        collect(exp_id, exp)
     text = (
         f"# jaxdip reproduction{' (quick)' if args.quick else ''}\n\n"
-        f"Total wall time {wall:.1f} s.\n\n| experiment | what | seeds | wall (s) |\n|---|---|---|---|\n"
+        f"Total wall time {wall:.1f} s"
+        + (f" ({len(kept)} of {len(reg)} experiments kept from an earlier run)" if kept else "")
+        + ".\n\n| experiment | what | seeds | wall (s) |\n|---|---|---|---|\n"
         + "\n".join(rows) + "\n\n" + "\n\n---\n\n".join(sections)
     )
     try:  # again: the user had the whole reproduction to put a REPORT.md of their own there
@@ -344,6 +358,9 @@ def _command(args, argv) -> int:
         if args.cmd != "bench" and (code := _set_effort(args)):
             return code
         _compile_cache(not args.no_compile_cache)
+    if args.cmd == "reproduce" and args.resume and args.distributed:
+        # each process would judge the folders on its own disk, and they must agree on the experiments that run
+        return error("--resume", "not with --distributed: resume a single-process reproduction")
     if args.cmd in ("run", "reproduce") and (code := _distributed(args)):
         return code
     if args.cmd == "list":

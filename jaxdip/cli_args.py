@@ -162,6 +162,9 @@ def parser(description: str = DESCRIPTION) -> Parser:
     rp.add_argument("--out", default="results", help="output folder: <out>/<id>/ and <out>/REPORT.md "
                                                       "(default results)")
     rp.add_argument("--force", action="store_true", help="replace jaxdip result folders of other experiments")
+    rp.add_argument("--resume", action="store_true",
+                    help="keep every experiment whose folder under --out is a complete, unchanged jaxdip result of "
+                         "the same config and run settings, run the rest, and write REPORT.md from all of them")
     rp.add_argument("--jobs", type=_jobs, default=None,
                     help="experiments run side by side in worker processes (default: one per CPU core, "
                          f"at most 2; at most {MAX_JOBS}; compilation is single-threaded, so a second job uses the "

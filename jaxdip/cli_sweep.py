@@ -21,6 +21,7 @@ def cmd_sweep(args, exp, command: str) -> int:
     from jaxdip import config as C
     from jaxdip.config import ConfigError
     from jaxdip.runner import sweep as S
+    from jaxdip.runner.experiment import is_complete
     from jaxdip.runner.sweep_table import summary_files
 
     if args.resume:
@@ -42,7 +43,7 @@ def cmd_sweep(args, exp, command: str) -> int:
                         stop_requested=sig.requested, say=lambda s: print(s, file=sys.stderr, flush=True),
                         per_seed=args.per_seed, command=command)
         except KeyboardInterrupt:
-            kept = sum(S.is_complete(exp, p, folder.point(p), level, args.per_seed) for p in points)
+            kept = sum(is_complete(exp, p.cfg, folder.point(p), level, args.per_seed) for p in points)
             note(f"interrupted: {kept} of {len(points)} points are complete in {os.path.join(out, S.POINTS)}; "
                  "give the same command again to continue")
             return 130

@@ -64,8 +64,19 @@ def close(w):
             pass
 
 
-def run_parallel(args, reg, jobs: int) -> int:
-    """Run the experiments ``reg`` (``[(id, Experiment)]``) in ``jobs`` workers; 0 or the exit code."""
+def run_argv(args, exp_id: str) -> list[str]:
+    """The ``jaxdip run`` arguments that make ``exp_id``'s folder of a reproduction (a worker runs them; an
+    experiment run in the reproduction's own process records them as its command, so a folder's report reads
+    the same whichever way it was made)."""
+    argv = ["run", exp_id, "--out", os.path.join(args.out, exp_id)]
+    argv += ["--quick"] * bool(args.quick) + ["--force"] * bool(args.force)
+    argv += ["--no-compile-cache"] * bool(args.no_compile_cache)
+    return argv + (["--compile-effort", args.compile_effort] if args.compile_effort else [])
+
+
+def run_parallel(args, reg, jobs: int, stopped: str) -> int:
+    """Run the experiments ``reg`` (``[(id, Experiment)]``) in ``jobs`` workers; 0 or the exit code (on an
+    interrupt after the one-line note ``stopped``)."""
     order = sorted(reg, key=lambda r: -r[1].quick_cost_s) if args.quick else list(reg)
     pending = [exp_id for exp_id, _ in order]
     failed: list = []
@@ -79,10 +90,7 @@ def run_parallel(args, reg, jobs: int) -> int:
 
     def give(w):
         exp_id = pending.pop(0)
-        argv = ["run", exp_id, "--out", os.path.join(args.out, exp_id)]
-        argv += ["--quick"] * bool(args.quick) + ["--force"] * bool(args.force)
-        argv += ["--no-compile-cache"] * bool(args.no_compile_cache)
-        argv += ["--compile-effort", args.compile_effort] if args.compile_effort else []
+        argv = run_argv(args, exp_id)
         w["task"], w["t"] = exp_id, time.perf_counter()
         w["given"] = True
         try:
@@ -127,7 +135,7 @@ def run_parallel(args, reg, jobs: int) -> int:
                 w["proc"].send_signal(signal.SIGINT)  # once: the workers are in their own sessions
         pool.close()
         shutil.rmtree(logs, ignore_errors=True)
-        note(f"interrupted: the experiments finished before it are in {args.out}")
+        note(stopped)
         return 130
     pool.close()
     if not failed:

@@ -260,7 +260,7 @@ def _parallel_with_fake_workers(tmp_path, ids, jobs):
         f"sys.executable = {str(fake)!r}\n"
         f"args = types.SimpleNamespace(out={str(tmp_path / 'o')!r}, quick=False, force=False, no_compile_cache=False, compile_effort=None)\n"
         f"reg = [(i, None) for i in {tuple(ids)!r}]\n"
-        f"sys.exit(reproduce_pool.run_parallel(args, reg, {jobs}))\n"
+        f"sys.exit(reproduce_pool.run_parallel(args, reg, {jobs}, 'interrupted'))\n"
     )
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
 

@@ -3,6 +3,9 @@
 - ``scoreboard``: ``jaxdip bench`` (the dip-lqr loop against a NumPy loop, SciPy's RK45 and ode45's defaults,
   with accuracy against DOP853), the JSON and figure it writes;
 - ``estimators``: throughput of the estimators on the linearised DIP, ``python -m jaxdip.bench.estimators``;
+- ``noise``: the dip-lqr loop's sensor noise per period under each candidate generator (threefry, rbg,
+  unsafe_rbg, Box-Muller, float32, one block per chunk) and the loop's periods/s with each,
+  ``python -m jaxdip.bench.noise``;
 - ``peers``: the batch filter/smoother/likelihood against dynamax and the weighted MHE against do-mpc,
   ``python -m jaxdip.bench.peers`` after ``pip install ".[peers]"`` (the only module that imports them).
 """

@@ -331,3 +331,23 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
             staging.discard()  # a no-op once committed
     checkpoint.remove_own(ctx.checkpoint_path, owner)  # never a checkpoint another run keeps there
     return metrics
+
+
+def is_complete(exp: Experiment, cfg, folder: str, compile_effort: str, per_seed: str | None = None) -> bool:
+    """Whether ``folder`` holds a finished run of ``exp`` with ``cfg``: a jaxdip folder of the experiment with
+    its files unchanged (the marker's digests), the config.toml this run would write (config and run settings),
+    and per_seed.nc when ``per_seed`` asks for it. A sweep keeps such points, ``reproduce --resume`` such
+    experiments."""
+    try:
+        verdict = outdir.check_destination(folder, exp.id)
+    except outdir.OutputError:
+        return False
+    if verdict.kind != "ours" or (per_seed and "per_seed.nc" not in verdict.files):
+        return False
+    try:
+        with open(os.path.join(folder, "config.toml")) as fh:
+            written = fh.read()
+        with open(os.path.join(folder, "metrics.json")) as fh:
+            return written == config_toml(exp, cfg, compile_effort) and "results" in json.load(fh)
+    except (OSError, ValueError):
+        return False

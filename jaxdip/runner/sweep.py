@@ -31,7 +31,7 @@ from jaxdip import config as cfgmod
 from jaxdip import outdir
 from jaxdip.config import ConfigError
 from jaxdip.messages import shown
-from jaxdip.runner.experiment import Experiment, config_toml, run_experiment
+from jaxdip.runner.experiment import Experiment, is_complete, run_experiment
 
 SWEEP_MARKER = ".jaxdip-sweep.json"
 POINTS = "points"
@@ -217,24 +217,6 @@ class SweepFolder:
         return os.path.join(self.path, POINTS, p.name)
 
 
-def is_complete(exp: Experiment, p: Point, folder: str, compile_effort: str, per_seed: str | None = None) -> bool:
-    """Whether ``folder`` holds this point's finished run: a jaxdip folder of the experiment with its files
-    unchanged, the config.toml this point would write, and per_seed.nc when ``per_seed`` asks for it."""
-    try:
-        verdict = outdir.check_destination(folder, exp.id)
-    except outdir.OutputError:
-        return False
-    if verdict.kind != "ours" or (per_seed and "per_seed.nc" not in verdict.files):
-        return False
-    try:
-        with open(os.path.join(folder, "config.toml")) as fh:
-            written = fh.read()
-        with open(os.path.join(folder, "metrics.json")) as fh:
-            return written == config_toml(exp, p.cfg, compile_effort) and "results" in json.load(fh)
-    except (OSError, ValueError):
-        return False
-
-
 @dataclass
 class SweepRun:
     """What ``run_sweep`` did: per point, whether it was run (else reused) and the programs it built."""
@@ -257,7 +239,7 @@ def run_sweep(exp: Experiment, points: list[Point], folder: SweepFolder, done: S
     folder.open()
     for i, p in enumerate(points[len(done.ran):], len(done.ran) + 1):
         dest = folder.point(p)
-        if is_complete(exp, p, dest, compile_effort, run_options.get("per_seed")):
+        if is_complete(exp, p.cfg, dest, compile_effort, run_options.get("per_seed")):
             say(f"== point {i}/{len(points)} {p.name}: complete, kept")
             done.ran.append(False)
             done.compilations.append(None)

@@ -68,13 +68,19 @@ class WhiteNoise(Sensor):
     """Full-state measurement with white Gaussian noise, y = x + std * xi (``std`` scalar or per state).
 
     The noise is drawn from the first half of ``split(key)``, as ``LinearSensor`` draws its white noise, so
-    the two give identical measurements for the same key."""
+    the two give identical measurements for the same key. ``draw_dtype="float32"`` draws xi in float32 and
+    casts it to float64: another random stream (not today's default), which passes the same statistical checks
+    (tests/test_noise_streams.py) and makes the dip-lqr loop 1.11-1.15x faster on a CPU and a saturated GPU
+    (docs/performance.md); its resolution (2^-24 relative) is far below any sensor's noise, and its tails end at
+    5.42 sigma."""
 
     std: jax.Array = param()
+    draw_dtype: str = eqx.field(default="float64", static=True)
 
     def __check_init__(self):
         checks.check_scalar_or_vector(self, "std", self.std, why="(one std for every state, or one per state)")
         checks.check_nonnegative(self, "std", self.std)
+        checks.check_choice(self, "draw_dtype", self.draw_dtype, ("float64", "float32"))
 
     def io_sizes(self) -> dict:
         # full-state: y has the plant's size; a per-state std fixes that size
@@ -85,7 +91,8 @@ class WhiteNoise(Sensor):
 
     def step(self, state, x, key, k):
         k_white = split_lanes(key, 2)[0]
-        return state, x + self.std * jax.random.normal(k_white, jnp.shape(x)), None
+        xi = jax.random.normal(k_white, jnp.shape(x), dtype=jnp.dtype(self.draw_dtype)).astype(jnp.float64)
+        return state, x + self.std * xi, None
 
 
 class LinearSensor(Sensor):
