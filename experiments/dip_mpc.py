@@ -168,5 +168,6 @@ EXPERIMENT = Experiment(
     quick={"seeds": 16, "duration": 1.0, "x0_scales": [1.0, 12.0], "tune_steps": 2, "tune_seeds": 4,
            "tune_duration": 0.5},
     source="extension beyond the documents (MPC with the actuator limit as a constraint)",
+    reproduce=False,
     quick_cost_s=30,
 )
