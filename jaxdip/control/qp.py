@@ -3,7 +3,8 @@ infinite bound are one-sided), warm-startable, with a status code, batched by ``
 
 The iterations are the dual active-set method (Goldfarb and Idnani) of the constrained MHE
 (``jaxdip.estimators.active_set.dual_step``), here driven by a ``while_loop`` that stops as soon as no row is
-violated, so a warm start that already holds the right working set costs one iteration. Why that solver and not
+violated, so a warm start that already holds the right working set costs no iteration (the loop's test reads the
+rows' violations without a factorisation). Why that solver and not
 an ADMM / OSQP-style splitting: each iteration is an exact solve, so the answer meets the KKT conditions to
 rounding (a tolerance of 1e-7 against an interior-point solver needs no polishing step), and the iteration count
 does not depend on the conditioning of H, which the condensed MPC makes poor (an unstable plant's powers A^k);
@@ -36,7 +37,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
 from jaxdip.engine import checks
-from jaxdip.estimators.active_set import dual_consts, dual_step
+from jaxdip.estimators.active_set import dual_consts, dual_finished, dual_step
 from jaxdip.estimators.kalman import guarded_cho_factor
 
 
@@ -130,18 +131,15 @@ def _solve(H, q, G, lo, hi, warm, max_iter):
         start = jax.tree_util.tree_map(lambda w, c: jnp.where(ok, w, c), (mu0, act0, side0, jnp.array(-1)), cold)
 
     def cond(c):
-        k, done, _ = c
-        return (k < max_iter) & ~done
+        k, inner = c
+        return (k < max_iter) & ~dual_finished(consts, inner)
 
     def body(c):
-        k, _, inner = c
-        inner, idle = dual_step(consts, inner)
-        return k + jnp.where(idle, 0, 1), idle, inner
+        k, inner = c
+        return k + 1, dual_step(consts, inner)[0]
 
-    k, done, (mu, act, side, _) = jax.lax.while_loop(cond, body, (jnp.array(0), jnp.array(False), start))
-    # a loop that ran out of iterations may still have finished on its last one
-    _, idle = dual_step(consts, (mu, act, side, jnp.array(-1)))
-    done = done | idle
+    k, (mu, act, side, pend) = jax.lax.while_loop(cond, body, (jnp.array(0), start))
+    done = dual_finished(consts, (mu, act, side, pend))
     z = z_u - K @ mu
     s = G @ z
     gap = jnp.max(jnp.maximum(jnp.maximum(s - hi, lo - s), 0.0), initial=0.0)

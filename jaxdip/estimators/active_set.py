@@ -32,7 +32,7 @@ from jaxdip.estimators.kalman import guarded_cho_factor
 
 from jaxdip._public import public_dir
 
-__all__ = ["dual_active_set", "dual_consts", "dual_step"]
+__all__ = ["dual_active_set", "dual_consts", "dual_step", "dual_finished"]
 __dir__ = public_dir(globals())
 
 
@@ -74,14 +74,9 @@ def dual_step(consts: tuple, carry: tuple) -> tuple:
     is the solution and is returned unchanged."""
     s_u, M, dM, lo, hi, bound_scale = consts
     fin = _fin
-    n_rows = s_u.shape[0]
-    idx = jnp.arange(n_rows)
+    idx = jnp.arange(s_u.shape[0])
     mu, act, side, pend = carry
-    s = s_u - M @ mu  # G X + c at X = X_u - K mu
-    over, under = s - hi, lo - s
-    viol = jnp.maximum(over, under)
-    tol = 1e-11 * (bound_scale + jnp.abs(M @ mu)) + jnp.finfo(s.dtype).tiny
-    cand = ~act & (viol > tol)
+    over, viol, cand = _violations(consts, mu, act)
     # the most violated row in the H^{-1} metric (its distance to the bound over the row's norm)
     j_new = jnp.argmax(jnp.where(cand, viol / jnp.sqrt(dM), -jnp.inf))
     pend = jnp.where(pend >= 0, pend, jnp.where(jnp.any(cand), j_new, -1))
@@ -106,3 +101,19 @@ def dual_step(consts: tuple, carry: tuple) -> tuple:
     pend_next = jnp.where(partial, pend, -1)
     keep = lambda old, new: jnp.where(idle, old, new)
     return (keep(mu, mu_next), keep(act, act_next), keep(side, side2), keep(pend, pend_next)), idle
+
+
+def _violations(consts, mu, act):
+    # rows over their upper bound, the violation of each row, and the violated rows outside the working set
+    s_u, M, _, lo, hi, bound_scale = consts
+    s = s_u - M @ mu  # G X + c at X = X_u - K mu
+    over, under = s - hi, lo - s
+    viol = jnp.maximum(over, under)
+    tol = 1e-11 * (bound_scale + jnp.abs(M @ mu)) + jnp.finfo(s.dtype).tiny
+    return over, viol, ~act & (viol > tol)
+
+
+def dual_finished(consts: tuple, carry: tuple) -> jax.Array:
+    """Whether ``dual_step`` would be idle on ``carry`` (no row pending or violated), without its factorisation."""
+    mu, act, _, pend = carry
+    return (pend < 0) & ~jnp.any(_violations(consts, mu, act)[2])
