@@ -41,7 +41,9 @@ class DipMpcConfig:
                                          "each of these")
     tune_steps: int = C.field(15, C.positive, doc="gradient steps tuning the MPC weights")
     tune_seeds: int = C.field(16, C.positive, doc="seeds of the tuning objective (common random numbers)")
-    tune_scale: float = C.field(8.0, C.positive_finite, doc="initial-state scale the weights are tuned at")
+    tune_scale: float = C.field(2.0, C.positive_finite, doc="initial-state scale the weights are tuned at")
+    tune_lr: float = C.field(0.02, C.positive_finite, doc="Adam's step on the log-weights")
+    qp_max_iter: int = C.field(40, C.positive, doc="MPC: active-set iterations per period (warm-started)")
     tune_duration: float = C.field(2.0, C.positive_finite, doc="simulated time of the tuning objective (s)")
 
     def loads(self) -> list[Load]:
@@ -49,7 +51,8 @@ class DipMpcConfig:
         return [Load("the Monte Carlo", ("seeds", "duration", "x0_scales"), self.seeds * len(self.x0_scales) * 4, n)]
 
     def setup(self) -> S.Setup:
-        return S.Setup(dt=self.dt, duration=self.duration, u_max=self.u_max, track=self.track, horizon=self.horizon)
+        return S.Setup(dt=self.dt, duration=self.duration, u_max=self.u_max, track=self.track, horizon=self.horizon,
+                       qp_max_iter=self.qp_max_iter)
 
 
 def tune_weights(cfg: DipMpcConfig, progress: bool):
@@ -62,7 +65,7 @@ def tune_weights(cfg: DipMpcConfig, progress: bool):
         r = S.rollout(s, S.tuned_mpc(s, theta), x0_scale=cfg.tune_scale, steps=steps)
         return jnp.mean(jd.monte_carlo(r, key, cfg.tune_seeds).metrics["cost"])
 
-    res = tune(J, theta0, jax.random.PRNGKey(cfg.seed + 1), steps=cfg.tune_steps, lr=0.1,
+    res = tune(J, theta0, jax.random.PRNGKey(cfg.seed + 1), steps=cfg.tune_steps, lr=cfg.tune_lr,
                spec={"q": Log(), "r": Log()}, progress=progress, desc="dip-mpc tune")
     return res, float(res.loss_history[0])
 
@@ -96,6 +99,9 @@ def run(cfg: DipMpcConfig, ctx: RunContext | None = None, progress: bool = True)
                 row["mean_abs_u"], row["mean_abs_u_ci95"] = stats.mean_ci(
                     np.asarray(sol.metrics["u"]["mean_abs"])[:, 0], ok)
                 row["cost"], row["cost_ci95"] = stats.mean_ci(np.asarray(sol.metrics["cost"]), ok)
+            if "qp_unsolved" in sol.metrics:
+                row["qp_unsolved_periods"] = int(np.sum(np.asarray(sol.metrics["qp_unsolved"])))
+                row["qp_max_iterations"] = int(np.max(np.asarray(sol.metrics["qp_iterations"])))
             results["table"].setdefault(f"x{sc:g}", {})[name] = row
     results["tuning"] = {"lqr_weights": {"q": list(s.Q[:3]), "r": s.R},
                          "tuned_weights": {"q": np.asarray(res.theta["q"]).tolist(), "r": float(res.theta["r"])},
@@ -146,6 +152,10 @@ def report(cfg: DipMpcConfig, r: dict) -> str:
             lines.append(f"| {sc} | {name} | {fmt_ci(c['stabilized_fraction'], c['stabilized_fraction_ci95'], 3)} | "
                          f"{c['diverged']} | {u} | "
                          f"{fmt_ci(c['track_violation_fraction'], c['track_violation_fraction_ci95'], 3)} | {cost} |")
+    qp = [f"{sc} {n}: {row[n]['qp_unsolved_periods']} (most iterations {row[n]['qp_max_iterations']})"
+          for sc, row in r["table"].items() for n in ("mpc", "mpc_tuned")]
+    lines += ["", f"MPC periods whose QP stopped at the iteration limit ({cfg.qp_max_iter}) before it was solved, "
+              "summed over the seeds: " + "; ".join(qp) + "."]
     lines += ["", "Which controller wins where (highest stabilised fraction; a tie where the intervals overlap): "
               + "; ".join(f"{sc}: {_winner(row)}" for sc, row in r["table"].items()) + "."]
     t = r["tuning"]

@@ -43,6 +43,7 @@ class Setup:
     Q: tuple = (30.0, 350.0, 100.0, 0.0, 0.0, 0.0)
     R: float = 0.1
     slack_weight: float = 1e4
+    qp_max_iter: int = 40  # active-set iterations per period (warm-started; QPCode.MAX_ITERATIONS beyond)
     rp_gamma: float = 40.0
     rp_surface_s: float = 1e6
     rp_extra_pole: float = -20.0
@@ -60,7 +61,8 @@ def mpc(s: Setup, Q=None, R=None) -> LinearMPC:
     R = jnp.array([[s.R]]) if R is None else R
     x_lim = np.array([s.track] + [INF] * 5)
     return LinearMPC.for_plant(dip.DIP(), s.dt, Q, R, s.horizon, u_min=-s.u_max, u_max=s.u_max, x_min=-x_lim,
-                               x_max=x_lim, slack_weight=s.slack_weight)
+                               x_max=x_lim, slack_weight=s.slack_weight,
+                               max_iter=s.qp_max_iter)
 
 
 def controllers(s: Setup) -> dict:
@@ -84,7 +86,8 @@ def _stage(x, u, s: Setup):
 
 def rollout(s: Setup, controller, actuator=None, x0_scale: float = 1.0, steps: int | None = None) -> jd.Rollout:
     """A trial: noise-free full-state feedback from x0 ~ N(0, diag(x0_scale X0_STD)^2); metrics as
-    ``loop_summary`` reads them, plus the largest |xc| (track violations) and the quadratic cost."""
+    ``loop_summary`` reads them, plus the largest |x| (track violations), the quadratic cost over the live
+    periods and, for the MPC, its QP's unsolved periods and largest iteration count."""
     loop = jd.Loop(plant=dip.DIP(), sensor=jd.Identity(), estimator=jd.Passthrough(), controller=controller,
                    actuator=jd.Identity() if actuator is None else actuator, dt=s.dt, substeps=s.substeps,
                    state_bound=jnp.asarray(s.state_bound))
@@ -94,6 +97,9 @@ def rollout(s: Setup, controller, actuator=None, x0_scale: float = 1.0, steps: i
                "tail": jd.metrics.Window(jd.metrics.MaxAbs("x"), start=n - tail),
                "max_x": jd.metrics.MaxAbs("x"),
                "cost": jd.metrics.Sum(lambda smp: s.dt * _stage(smp.x, smp.u_applied, s))}
+    if isinstance(controller, LinearMPC):  # periods whose QP was not solved (iteration limit), most iterations
+        metrics["qp_unsolved"] = jd.metrics.Sum(lambda smp: (smp.aux.controller["status"] != 0).astype(float))
+        metrics["qp_iterations"] = jd.metrics.MaxAbs(lambda smp: smp.aux.controller["iterations"].astype(float))
     return jd.Rollout(loop, Gaussian(jnp.zeros(6), x0_scale * jnp.asarray(X0_STD)), n, metrics=metrics)
 
 
