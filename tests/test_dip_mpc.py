@@ -16,3 +16,4 @@ def test_dip_mpc_tiny_run():
     assert small["mpc"]["mean_abs_u"] < 3.0
     np.testing.assert_allclose(small["mpc"]["cost"], small["lqr_sat"]["cost"], rtol=1e-9)
     assert "which controller wins where" in out.report.lower()
+    assert small["mpc"]["qp_unsolved_periods"] == 0 and "qp_unsolved_periods" not in small["lqr_sat"]
