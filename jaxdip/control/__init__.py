@@ -1,4 +1,5 @@
-"""Controllers: Riccati/LQR, state feedback, power-series and relaxed projection control (engine controllers)."""
+"""Controllers: Riccati/LQR, state feedback, power-series and relaxed projection control, constrained linear MPC
+(engine controllers), and the dense QP solver under the MPC."""
 
 from jaxdip.control.feedback import ConstantInput, SaturatedFeedback, StateFeedback
 from jaxdip.control.riccati import (RiccatiCode, RiccatiError, care, care_checked, dare, dare_checked, dlqr,
@@ -13,3 +14,7 @@ from jaxdip.control.power_series import PowerSeries  # noqa: E402
 from jaxdip.control.projection import RelaxedProjection  # noqa: E402
 
 __all__ += ["PowerSeries", "RelaxedProjection"]
+from jaxdip.control.mpc import LinearMPC  # noqa: E402
+from jaxdip.control.qp import QPCode, QPSolution, solve_qp  # noqa: E402
+
+__all__ += ["LinearMPC", "QPCode", "QPSolution", "solve_qp"]
