@@ -38,7 +38,8 @@ class Setup:
     substeps: int = 10  # RK4 steps per period
     duration: float = 5.0
     u_max: float = 6.0  # motor voltage limit (V)
-    track: float = 0.4  # |xc| limit (m): soft in the MPC, counted as a violation for every controller
+    track: float = 0.4  # |xc| limit (m): counted as a violation for every controller
+    track_in_mpc: bool = False  # the track also as the MPC's soft state limit (60 QP rows instead of 20)
     horizon: int = 20
     Q: tuple = (30.0, 350.0, 100.0, 0.0, 0.0, 0.0)
     R: float = 0.1
@@ -59,7 +60,7 @@ def mpc(s: Setup, Q=None, R=None) -> LinearMPC:
     """The MPC of ``s`` (weights ``Q`` (6, 6) and ``R`` (1, 1) instead of the setup's if given)."""
     Q = jnp.diag(jnp.asarray(s.Q)) if Q is None else Q
     R = jnp.array([[s.R]]) if R is None else R
-    x_lim = np.array([s.track] + [INF] * 5)
+    x_lim = np.array([s.track if s.track_in_mpc else INF] + [INF] * 5)
     return LinearMPC.for_plant(dip.DIP(), s.dt, Q, R, s.horizon, u_min=-s.u_max, u_max=s.u_max, x_min=-x_lim,
                                x_max=x_lim, slack_weight=s.slack_weight,
                                max_iter=s.qp_max_iter)
