@@ -86,8 +86,12 @@ def run(cfg: DipMpcConfig, ctx: RunContext | None = None, progress: bool = True)
         ctrl, act = ctrls[name]
         r = S.rollout(s, ctrl, act)
         std0 = r.x0.std
+        # the MPC's batch is not sharded over host devices: with two, a full-scale run hung (no CPU, threads in
+        # futex waits) in its first chunk, likely the shards' vmapped QP while_loops running different trip
+        # counts around a collective; on one device it runs
         sols = jd.monte_carlo(r, key, cfg.seeds, progress=progress, desc=f"dip-mpc {name}",
-                              sweep=(lambda ro: ro.x0.std, scales[:, None] * std0[None, :]))
+                              sweep=(lambda ro: ro.x0.std, scales[:, None] * std0[None, :]),
+                              shard=False if name.startswith("mpc") else None)
         for j, sc in enumerate(cfg.x0_scales):
             sol = jax.tree_util.tree_map(lambda a: a[j], sols)
             summ = loop_summary(sol, dip.STATE_NAMES, (1, 2), s.stabilized_tol)
