@@ -1,6 +1,6 @@
-"""Controllers: Riccati/LQR, state feedback, power-series and relaxed projection control (engine controllers),
-and the python-control-style design toolbox (LQR/LQE designs, pole placement, Lyapunov equations and Gramians,
-frequency responses and margins)."""
+"""Controllers: Riccati/LQR, state feedback, power-series and relaxed projection control, constrained linear MPC
+(engine controllers) and the dense QP solver under it, and the python-control-style design toolbox (LQR/LQE
+designs, pole placement, Lyapunov equations and Gramians, frequency responses and margins)."""
 
 from jaxdip.control.feedback import ConstantInput, SaturatedFeedback, StateFeedback
 from jaxdip.control.designs import dlqe, dlqr, lqe, lqi, lqr
@@ -23,3 +23,7 @@ from jaxdip.control.power_series import PowerSeries  # noqa: E402
 from jaxdip.control.projection import RelaxedProjection  # noqa: E402
 
 __all__ += ["PowerSeries", "RelaxedProjection"]
+from jaxdip.control.mpc import LinearMPC  # noqa: E402
+from jaxdip.control.qp import QPCode, QPSolution, solve_qp  # noqa: E402
+
+__all__ += ["LinearMPC", "QPCode", "QPSolution", "solve_qp"]
