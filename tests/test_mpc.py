@@ -11,7 +11,7 @@ import pytest
 import jaxdip as jd
 from jaxdip.control.mpc import LinearMPC, condense
 from jaxdip.control.qp import QPCode, solve_qp
-from jaxdip.control.riccati import dlqr
+from jaxdip.control.designs import dlqr
 from jaxdip.engine.checks import ArgumentError
 from jaxdip.plants import dip
 

@@ -22,7 +22,7 @@ import jaxdip as jd
 from jaxdip.control.feedback import SaturatedFeedback
 from jaxdip.control.mpc import LinearMPC
 from jaxdip.control.projection import RelaxedProjection
-from jaxdip.control.riccati import dlqr, lqr
+from jaxdip.control.designs import dlqr, lqr
 from jaxdip.control.spd import P_v, surface_normal
 from jaxdip.engine.driver import Gaussian
 from jaxdip.plants import dip
