@@ -19,6 +19,7 @@ from jaxdip import stats
 from jaxdip.plants import dip
 from jaxdip.resources import Load, steps_of
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.per_seed import PATHS, PerSeed, fraction_of, mean_of, stacked
 from jaxdip.runner.results import fmt_ci
 from jaxdip.runner.summaries import loop_summary
 from jaxdip.scenarios import dip_mpc as S
@@ -82,7 +83,7 @@ def run(cfg: DipMpcConfig, ctx: RunContext | None = None, progress: bool = True)
     key = jax.random.PRNGKey(cfg.seed)
     scales = jnp.asarray(cfg.x0_scales)
     results = {"table": {}, "tuning": {}, "paired": {}}
-    stab = {}
+    stab, parts = {}, {}
     for name in NAMES:
         ctrl, act = ctrls[name]
         r = S.rollout(s, ctrl, act)
@@ -112,6 +113,7 @@ def run(cfg: DipMpcConfig, ctx: RunContext | None = None, progress: bool = True)
             results["table"].setdefault(f"x{sc:g}", {})[name] = row
             # per seed, for the paired comparison (every controller starts from the same states)
             stab[(f"x{sc:g}", name)] = ok & np.all(np.asarray(sol.metrics["tail"])[:, 1:3] < s.stabilized_tol, axis=1)
+            parts.setdefault(f"x{sc:g}", {})[name] = seed_part(s, sol, ok, stab[(f"x{sc:g}", name)])
     for sc in (f"x{v:g}" for v in cfg.x0_scales):
         for name in NAMES[1:]:
             d = stab[(sc, "mpc")].astype(float) - stab[(sc, name)].astype(float)
@@ -135,7 +137,31 @@ def run(cfg: DipMpcConfig, ctx: RunContext | None = None, progress: bool = True)
     ax.set_title(f"DIP, |u| <= {cfg.u_max:g} V, {cfg.seeds} seeds")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    return Outcome(results=results, report=report(cfg, results), figures={"stabilized": fig})
+    return Outcome(results=results, report=report(cfg, results), figures={"stabilized": fig},
+                   per_seed=table_part(parts))
+
+
+def seed_part(s, sol, ok, stabilized) -> PerSeed:
+    """One table cell's per-seed arrays, each labelled with the statistic of its row."""
+    part = PerSeed()
+    part.add("ok", ("seed",), ok, "1", "the run ended without a failure (the engine's result code is ok)")
+    part.add("stabilized", ("seed",), stabilized, "1", "ok, and max |alpha|, |beta| over the tail window below "
+             f"{s.stabilized_tol}", **fraction_of("stabilized_fraction"))
+    part.add("track_violation", ("seed",), np.asarray(sol.metrics["max_x"])[:, 0] > s.track, "1",
+             f"the cart left the track (|xc| > {s.track} m)", **fraction_of("track_violation_fraction"))
+    part.add("mean_abs_u", ("seed",), np.asarray(sol.metrics["u"]["mean_abs"])[:, 0], "V", "time mean of |u|",
+             **mean_of("mean_abs_u"))
+    part.add("cost", ("seed",), np.asarray(sol.metrics["cost"]), "1", "quadratic cost over the periods before a "
+             "failure", **mean_of("cost"))
+    return part
+
+
+def table_part(parts: dict) -> PerSeed:
+    """The cells stacked on (seed, x0_scale, controller), their statistics under ``results["table"]``."""
+    out = stacked({sc: stacked(cells, "controller") for sc, cells in parts.items()}, "x0_scale")
+    for _, _, attrs in out.variables.values():
+        attrs.update({k: f"table.{attrs[k]}" for k in PATHS if attrs.get(k)})
+    return out
 
 
 def _winner(row: dict) -> str:
