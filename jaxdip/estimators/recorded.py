@@ -14,10 +14,11 @@ smoother, with the transition Jacobians at the filtered means).
 Forms (``form``): ``"covariance"`` (every Kalman-type estimator: the engine step above), ``"sqrt"`` (Cholesky
 factors propagated by QR, ``jaxdip.estimators.square_root``: for float32 and ill-conditioned models) and
 ``"parallel"`` (associative scan, depth O(log T), ``jaxdip.estimators.parallel_kalman``). The last two take the
-linear-Gaussian ``KalmanFilter`` only (not the EKF or UKF) and return the same moments; the square-root form also
-returns the lower factors (``cov_factor``, ``pred_cov_factor``). ``mask`` (None, or boolean (T,) or (T, p), True =
-observed; with ``nan_missing`` NaN entries of ``ys`` count as missing too) removes missing measurements exactly
-(``jaxdip.estimators._linear_gaussian``); the covariance form then also needs a ``KalmanFilter``.
+linear-Gaussian ``KalmanFilter`` only (not the EKF or UKF; its ``jitter`` is the covariance form's alone) and return
+the same moments; the square-root form also returns the lower factors (``cov_factor``, ``pred_cov_factor``).
+``mask`` (None, or boolean (T,) or (T, p), True = observed; with ``nan_missing`` NaN entries of ``ys`` count as
+missing too) removes missing measurements exactly (``jaxdip.estimators._linear_gaussian``); the covariance form then
+also needs a ``KalmanFilter``.
 """
 
 from __future__ import annotations
