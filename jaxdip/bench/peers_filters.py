@@ -157,8 +157,8 @@ def main() -> None:
             for name in methods:
                 run[name]["speed_vs_jaxdip_covariance"] = run[name]["steps_per_s"] / base_rate
             res["runs"].append(run)
-    res["load_average_after"] = list(__import__("os").getloadavg())
-    Path(args.out).write_text(json.dumps(res, indent=1))
+            res["load_average_after"] = list(__import__("os").getloadavg())
+            Path(args.out).write_text(json.dumps(res, indent=1))  # after every pair: a long run keeps what it did
     print("written", args.out)
 
 
