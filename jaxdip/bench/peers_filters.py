@@ -10,8 +10,8 @@ xc, alpha, theta, true noise covariances).
 Equal results: the largest absolute difference of the filtered means and of the log-likelihood to jaxdip's
 covariance form (means compared on the first 16 records). Throughput: trajectory-steps per second of a jitted
 call returning the filtered means and the log-likelihood, best of ``--repeats`` after a compiling call; a batch is
-run as ``lax.map`` over chunks of at most 2^17 trajectory-steps (``vmap`` inside a chunk), which bounds the
-memory of the parallel forms (their elements are (T, d, d) per trajectory).
+vmapped, and for the parallel forms run as ``lax.map`` over chunks of at most 2^17 trajectory-steps (``vmap``
+inside a chunk), which bounds their memory (their elements are (T, d, d) per trajectory).
 
 Timing conventions. cuthbert's state at time 0 is the prior before any measurement; jaxdip's prior (xhat0, P0)
 is that of x_0 before y_0 is read. cuthbert gets a first transition x_0 = x_prior (F = I, c = 0, chol Q = 0) so
@@ -115,10 +115,13 @@ def timed(fn, *args, repeats: int):
     return out, best
 
 
-def batched(one, batch: int, T: int):
-    """``one`` over a batch: ``lax.map`` over chunks of at most CHUNK_STEPS trajectory-steps, vmapped inside."""
+def batched(one, batch: int, T: int, chunked: bool):
+    """``one`` over a batch: ``vmap``, or for a parallel form (``chunked``) ``lax.map`` over chunks of at most
+    CHUNK_STEPS trajectory-steps, vmapped inside (its elements are (T, d, d) per trajectory)."""
     if batch == 1:
         return jax.jit(lambda ys, us: jax.tree.map(lambda a: a[None], one(ys[0], us[0])))
+    if not chunked:
+        return jax.jit(jax.vmap(one))
     chunk = int(min(batch, max(1, CHUNK_STEPS // T)))
     return jax.jit(lambda ys, us: jax.lax.map(lambda a: one(*a), (ys, us), batch_size=chunk))
 
@@ -157,7 +160,7 @@ def main() -> None:
             ys, us = jnp.asarray(y[:B, :T]), jnp.asarray(u[:B, :T])
             ref = None
             for name, one in methods.items():
-                (mean, ll), wall = timed(batched(one, B, T), ys, us, repeats=args.repeats)
+                (mean, ll), wall = timed(batched(one, B, T, "parallel" in name), ys, us, repeats=args.repeats)
                 mean, ll = np.asarray(mean[:COMPARE]), np.asarray(ll)
                 if ref is None:
                     ref = (mean, ll)
