@@ -19,6 +19,14 @@ moments and the likelihood are those of the observed entries only; a fully missi
 Feedthrough. ``D`` ((p, m), or (T, p, m) over time) adds D_k u_k to the measurement, y_k = h(x_k) + D_k u_k + v_k:
 the recorded y_k - D_k u_k is filtered. It belongs to recorded data: in a closed loop y_k is read before u_k is
 decided, so an engine estimator has no u_k to feed through.
+
+Forms (``form``): ``"covariance"`` (every Kalman-type estimator: the engine step above), ``"sqrt"`` (Cholesky
+factors propagated by QR, ``jaxdip.estimators.square_root``: for float32 and ill-conditioned models) and
+``"parallel"`` (associative scan, depth O(log T), ``jaxdip.estimators.parallel_kalman``). The last two take the
+linear-Gaussian ``KalmanFilter`` only (not the EKF or UKF; its ``jitter`` is the covariance form's alone) and return
+the same moments; the square-root form also returns the lower factors (``cov_factor``, ``pred_cov_factor``).
+``mask``, ``nan_missing`` and ``D`` work in every form; the square-root and parallel forms remove a missing
+component by the same exact rule (``jaxdip.estimators._linear_gaussian``).
 """
 
 from __future__ import annotations
@@ -31,13 +39,15 @@ import jax.numpy as jnp
 
 from jaxdip.engine import checks
 from jaxdip.engine.roles import Estimator
+from jaxdip.estimators import parallel_kalman, square_root
+from jaxdip.estimators._linear_gaussian import linear_gaussian, resolve_mask
 from jaxdip.estimators.kalman import smoother_gain, sym
 
 
 from jaxdip._public import public_dir
 
 __all__ = ["run", "run_estimator", "EstimatorRun", "inputs_before", "observed_mask", "FilterResult",
-           "SmootherResult", "kalman_filter", "log_likelihood", "rts_smoother"]
+           "SmootherResult", "kalman_filter", "log_likelihood", "rts_smoother", "FORMS"]
 __dir__ = public_dir(globals())
 
 
@@ -123,25 +133,13 @@ def inputs_before(us, T: int, dtype=None):
 
 def observed_mask(ys, mask=None, nan_missing: bool = False) -> Optional[jax.Array]:
     """The (T, p) boolean array of observed entries of ``ys`` (T, p) from ``mask`` ((T,) or (T, p), True =
-    observed) and, with ``nan_missing``, the non-NaN entries; None when neither is given (all observed)."""
-    if mask is None and not nan_missing:
-        return None
-    observed = jnp.ones(ys.shape, dtype=bool)
-    if mask is not None:
-        mask = jnp.asarray(mask)
-        if mask.dtype != jnp.bool_:
-            raise checks.ArgumentTypeError(f"mask must be a boolean array (True = observed), got dtype {mask.dtype}")
-        if mask.shape not in ((ys.shape[0],), ys.shape):
-            raise checks.ArgumentError(f"mask must have shape ({ys.shape[0]},) or {checks.fmt_shape(ys.shape)} like "
-                                       f"ys, got {checks.fmt_shape(mask.shape)}")
-        observed = observed & (mask[:, None] if mask.ndim == 1 else mask)
-    if nan_missing:
-        observed = observed & ~jnp.isnan(ys)
-    return observed
+    observed) and, with ``nan_missing``, the non-NaN entries; None when neither is given (all observed). One
+    rule for every form (``jaxdip.estimators._linear_gaussian.resolve_mask``)."""
+    return resolve_mask(observed_mask, ys, mask, nan_missing)
 
 
-def _prepared(est: Estimator, ys, us, mask, nan_missing: bool, D):
-    """(est, ys) with the feedthrough taken off ys and the missing entries set to NaN for a missing-aware est."""
+def _fed_through(ys, us, D):
+    """ys (T, p) as a float array, less the feedthrough D_k u_k when ``D`` is given."""
     ys = jnp.asarray(ys, dtype=jnp.result_type(float))
     if ys.ndim != 2:
         raise checks.ArgumentError(f"ys must be (T, p), got shape {checks.fmt_shape(ys.shape)}")
@@ -151,6 +149,12 @@ def _prepared(est: Estimator, ys, us, mask, nan_missing: bool, D):
         D = jnp.asarray(D, ys.dtype)
         u = jnp.asarray(us, ys.dtype).reshape(ys.shape[0], -1)
         ys = ys - (jnp.einsum("tpm,tm->tp", D, u) if D.ndim == 3 else u @ D.T)
+    return ys
+
+
+def _prepared(est: Estimator, ys, us, mask, nan_missing: bool, D):
+    """(est, ys) with the feedthrough taken off ys and the missing entries set to NaN for a missing-aware est."""
+    ys = _fed_through(ys, us, D)
     observed = observed_mask(ys, mask, nan_missing)
     if observed is None:
         return est, ys
@@ -169,6 +173,8 @@ class FilterResult(NamedTuple):
     pred_cov: jax.Array  # (T, d, d)
     log_likelihood: jax.Array  # () log p(y_0..T-1)
     log_likelihood_terms: jax.Array  # (T,) log p(y_k | y_0..k-1)
+    cov_factor: Optional[jax.Array] = None  # (T, d, d) lower N, cov = N N^T (form "sqrt" only)
+    pred_cov_factor: Optional[jax.Array] = None
 
 
 class SmootherResult(NamedTuple):
@@ -177,31 +183,74 @@ class SmootherResult(NamedTuple):
     filtered: FilterResult
     cross_cov: Optional[jax.Array] = None  # (T-1, d, d) Cov(x_{k+1}, x_k | y_0..T-1) = Ps_{k+1} G_k^T
     gain: Optional[jax.Array] = None  # (T-1, d, d) the smoother gains G_k
+    cov_factor: Optional[jax.Array] = None  # (T, d, d) lower N, cov = N N^T (form "sqrt" only)
 
 
-def kalman_filter(est: Estimator, ys, us=None, *, mask=None, nan_missing: bool = False, D=None) -> FilterResult:
+FORMS = ("covariance", "sqrt", "parallel")
+
+
+def _factor_product(N):
+    return N @ jnp.swapaxes(N, -1, -2)
+
+
+def _with_offset(f: FilterResult, offset) -> FilterResult:
+    ll = f.log_likelihood_terms + offset
+    return f._replace(log_likelihood=jnp.sum(ll), log_likelihood_terms=ll)
+
+
+def _linear_form(owner, est, ys, us, mask, nan_missing, D, form):
+    """(model, its FilterResult, the form's own output) for the square-root and parallel forms."""
+    ys = _fed_through(ys, us, D)
+    lg = linear_gaussian(owner, est, ys, us, mask, nan_missing)
+    if form == "sqrt":
+        o = square_root.sqrt_filter(lg)
+        f = FilterResult(o.mean, _factor_product(o.factor), o.pred_mean, _factor_product(o.pred_factor),
+                         jnp.sum(o.log_likelihood_terms), o.log_likelihood_terms, o.factor, o.pred_factor)
+    else:
+        o = parallel_kalman.parallel_filter(lg)
+        f = FilterResult(o.mean, o.cov, o.pred_mean, o.pred_cov, jnp.sum(o.log_likelihood_terms),
+                         o.log_likelihood_terms)
+    return lg, _with_offset(f, lg.ll_offset), o
+
+
+def kalman_filter(est: Estimator, ys, us=None, *, mask=None, nan_missing: bool = False, D=None,
+                  form: str = "covariance") -> FilterResult:
     """The Kalman-type estimator ``est`` over a whole sequence ``ys`` (T, p); ``us[k]`` (T, m) drives
-    x_k -> x_{k+1} (None: no input). ``mask``, ``nan_missing``, ``D``: module doc."""
+    x_k -> x_{k+1} (None: no input). ``mask``, ``nan_missing``, ``D``, ``form``: module doc."""
+    checks.check_choice(kalman_filter, "form", form, FORMS)
+    if form != "covariance":
+        return _linear_form(kalman_filter, est, ys, us, mask, nan_missing, D, form)[1]
     est, ys = _prepared(est, ys, us, mask, nan_missing, D)
     _, mean, aux = run(est, ys, inputs_before(us, ys.shape[0], ys.dtype), jnp.asarray(est.xhat0, ys.dtype))
     ll = aux.log_likelihood
     return FilterResult(mean, aux.cov, aux.prior, aux.prior_cov, jnp.sum(ll), ll)
 
 
-def log_likelihood(est: Estimator, ys, us=None, *, mask=None, nan_missing: bool = False, D=None) -> jax.Array:
+def log_likelihood(est: Estimator, ys, us=None, *, mask=None, nan_missing: bool = False, D=None,
+                   form: str = "covariance") -> jax.Array:
     """log p(y_0..T-1) of the model of ``est`` (of the observed entries only, with a mask)."""
-    return kalman_filter(est, ys, us, mask=mask, nan_missing=nan_missing, D=D).log_likelihood
+    return kalman_filter(est, ys, us, mask=mask, nan_missing=nan_missing, D=D, form=form).log_likelihood
 
 
-def rts_smoother(est: Estimator, ys, us=None, *, mask=None, nan_missing: bool = False, D=None) -> SmootherResult:
+def rts_smoother(est: Estimator, ys, us=None, *, mask=None, nan_missing: bool = False, D=None,
+                 form: str = "covariance") -> SmootherResult:
     """Rauch-Tung-Striebel smoother (extended for a nonlinear transition) after ``kalman_filter``:
 
         G_k  = P_k F_k^T (P-_{k+1})^{-1}
         ms_k = m_k + G_k (ms_{k+1} - m-_{k+1}),     Ps_k = P_k + G_k (Ps_{k+1} - P-_{k+1}) G_k^T.
 
     ``est`` needs ``transition_jacobian(x, u, k)`` (the KF and the EKF have it). ``mask``, ``nan_missing``,
-    ``D``: module doc.
+    ``D``, ``form``: module doc; the square-root and parallel forms are ``square_root.sqrt_smoother`` and
+    ``parallel_kalman.parallel_smoother`` (without ``cross_cov`` and ``gain``).
     """
+    checks.check_choice(rts_smoother, "form", form, FORMS)
+    if form == "sqrt":
+        lg, filt, o = _linear_form(rts_smoother, est, ys, us, mask, nan_missing, D, form)
+        ms, Ns = square_root.sqrt_smoother(lg, o)
+        return SmootherResult(ms, _factor_product(Ns), filt, cov_factor=Ns)
+    if form == "parallel":
+        lg, filt, o = _linear_form(rts_smoother, est, ys, us, mask, nan_missing, D, form)
+        return SmootherResult(*parallel_kalman.parallel_smoother(lg, o), filt)
     filt = kalman_filter(est, ys, us, mask=mask, nan_missing=nan_missing, D=D)
     T = filt.mean.shape[0]
     us_ = jnp.zeros((T, 1), filt.mean.dtype) if us is None else jnp.asarray(us, filt.mean.dtype).reshape(T, -1)
