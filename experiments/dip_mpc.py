@@ -96,13 +96,15 @@ def run(cfg: DipMpcConfig, ctx: RunContext | None = None, progress: bool = True)
                               shard=False if name.startswith("mpc") else None)
         for j, sc in enumerate(cfg.x0_scales):
             sol = jax.tree_util.tree_map(lambda a: a[j], sols)
-            summ = loop_summary(sol, dip.STATE_NAMES, (1, 2), s.stabilized_tol)
+            summ = loop_summary(sol, dip.STATE_NAMES, (1, 2), s.stabilized_tol, dt=s.dt, bound=s.state_bound)
             ok = np.asarray(sol.result) == jd.RESULTS.ok
             over = int(np.sum(np.asarray(sol.metrics["max_x"])[:, 0] > s.track))
             frac, ci = stats.wilson(over, cfg.seeds)
             row = {"stabilized_fraction": summ["stabilized_fraction"],
                    "stabilized_fraction_ci95": summ["stabilized_fraction_ci95"], "diverged": summ["diverged"],
                    "track_violation_fraction": frac, "track_violation_fraction_ci95": ci}
+            if "failures" in summ:  # how the seeds that failed did (out of bounds, non-finite), and when
+                row["failures"] = summ["failures"]
             if ok.any():
                 row["mean_abs_u"], row["mean_abs_u_ci95"] = stats.mean_ci(
                     np.asarray(sol.metrics["u"]["mean_abs"])[:, 0], ok)

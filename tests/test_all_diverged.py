@@ -48,6 +48,9 @@ ALL_DIVERGE = {
     "eki-dip": (["seeds=4", "ensemble=6", "iterations=2", "chunk=2", "T=0.3", "t_star=0.1", "grad_steps=0",
                  "eval_states=2", "judge_duration=0.3", "early_stop=false", "min_success=2", "judge_radius=50.0"],
                 ["judge", "diverged"], 4),
+    # every initial state past the bound (std 10 rad on the links against 1.57 rad)
+    "dip-mpc": (["seeds=4", "duration=0.1", "x0_scales=[1000.0]", "tune_steps=1", "tune_seeds=2",
+                 "tune_duration=0.1"], ["table", "x1000", "mpc", "diverged"], 4),
 }
 NO_SURVIVOR_STATISTICS = {
     "eki-linear": ["seeds=4", "iterations=2", "fail_norm=1e-9", "judge_states=8"],
