@@ -15,6 +15,9 @@ of the union of its spans, not their sum. Per run the table gives:
 - ``run``: the experiment's own wall time (metrics.json's ``wall_s``) less trace, lower and compile;
 - ``write``: the rest of the command (config, output folder, figures saved as PNG, report).
 
+The JSON (``--json``) also holds, per run, the executables per function name and the twelve names that cost the
+most trace + lower + compile time.
+
 Wall times on a shared machine: compare runs of one invocation, and say the load.
 """
 
@@ -57,14 +60,16 @@ def _child(exp_id: str, out: str, result: str) -> int:
 
     spans: dict[str, list] = {k: [] for k in PHASES.values()}
     names: dict[str, int] = {}
+    cost: dict[str, float] = {}  # seconds of trace, lower and compile per function name (nested spans counted twice)
     hits = [0]
 
     def on_span(event: str, start: float, end: float, **kw) -> None:
         if event in spans:
             spans[event].append((start, end))
+            name = str(kw.get("fun_name", "?"))
             if event == PHASES["compile"]:
-                name = str(kw.get("fun_name", "?"))
                 names[name] = names.get(name, 0) + 1
+            cost[name] = cost.get(name, 0.0) + end - start
 
     def on_event(event: str, **kw) -> None:
         hits[0] += event == _HIT
@@ -79,7 +84,7 @@ def _child(exp_id: str, out: str, result: str) -> int:
     phase = {k: _union(spans[v]) for k, v in PHASES.items()}
     rec = {"import": imported, **phase, "programs": sum(names.values()), "hits": hits[0],
            "run": max(wall - sum(phase.values()), 0.0), "write": max(command - wall, 0.0),
-           "program_names": names, "rc": rc}
+           "program_names": names, "costliest": sorted(cost.items(), key=lambda kv: -kv[1])[:12], "rc": rc}
     with open(result, "w") as fh:
         json.dump(rec, fh)
     return rc
@@ -104,9 +109,9 @@ def measure(exp_id: str, cache_dir: str, out: str) -> dict:
         os.remove(result)
 
 
-def breakdown(ids: list[str], work: str) -> list[dict]:
+def breakdown(ids: list[str], work: str, partial: str | None = None) -> list[dict]:
     """Cold and warm breakdown of each experiment in ``ids``, each with its own (first empty) cache folder under
-    ``work``; a list of ``{"id", "cold", "warm"}``."""
+    ``work``; a list of ``{"id", "cold", "warm"}``, also written to ``partial`` after each experiment."""
     rows = []
     for exp_id in ids:
         cache, out = os.path.join(work, "cache", exp_id), os.path.join(work, "out", exp_id)
@@ -116,6 +121,9 @@ def breakdown(ids: list[str], work: str) -> list[dict]:
         cold = measure(exp_id, cache, out)
         warm = measure(exp_id, cache, out)
         rows.append({"id": exp_id, "cold": cold, "warm": warm})
+        if partial:  # a long breakdown interrupted keeps what it measured
+            with open(partial, "w") as fh:
+                json.dump(rows, fh, indent=1)
         print(f"{exp_id}: cold {cold['process']:.1f} s, warm {warm['process']:.1f} s", file=sys.stderr, flush=True)
     return rows
 
@@ -150,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     if bad := [i for i in ids if i not in reg]:
         p.error(f"unknown experiment(s) {', '.join(bad)}; known: {', '.join(sorted(reg))}")
     work = args.work or tempfile.mkdtemp(prefix="jaxdip-warm-")
-    rows = breakdown(ids, work)
+    rows = breakdown(ids, work, args.json)
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=1)
