@@ -68,6 +68,12 @@ def _compile_cache(enabled: bool) -> None:
     jax.config.update("jax_compilation_cache_dir", folder)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)  # a threshold would make the cache depend on load
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    # The key hashes the lowered module with its source locations, by default the whole Python call stack of
+    # each operation: `jaxdip run`, a `reproduce` worker and a script calling the same experiment then never
+    # share an entry, and an edit that shifts a line of the CLI or the runner misses every cached program. The
+    # innermost frame alone (the line that made the operation) keeps the key to the code that shapes the program;
+    # locations are debug information, so the compiled code is the same (docs/performance.md, warm start).
+    jax.config.update("jax_include_full_tracebacks_in_locations", False)
 
 
 def _distributed(args) -> int:

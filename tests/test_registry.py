@@ -73,3 +73,15 @@ def test_an_unknown_id_names_the_closest(tmp_path, monkeypatch):
         R.get("alpah-one", pkg)
     with pytest.raises(KeyError, match="known: alpha-one"):
         R.get("zzz", pkg)
+
+
+def test_get_imports_only_the_home_named_after_the_id(tmp_path, monkeypatch):
+    pkg = _package(tmp_path, monkeypatch, "exps_lazy", {
+        "alpha_one.py": HEAD + f"EXPERIMENT = {_one('alpha-one')}\n",
+        "pair.py": HEAD + f"EXPERIMENTS = ({_one('pair-a')}, {_one('pair-b')})\n",
+        "zeta.py": "import sys\nsys.modules['exps_lazy'].ZETA_IMPORTED = True\n" + HEAD + f"EXPERIMENT = {_one('zeta')}\n",
+    })
+    assert R.get("alpha-one", pkg).id == "alpha-one"
+    assert not hasattr(sys.modules[pkg], "ZETA_IMPORTED")  # no other home was imported
+    assert R.get("pair-b", pkg) is R.registry(pkg)["pair-b"]  # an id whose home has another name: the whole walk
+    assert sys.modules[pkg].ZETA_IMPORTED

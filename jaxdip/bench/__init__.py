@@ -6,6 +6,8 @@
 - ``noise``: the dip-lqr loop's sensor noise per period under each candidate generator (threefry, rbg,
   unsafe_rbg, Box-Muller, float32, one block per chunk) and the loop's periods/s with each,
   ``python -m jaxdip.bench.noise``;
+- ``warm``: where each ``--quick`` run spends its time, cold and warm (import, trace, lower, compile or
+  cache load, run, write), ``python -m jaxdip.bench.warm``;
 - ``peers``: the batch filter/smoother/likelihood against dynamax and the weighted MHE against do-mpc,
   ``python -m jaxdip.bench.peers`` after ``pip install ".[peers]"`` (the only module that imports them).
 """

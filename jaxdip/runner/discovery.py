@@ -54,7 +54,17 @@ def registry(package: str = PACKAGE) -> dict[str, Experiment]:
 
 
 def get(exp_id: str, package: str = PACKAGE) -> Experiment:
-    """The experiment ``exp_id``; a ``KeyError`` naming the closest id, or every id, when there is none."""
+    """The experiment ``exp_id``; a ``KeyError`` naming the closest id, or every id, when there is none.
+
+    The home named after the id (``dip-lqr``: ``experiments.dip_lqr``) is looked in first, so running one
+    experiment imports its own plant, scenario and figure code and not every other experiment's (seconds of a
+    ``--quick`` run); the whole package is imported only for an id defined elsewhere or unknown. A duplicate id
+    is still refused by ``registry``, which ``jaxdip list`` and ``reproduce`` use."""
+    name = f"{package}.{exp_id.replace('-', '_')}"
+    if name in homes(package):
+        for exp in experiments_of(importlib.import_module(name)):
+            if exp.id == exp_id:
+                return exp
     reg = registry(package)
     if exp_id not in reg:
         raise KeyError(f"{exp_id}: unknown experiment{suggestion(exp_id, sorted(reg))}")
