@@ -48,32 +48,10 @@ def _reproduce_jobs(args) -> int:
 
 
 def _compile_cache(enabled: bool) -> None:
-    """Keep XLA's compiled code on disk so a second run of the same loops skips compilation.
-
-    The folder is ``$JAXDIP_CACHE_DIR``, else ``$XDG_CACHE_HOME/jaxdip/xla`` (``~/.cache/jaxdip/xla``). JAX keys
-    each entry by the computation, the jaxlib version and the XLA flags (so the host device count), so a stale
-    entry is never used; it only saves time. ``--no-compile-cache`` turns it off for one run.
-    """
-    if not enabled:
-        return
-    folder = os.environ.get("JAXDIP_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "jaxdip", "xla")
-    try:
-        os.makedirs(folder, exist_ok=True)
-    except OSError as e:
-        warn(f"compilation cache off: cannot create {folder}: {e.strerror or e}")
-        return
-    import jax
-
-    jax.config.update("jax_compilation_cache_dir", folder)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)  # a threshold would make the cache depend on load
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    # The key hashes the lowered module with its source locations, by default the whole Python call stack of
-    # each operation: `jaxdip run`, a `reproduce` worker and a script calling the same experiment then never
-    # share an entry, and an edit that shifts a line of the CLI or the runner misses every cached program. The
-    # innermost frame alone (the line that made the operation) keeps the key to the code that shapes the program;
-    # locations are debug information, so the compiled code is the same (docs/performance.md, warm start).
-    jax.config.update("jax_include_full_tracebacks_in_locations", False)
+    """Keep XLA's compiled code on disk (``jaxdip.xla_flags.use_compile_cache``); a folder it cannot create is a
+    warning, and the run goes on without the cache."""
+    if enabled and (why := xla_flags.use_compile_cache()):
+        warn(why)
 
 
 def _distributed(args) -> int:
