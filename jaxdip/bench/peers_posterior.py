@@ -15,17 +15,19 @@ alpha, theta, true noise covariances Q = 4e-8 I, R = diag(1e-8, 1e-6, 1e-6)).
   M-step. dynamax's ``fit_em`` (``LinearGaussianSSM``, no priors) fits all its parameters jointly (initial mean
   and covariance, F, B, H, D, Q, R: it refuses a partly frozen set), so it runs a different EM from jaxdip's
   Q, R only; the same dynamax E-step (``model.e_step``, its public sufficient statistics) followed by a Q, R-only
-  M-step written here is the like-for-like peer. dynamax 1.0.3's M-step of the initial covariance,
-  (sum x0 x0^T - sum x0 sum x0^T) / N, is right for one sequence only: with N > 1 sequences it is indefinite and
-  the next E-step gives NaN, so its ``fit_em`` is also run on the first record alone. Wall time per iteration: (t(n) - t(1)) / (n - 1) of two
-  whole fits, which removes the compile time each fit pays.
+  M-step written here is the like-for-like peer, run with dynamax's boost as shipped and at 0. dynamax 1.0.3's
+  M-step of the initial covariance, (sum x0 x0^T - sum x0 sum x0^T) / N, is right for one sequence only: with
+  N > 1 sequences it can be indefinite and the next E-step gives NaN, so its ``fit_em`` is also run on the first
+  record alone. Wall time per iteration: (t(n) - t(1)) / (n - 1) of two whole fits, which removes the compile
+  time each fit pays.
 * Masked filtering: dynamax's filter has no mask or NaN handling, but it takes time-varying emission weights.
   A missing entry j at step k is given to it as H_k[j] = 0 and y_k[j] = 0: with R diagonal the entry then carries
   no information on the state, and adds log N(0; 0, R_jj) to the log-likelihood, which is subtracted before the
   comparison with jaxdip's ``mask=``.
 
 dynamax's transition takes the next sample's input (``jaxdip.bench.peers``), so it gets the inputs shifted by one;
-its ``psd_solve`` adds 1e-9 to the diagonal of S (left as shipped), which shows in its differences.
+its ``psd_solve`` adds 1e-9 to the diagonal of S, which shows in its differences: sampling and masked filtering
+are also run with that boost at 0 (``boost``), as ``jaxdip.bench.peers`` does.
 """
 
 from __future__ import annotations
