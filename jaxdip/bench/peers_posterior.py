@@ -237,7 +237,8 @@ def compare_masked(y, u, missing: float, diagonal_boost=None) -> dict:
         d = dinf.lgssm_filter(params, jnp.where(obs, y, 0.0), jnp.asarray(prev_inputs(np.asarray(u)[None])[0]))
     offset = -0.5 * float(jnp.sum(jnp.where(obs, 0.0, jnp.log(2 * jnp.pi * jnp.diag(R))[None])))
     ll_dyn = float(d.marginal_loglik) - offset
-    out = {"steps": T, "diagonal_boost": 1e-9 if diagonal_boost is None else diagonal_boost, "missing_fraction": float(1 - jnp.mean(obs)),
+    out = {"steps": T, "diagonal_boost": 1e-9 if diagonal_boost is None else diagonal_boost,
+           "missing_fraction": float(1 - jnp.mean(obs)),
            "filtered_mean_max_abs_diff": float(jnp.max(jnp.abs(d.filtered_means - f.mean))),
            "filtered_mean_rel_diff": float(jnp.max(jnp.abs(d.filtered_means - f.mean)) / jnp.max(jnp.abs(f.mean))),
            "filtered_cov_rel_diff": float(jnp.max(jnp.abs(d.filtered_covariances - f.cov)) / jnp.max(jnp.abs(f.cov))),
