@@ -28,7 +28,6 @@ import importlib.util
 import json
 import platform
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -36,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxdip.bench import estimators as base
+from jaxdip.bench import peers
 from jaxdip.bench.peers import record
 from jaxdip.estimators import KalmanFilter, recorded
 from jaxdip.estimators._linear_gaussian import psd_factor
@@ -102,17 +102,10 @@ def dynamax_filter():
 
 
 def timed(fn, *args, repeats: int):
-    """(output, best wall seconds) of a jitted function: compiled ahead of time, then called once untimed and
-    ``repeats`` times timed. (Called through ``jit`` a second time, cuthbert's vmapped parallel filter hung here
-    with no CPU use, JAX 0.10.2 on CPU; the compiled executable runs normally.)"""
-    compiled = fn.lower(*args).compile()
-    out = jax.block_until_ready(compiled(*args))
-    best = np.inf
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(compiled(*args))
-        best = min(best, time.perf_counter() - t)
-    return out, best
+    """``jaxdip.bench.peers.timed`` of ``fn`` compiled ahead of time. (Called through ``jit`` a second time,
+    cuthbert's vmapped parallel filter hung here with no CPU use, JAX 0.10.2 on CPU; the compiled executable runs
+    normally.)"""
+    return peers.timed(fn.lower(*args).compile(), *args, repeats=repeats)
 
 
 def batched(one, batch: int, T: int, chunked: bool):
