@@ -62,8 +62,11 @@ def _batched(kf: KalmanFilter, ys, us, mask, nan_missing: bool):
         raise checks.ArgumentError(f"ys must be (T, p) or (B, T, p), got shape {checks.fmt_shape(ys.shape)}")
     B, T, _ = ys.shape
     us = jnp.zeros((B, T, kf.n_inputs), ys.dtype) if us is None else jnp.asarray(us, ys.dtype).reshape(B, T, -1)
-    obs = jax.vmap(lambda y, m: observed_mask(y, m, nan_missing))(ys, mask) if mask is not None else (
-        ~jnp.isnan(ys) if nan_missing else jnp.ones(ys.shape, bool))
+    def observed(y, m):  # the recorded data's one mask rule, all True where nothing is missing
+        o = observed_mask(y, m, nan_missing)
+        return jnp.ones(y.shape, bool) if o is None else o
+
+    obs = jax.vmap(observed)(ys, mask) if mask is not None else jax.vmap(lambda y: observed(y, None))(ys)
     return ys, us, obs
 
 
