@@ -164,3 +164,18 @@ def test_masses_returns_a_repeat_from_its_memo_and_recomputes_any_other_value():
     # under a trace the memo is bypassed: the gradient is the gradient of F, not of a stored constant
     g = jax.grad(lambda lr: Q.masses(MODEL, LevelSet(cost=Uniform(), log_r=lr), Uniform(), 64).g)(jnp.asarray(x))
     assert float(g) < 0
+
+
+def test_compiled_breakpoints_equal_the_op_by_op_ones():
+    """``controls.breakpoints`` (one compiled program) gives a control's breakpoints to the last bit as the
+    method run op by op does, for level sets of radial and flat costs, a stochastic one and a window."""
+    from jaxdip.immune.controls import breakpoints
+
+    flat = Flat(LOG_R - 0.5)
+    for ctrl in [LevelSet(cost=Uniform(), log_r=jnp.asarray(LOG_R)),
+                 LevelSet(cost=Shell(6.0, 10.0, 4.0), log_r=jnp.asarray(LOG_R - 0.3)),
+                 LevelSet(cost=flat, log_r=jnp.asarray(LOG_R), stochastic=True, tie_tol=1e-9, tie_prob=0.5),
+                 Window(LevelSet(cost=Uniform(), log_r=jnp.asarray(LOG_R)), jnp.asarray(0.5), jnp.asarray(jnp.inf))]:
+        want = np.asarray(ctrl.breakpoints(MODEL))
+        assert np.isfinite(want).any()
+        np.testing.assert_array_equal(np.asarray(breakpoints(MODEL, ctrl)), want)
