@@ -143,3 +143,39 @@ def test_level_set_beats_ball_and_perturbation():
     (pert, pm), = Al.perturbations(MODEL, Uniform(), th.log_r, V, jax.random.PRNGKey(0), 1, eps=1.0, n_quad=n)
     assert float(pm.g) == pytest.approx(V, abs=1e-9)
     assert float(pm.h) > float(th.at.h)
+
+
+def test_masses_returns_a_repeat_from_its_memo_and_recomputes_any_other_value():
+    """A call equal in every value to an earlier one returns that result; an argument one ulp away, another cost
+    or another n is computed afresh (against the compiled quadrature called directly), and a traced call (inside
+    a gradient) is never served from the memo."""
+    x = LOG_R + 0.1234567
+    a = Q.masses(MODEL, LevelSet(cost=Uniform(), log_r=jnp.asarray(x)), Uniform(), 64)
+    b = Q.masses(MODEL, LevelSet(cost=Uniform(), log_r=jnp.asarray(x)), Uniform(), 64)
+    assert a is b
+    near = float(np.nextafter(x, np.inf))
+    for ctrl, cost, n in [(LevelSet(cost=Uniform(), log_r=jnp.asarray(near)), Uniform(), 64),
+                          (LevelSet(cost=Distance(10.0), log_r=jnp.asarray(x)), Distance(10.0), 64),
+                          (LevelSet(cost=Uniform(), log_r=jnp.asarray(x)), Uniform(), 32)]:
+        got = Q.masses(MODEL, ctrl, cost, n)
+        assert got is not a
+        assert all(float(u) == float(v) for u, v in zip(got, Q._masses(MODEL, ctrl, cost, n)))
+    assert float(Q.masses(MODEL, LevelSet(cost=Uniform(), log_r=jnp.asarray(near)), Uniform(), 64).g) != float(a.g)
+    # under a trace the memo is bypassed: the gradient is the gradient of F, not of a stored constant
+    g = jax.grad(lambda lr: Q.masses(MODEL, LevelSet(cost=Uniform(), log_r=lr), Uniform(), 64).g)(jnp.asarray(x))
+    assert float(g) < 0
+
+
+def test_compiled_breakpoints_equal_the_op_by_op_ones():
+    """``controls.breakpoints`` (one compiled program) gives a control's breakpoints to the last bit as the
+    method run op by op does, for level sets of radial and flat costs, a stochastic one and a window."""
+    from jaxdip.immune.controls import breakpoints
+
+    flat = Flat(LOG_R - 0.5)
+    for ctrl in [LevelSet(cost=Uniform(), log_r=jnp.asarray(LOG_R)),
+                 LevelSet(cost=Shell(6.0, 10.0, 4.0), log_r=jnp.asarray(LOG_R - 0.3)),
+                 LevelSet(cost=flat, log_r=jnp.asarray(LOG_R), stochastic=True, tie_tol=1e-9, tie_prob=0.5),
+                 Window(LevelSet(cost=Uniform(), log_r=jnp.asarray(LOG_R)), jnp.asarray(0.5), jnp.asarray(jnp.inf))]:
+        want = np.asarray(ctrl.breakpoints(MODEL))
+        assert np.isfinite(want).any()
+        np.testing.assert_array_equal(np.asarray(breakpoints(MODEL, ctrl)), want)

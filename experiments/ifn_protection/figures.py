@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip.immune.controls import breakpoints
 from jaxdip.immune.costs import RadialCost
 
 
@@ -34,7 +35,7 @@ def fig_optimal_sets(model, checks, flat, costs):
     panels = [(k, checks[k]["level_set"], checks[k]["ball"], costs[k]) for k in checks]
     panels.append(("flat", flat["switch"], None, flat["cost"]))
     # the plot must hold every level set (they end where their own t_max is) and every disc
-    ends = [np.nanmax(np.asarray(p[1].breakpoints(model))) for p in panels]
+    ends = [np.nanmax(np.asarray(breakpoints(model, p[1]))) for p in panels]
     t_end = 1.08 * max(max(ends), *(float(b.t1) for _, _, b, _ in panels if b is not None))
     t = np.linspace(1e-4, t_end, 360)
     rho = np.linspace(0.0, 20.0, 240)

@@ -11,7 +11,7 @@ import numpy as np
 from jaxdip.immune import alternatives as Al
 from jaxdip.immune import quadrature as Q
 from jaxdip.immune.autonomous import CellAutonomous, theta_of_r, tie_probability
-from jaxdip.immune.controls import LevelSet, Window
+from jaxdip.immune.controls import LevelSet, Window, breakpoints
 from jaxdip.immune.costs import Flat, Uniform
 from jaxdip.immune.lattice import lattice_mass
 
@@ -62,7 +62,7 @@ def theorem_check(model, cost, V, cfg, key):
             "perturbation_g_max_abs_error": max([abs(num(m.g) - V) for m in pert_m], default=0.0),
             "ball_extra_cost": num(ball_m.h) / num(ls_m.h) - 1.0,
             "perturbation_min_extra_cost": min([num(m.h) / num(ls_m.h) - 1.0 for m in pert_m], default=float("nan")),
-            "protect_until_h": float(np.nanmax(np.asarray(ls.breakpoints(model)))),
+            "protect_until_h": float(np.nanmax(np.asarray(breakpoints(model, ls)))),
             "level_set_cheapest": all(wins),
             "level_set_cheapest_count": f"{sum(wins)} of {len(wins)}",
         },
@@ -132,7 +132,7 @@ def f_properties(curves) -> dict:
 def level_set_extent(model, log_r) -> tuple[float, float]:
     """(t_max, largest radius) of the uniform-cost level set {g >= r}: rho*(t)^2 = 4 D t L(t)_+ with
     L(t) = log c - log r - k t - (d/2) log(4 pi D t), which vanishes at t_max."""
-    t_max = float(np.nanmax(np.asarray(LevelSet(cost=Uniform(), log_r=jnp.asarray(log_r)).breakpoints(model))))
+    t_max = float(np.nanmax(np.asarray(breakpoints(model, LevelSet(cost=Uniform(), log_r=jnp.asarray(log_r))))))
     t = np.linspace(1e-6, t_max, 4001)
     c, k, D, d = (num(v) for v in (model.c, model.k, model.diffusion, model.dim))
     L = math.log(c) - num(log_r) - k * t - d / 2 * np.log(4 * math.pi * D * t)
