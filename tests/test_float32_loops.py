@@ -123,3 +123,17 @@ def test_bad_precision_is_refused(bad):
                 precision=bad)
     with pytest.raises(jd.ArgumentError, match="precision must be one of"):
         p_search.performance_loop(p, jnp.eye(6), _search_cfg(precision=bad))
+
+
+def test_with_precision_sets_every_loop_in_a_tree():
+    """``jd.with_precision`` changes the loops (inside a Rollout, a dict) and nothing else."""
+    p = eki_dip.plant()
+    loop = jd.Loop(plant=p, sensor=jd.Identity(), estimator=jd.Passthrough(), controller=StateFeedback(jnp.zeros((1, 6))),
+                   dt=0.001)
+    tree = {"a": jd.Rollout(loop, jnp.zeros(6), 3), "b": loop, "c": jnp.ones(2)}
+    out = jd.with_precision(tree, "float32")
+    assert out["a"].loop.precision == out["b"].precision == "float32"
+    assert out["c"] is tree["c"] and out["a"].steps == 3
+    assert jd.with_precision(out, "float64")["b"].precision == "float64"
+    with pytest.raises(jd.ArgumentError, match="precision must be one of"):
+        jd.with_precision(tree, "half")
