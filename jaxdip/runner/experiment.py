@@ -25,6 +25,7 @@ import jax
 from jaxdip import checkpoint
 from jaxdip import config as cfgmod
 from jaxdip import dataset, distributed, outdir, resources
+from jaxdip.engine.loop_checks import PRECISIONS
 from jaxdip.runner import records
 from jaxdip.runner.per_seed import PerSeed, without_trajectories
 from jaxdip.runner.provenance import png_metadata, provenance_block
@@ -125,6 +126,13 @@ def _keep_unwritable(out_dir: str, exp_id: str, outcome: Outcome) -> str | None:
     except OSError:
         return None
     return path
+
+
+def precision_field():
+    """The ``precision`` config key of an experiment whose Monte Carlo loops were measured safe in float32
+    (docs/performance.md, "float32, per loop"): the loops' precision; designs stay float64."""
+    return cfgmod.field("float64", cfgmod.one_of(*PRECISIONS),
+                        doc="precision of the Monte Carlo closed loops (designs stay float64)")
 
 
 def run_dtype(cfg=None) -> str:

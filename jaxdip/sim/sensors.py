@@ -146,18 +146,18 @@ class LinearSensor(Sensor):
         if not self.stationary_start:
             return jnp.zeros_like(self.gm_sigma)
         std0 = gauss_markov_stationary_std(self.gm_sigma, self.gm_tau)
-        return std0 * jax.random.normal(key, self.gm_sigma.shape)
+        return std0 * jax.random.normal(key, self.gm_sigma.shape, self.gm_sigma.dtype)
 
     def step(self, state, x, key, k):
         k_white, k_bias = jax.random.split(key)
-        white = self.white_std * jax.random.normal(k_white, self.white_std.shape)
+        white = self.white_std * jax.random.normal(k_white, self.white_std.shape, self.white_std.dtype)
         raw = self.C @ x + self.const_bias + state + white
         if self.straight_through:
             y = raw + jax.lax.stop_gradient(quantize(jax.lax.stop_gradient(raw), self.quantum) - raw)
         else:
             y = quantize(raw, self.quantum)
         a, q_std = gauss_markov_coeffs(self.gm_sigma, self.gm_tau, self.dt)
-        bias = a * state + q_std * jax.random.normal(k_bias, state.shape)
+        bias = a * state + q_std * jax.random.normal(k_bias, state.shape, state.dtype)
         return bias, y, bias
 
 
