@@ -38,6 +38,7 @@ STUDY: dict[str, dict] = {
     "dip-controllers": {"seeds": 128},
     "rwp-remark3": {"seeds": 64},
     "rwp-bias": {"seeds": 64},
+    "lorenz-mhe": {"seeds": 64},
 }
 
 
@@ -57,13 +58,15 @@ def _number(v) -> float | None:
 
 def interval_statistics(results: dict) -> dict[str, tuple[float, float, float]]:
     """name -> (value, lo, hi) for every ``name`` of ``results`` (flattened with dots) that has a sibling
-    ``name_ci95`` holding a [lo, hi] pair."""
+    ``name_ci95`` holding a [lo, hi] pair (or, where ``name`` is absent, ``name_mean`` beside ``name_ci95``)."""
     flat = dict(_flat(results))
     out = {}
     for key, ci in flat.items():
         if not key.endswith("_ci95") or not isinstance(ci, (list, tuple)) or len(ci) != 2:
             continue
         name = key[: -len("_ci95")]
+        if name not in flat and f"{name}_mean" in flat:  # "error_ci95" beside "error_mean"
+            name = f"{name}_mean"
         v, lo, hi = _number(flat.get(name)), _number(ci[0]), _number(ci[1])
         if v is not None and lo is not None and hi is not None:
             out[name] = (v, lo, hi)
@@ -81,6 +84,8 @@ def compare(r64: dict, r32: dict) -> list[dict]:
             continue
         (v, lo, hi), (w, lo32, hi32) = s64[name], s32[name]
         finite = all(math.isfinite(a) for a in (v, lo, hi, w, lo32, hi32))
+        if not finite and [str(a) for a in (v, lo, hi)] == [str(a) for a in (w, lo32, hi32)]:
+            continue  # undefined alike in both (a settle time never reached: NaN): nothing to compare
         half = (hi - lo) / 2
         diff = abs(w - v)
         z = (0.0 if diff == 0 else math.inf) if half == 0 else diff / half
