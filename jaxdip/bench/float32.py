@@ -39,6 +39,7 @@ STUDY: dict[str, dict] = {
     "rwp-remark3": {"seeds": 64},
     "rwp-bias": {"seeds": 64},
     "lorenz-mhe": {"seeds": 64},
+    "eki-dip-judge": {},
 }
 
 
@@ -95,6 +96,32 @@ def compare(r64: dict, r32: dict) -> list[dict]:
     return rows
 
 
+JUDGE_SEEDS = 256
+
+
+def eki_dip_judge(precision: str, seeds: int = JUDGE_SEEDS, duration: float = 2.0) -> dict:
+    """eki-dip's judge loop (``jaxdip.scenarios.eki_dip.judge_rollout``: (2.14) with gamma = 40 on the printed
+    DIP, exact state measurement, state noise) with the weight P = P_v(v_LQR, 1e6) (singular values 1e6 and 1:
+    the ill-conditioned weight the search works with), summarised as eki-dip summarises its judge."""
+    import jax
+
+    import jaxdip as jd
+    from jaxdip.control.spd import P_v
+    from jaxdip.plants import dip
+    from jaxdip.runner.summaries import loop_summary
+    from jaxdip.scenarios import eki_dip as S
+
+    plant = S.plant()
+    A, B = jd.linearize(plant)
+    r = jd.with_precision(S.judge_rollout(P_v(S.lqr_direction(A, B), 1e6), duration=duration), precision)
+    sol = jd.monte_carlo(r, jax.random.PRNGKey(0), seeds)
+    return loop_summary(sol, dip.STATE_NAMES, (1, 2), 0.02, dt=0.001, bound=S.STATE_BOUND)
+
+
+# loops studied outside their experiment: the eki-dip experiment runs a whole search before its judge
+SCENARIOS = {"eki-dip-judge": eki_dip_judge}
+
+
 def _config(exp, overrides: dict, precision: str):
     from jaxdip import config as C
 
@@ -115,24 +142,36 @@ def _run(exp, cfg) -> tuple[dict, float]:
     return outcome.results, cpu
 
 
+def _scenario_run(fn, precision: str) -> tuple[dict, float]:
+    t0 = time.process_time()
+    results = fn(precision)
+    return results, time.process_time() - t0
+
+
 def study(exp_id: str, overrides: dict | None = None, repeats: int = 3) -> dict:
-    """Run one experiment in float64 and float32 (its ``precision`` key), compare its interval statistics and
-    time ``repeats`` interleaved runs of each: the study's record of that experiment."""
+    """Run one experiment (or ``SCENARIOS`` entry) in float64 and float32 (its ``precision`` key), compare its
+    interval statistics and time ``repeats`` interleaved runs of each: the study's record of that experiment."""
     from jaxdip.runner import get
 
-    exp = get(exp_id)
     overrides = STUDY.get(exp_id, {}) if overrides is None else overrides
-    cfgs = {p: _config(exp, overrides, p) for p in ("float64", "float32")}
+    if exp_id in SCENARIOS:
+        runs = {p: (lambda p=p: _scenario_run(SCENARIOS[exp_id], p)) for p in ("float64", "float32")}
+        seeds = JUDGE_SEEDS
+    else:
+        exp = get(exp_id)
+        cfgs = {p: _config(exp, overrides, p) for p in ("float64", "float32")}
+        runs = {p: (lambda cfg=cfg: _run(exp, cfg)) for p, cfg in cfgs.items()}
+        seeds = getattr(cfgs["float64"], "seeds", None)
     results, cpu = {}, {"float64": [], "float32": []}
-    for p, cfg in cfgs.items():
-        results[p], _ = _run(exp, cfg)  # compiles
+    for p, run in runs.items():
+        results[p], _ = run()  # compiles
     for _ in range(repeats):
-        for p, cfg in cfgs.items():
-            cpu[p].append(_run(exp, cfg)[1])
+        for p, run in runs.items():
+            cpu[p].append(run()[1])
     rows = compare(results["float64"], results["float32"])
     med = {p: statistics.median(t) for p, t in cpu.items() if t}
     return {
-        "experiment": exp_id, "overrides": overrides, "seeds": getattr(cfgs["float64"], "seeds", None),
+        "experiment": exp_id, "overrides": overrides, "seeds": seeds,
         "statistics": len(rows), "outside": sum(not r["inside"] for r in rows),
         "disjoint": sum(not r["overlap"] for r in rows),
         "safe": bool(rows) and all(r["inside"] and r["overlap"] for r in rows),
