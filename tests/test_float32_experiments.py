@@ -15,7 +15,7 @@ from jaxdip.runner.experiment import run_dtype
 
 from float32_jaxpr import float64_equations
 
-WITH_KEY = ("dip-lqr", "dip-controllers", "rwp-remark3", "rwp-bias", "lorenz-mhe")
+WITH_KEY = ("dip-lqr", "dip-controllers", "rwp-remark3", "rwp-bias")
 
 
 def _cfg(exp_id, **sets):
@@ -64,10 +64,11 @@ def test_rwp_remark3_loop():
 
 
 def test_lorenz_mhe_loop():
-    """The four Lorenz estimators (CPX, sCPX, two EKFs) fanned out on one measurement stream."""
+    """The four Lorenz estimators (CPX, sCPX, two EKFs) fanned out on one measurement stream (studied in
+    float32, not found safe: no key; the loop still runs wholly in float32)."""
     from experiments import lorenz_mhe
 
-    assert _float64_in(lorenz_mhe.build(_cfg("lorenz-mhe", precision="float32"), steps=4)) == []
+    assert _float64_in(jd.with_precision(lorenz_mhe.build(_cfg("lorenz-mhe"), steps=4), "float32")) == []
 
 
 def test_rwp_bias_loops(monkeypatch):
@@ -104,6 +105,6 @@ def test_precision_key_is_validated_and_recorded(exp_id):
 
 def test_experiments_without_the_key_refuse_it():
     """The experiments not found safe, or not made float32, have no precision key (docs/performance.md)."""
-    for exp_id in ("dip-cpx-ldf", "twip-dmso", "dip-mpc"):
+    for exp_id in ("lorenz-mhe", "dip-cpx-ldf", "twip-dmso", "dip-mpc"):
         with pytest.raises(C.ConfigError, match="unknown key"):
             _cfg(exp_id, precision="float32")

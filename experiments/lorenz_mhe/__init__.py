@@ -34,7 +34,7 @@ import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
-from jaxdip.runner.experiment import Experiment, Outcome, RunContext, precision_field
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext
 from jaxdip.runner.records import loop_record
 from jaxdip.runner.per_seed import PerSeed, mean_of
 from jaxdip.runner.results import fmt_ci
@@ -86,7 +86,6 @@ class LorenzMheConfig:
                                   doc="max squarings of the estimators' matrix exponential: exact for "
                                       "||M h||_1 <= 0.25 * 2^this (on the attractor ||[A, f] h||_1 < 0.7: 2 are used)")
     chunk_steps: int = C.field(1000, C.positive, doc="samples per compiled call (progress granularity)")
-    precision: str = precision_field()
     figure_trial: int = C.field(0, C.nonneg, doc="trial shown in the xL figure")
     record_every: int = C.field(10, C.positive, doc="keep every n-th sample of the figure trial")
     record_seed: int = C.field(-1,
@@ -138,12 +137,12 @@ def noise_levels(cfg: LorenzMheConfig) -> dict[str, float]:
 def build(cfg: LorenzMheConfig, steps: int | None = None, save_every: int | None = None,
           ukf: bool = False) -> jd.Rollout:
     """One trial of the comparison (``jaxdip.scenarios.lorenz_mhe``) with this configuration."""
-    return jd.with_precision(scenario.build(
+    return scenario.build(
         h=cfg.h, steps=cfg.n_steps if steps is None else steps, substeps=cfg.substeps, **noise_levels(cfg),
         x0_mean=tuple(cfg.x0_mean), x0_std=cfg.x0_std, init_error_std=cfg.init_error_std,
         cpx_gamma=cfg.cpx_gamma, scpx_gamma=cfg.scpx_gamma, scpx_p=cfg.scpx_p,
         extrema_threshold=cfg.extrema_threshold, divergence_bound=cfg.divergence_bound,
-        expm_squarings=cfg.expm_squarings, save_every=save_every, alignment=cfg.alignment, ukf=ukf), cfg.precision)
+        expm_squarings=cfg.expm_squarings, save_every=save_every, alignment=cfg.alignment, ukf=ukf)
 
 
 def simulate(cfg: LorenzMheConfig, progress: bool = True) -> dict:
