@@ -11,7 +11,7 @@ import pytest
 import jaxdip as jd
 from jaxdip import config as C
 from jaxdip.runner import get
-from jaxdip.runner.experiment import run_dtype
+from jaxdip.runner.experiment import provenance, run_dtype
 
 from float32_jaxpr import float64_equations
 
@@ -98,7 +98,9 @@ def test_rwp_bias_loops(monkeypatch):
 def test_precision_key_is_validated_and_recorded(exp_id):
     cfg = _cfg(exp_id)
     assert cfg.precision == "float64" and run_dtype(cfg) == "float64"
-    assert run_dtype(dataclasses.replace(cfg, precision="float32")) == "float32 loops, float64 design"
+    cfg32 = dataclasses.replace(cfg, precision="float32")
+    assert run_dtype(cfg32) == "float32 loops, float64 design"
+    assert provenance(exp_id, 4, 1.0, cfg=cfg32)["dtype"] == run_dtype(cfg32)  # metrics.json and the report
     with pytest.raises(C.ConfigError, match="precision"):
         _cfg(exp_id, precision="float16")
 
