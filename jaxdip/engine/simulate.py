@@ -81,7 +81,10 @@ class Loop(eqx.Module):
     ``dt`` and ``substeps`` are static; ``process_noise_std`` (std of Gaussian noise added to the state after
     every period, scalar or per state), ``state_bound`` (per state or scalar) and ``norm_bound`` (on the
     Euclidean norm of the deviation) are traced leaves. ``keys``
-    divides the trajectory's key among the roles (leave the default).
+    divides the trajectory's key among the roles (leave the default). ``precision`` ("float64" or "float32",
+    static) is the dtype ``simulate`` runs the loop in: with "float32" it casts the loop's floating leaves, x0
+    and the reducers and the whole period, metrics and ``Solution`` are float32 (``with_precision`` sets it on
+    every loop of a pytree).
     """
 
     plant: Any
