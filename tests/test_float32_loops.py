@@ -137,3 +137,15 @@ def test_with_precision_sets_every_loop_in_a_tree():
     assert jd.with_precision(out, "float64")["b"].precision == "float64"
     with pytest.raises(jd.ArgumentError, match="precision must be one of"):
         jd.with_precision(tree, "half")
+
+
+def test_numpy_leaves_are_cast_too():
+    """A loop holding NumPy float64 arrays (a user's gain as np.array) still runs wholly in float32."""
+    p = eki_dip.plant()
+    ctrl = StateFeedback(jnp.zeros((1, 6)))
+    ctrl = jax.tree_util.tree_map(np.asarray, ctrl)
+    loop = jd.Loop(plant=p, sensor=jd.sensors.WhiteNoise(np.full(6, 1e-3)), estimator=jd.Passthrough(),
+                   controller=ctrl, dt=0.001, process_noise_std=np.full(6, 1e-4), precision="float32")
+    x0 = jnp.zeros(6, jnp.float32)
+    jaxpr = jax.make_jaxpr(lambda x0, key: jd.simulate(loop, x0, key, 3, save=lambda s: s.u))(x0, jax.random.key(0))
+    assert float64_equations(jaxpr.jaxpr) == []

@@ -29,6 +29,7 @@ from typing import Any, Callable, NamedTuple, Optional
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxdip.engine import metrics as _metrics
 from jaxdip.engine.keys import split_lanes
@@ -39,7 +40,8 @@ from jaxdip.engine.roles import Identity, _as_float_array, param
 
 from jaxdip._public import public_dir
 
-__all__ = ["RESULTS", "PRECISIONS", "as_precision", "with_precision", "KeySchedule", "Loop", "Aux", "Sample", "State", "Solution", "init_state", "simulate"]
+__all__ = ["RESULTS", "PRECISIONS", "as_precision", "with_precision", "KeySchedule", "Loop", "Aux", "Sample", "State",
+           "Solution", "init_state", "simulate"]
 __dir__ = public_dir(globals())
 
 
@@ -180,7 +182,8 @@ def _period(loop: Loop, st: State, base, noise=None):
         if noise is None:
             noise = _process_noise(k_proc, st.x.shape, st.x.dtype)
         x_next = x_next + loop.process_noise_std * noise
-    sample = Sample(st.k, st.k.astype(st.x.dtype) * loop.dt, st.x, y, xhat, u, u_applied, Aux(a_sens, a_est, a_ctrl, a_act))
+    t = st.k.astype(st.x.dtype) * loop.dt  # int32 k times a Python float would be float64
+    sample = Sample(st.k, t, st.x, y, xhat, u, u_applied, Aux(a_sens, a_est, a_ctrl, a_act))
     return (s_sens, s_est, s_ctrl, s_act), x_next, u, sample
 
 
@@ -225,8 +228,9 @@ def _check_x0(owner: str, loop: Loop, x0) -> None:
 
 def _cast(tree, dtype):
     def leaf(a):
-        if isinstance(a, jax.Array) and jnp.issubdtype(a.dtype, jnp.floating) and a.dtype != dtype:
-            return a.astype(dtype)
+        # JAX and NumPy arrays (a user's np.array field); Python floats are weakly typed and follow the loop
+        if isinstance(a, (jax.Array, np.ndarray)) and jnp.issubdtype(a.dtype, jnp.floating) and a.dtype != dtype:
+            return jnp.asarray(a, dtype)
         return a
 
     return jax.tree_util.tree_map(leaf, tree)
