@@ -43,6 +43,7 @@ STUDY: dict[str, dict] = {
     "rwp-remark3": {"seeds": 64},
     "rwp-bias": {"seeds": 64},
     "lorenz-mhe": {"seeds": 64, "seed": 1},
+    "dip-cpx-ldf": {"seeds": 64, "sweep_seeds": 16},
     "eki-dip-judge": {},
 }
 
