@@ -28,7 +28,7 @@ import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip import stats
-from jaxdip.runner.experiment import Experiment, Outcome, RunContext, precision_field
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext
 from jaxdip.runner.per_seed import PerSeed, fraction_of, mean_of, stacked
 from jaxdip.runner.results import fmt, fmt_ci, na
 from jaxdip.runner.summaries import failure_lines, failure_summary
@@ -91,7 +91,6 @@ class DipCpxLdfConfig:
     cart_coulomb: float = C.field(0.0, C.nonneg_finite, doc="Coulomb friction force on the cart (N); 0: none")
     coulomb_smoothing: float = C.field(1e-3, C.positive_finite,
                                        doc="the friction's sign smoothed as tanh(xc_dot / this) (m/s)")
-    precision: str = precision_field()
 
     def loads(self) -> list[Load]:
         n = steps_of(self.duration, self.dt)
@@ -127,7 +126,7 @@ def scenario(cfg: DipCpxLdfConfig) -> S.DipCpxLdf:
 def build(cfg: DipCpxLdfConfig) -> dict:
     """One Monte Carlo trial per estimator driving the controller: ``{"cpx": Rollout, "ldf": Rollout}``."""
     sc = scenario(cfg)
-    return {name: jd.with_precision(sc.rollout(name), cfg.precision) for name in ("cpx", "ldf")}
+    return {name: sc.rollout(name) for name in ("cpx", "ldf")}
 
 
 def gamma_criterion(cfg: DipCpxLdfConfig) -> dict:
@@ -241,8 +240,7 @@ def velocity_trial(cfg, gamma_crit) -> dict:
     estimate x^_j, which the figure shows at the paper's gamma."""
     sc = scenario(cfg)
     fan = jd.FanOut({"cpx": sc.cpx(), "ldf": sc.ldf(), "cpx_crit": sc.cpx(gamma_crit, "current")}, drive="cpx")
-    r = jd.with_precision(jd.Rollout(sc.loop(fan), jd.Ball(jnp.zeros(6), cfg.init_radius), sc.steps,
-                                     save=velocity_record), cfg.precision)
+    r = jd.Rollout(sc.loop(fan), jd.Ball(jnp.zeros(6), cfg.init_radius), sc.steps, save=velocity_record)
     sol = jd.monte_carlo(r, jax.random.PRNGKey(cfg.seed), 1, offset=cfg.figure_seed)
     tr = {k: np.asarray(v)[0] for k, v in sol.saved.items()}
     tr["diverged"] = bool(np.asarray(sol.result)[0] != jd.RESULTS.ok)
