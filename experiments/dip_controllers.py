@@ -20,7 +20,7 @@ import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
 from jaxdip.control.spd import P_v, surface_normal
-from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext, precision_field
 from jaxdip.runner.results import fmt_ci
 from jaxdip.runner.per_seed import stacked
 from jaxdip.runner.summaries import failure_lines, loop_per_seed, loop_summary
@@ -77,6 +77,7 @@ class DipControllersConfig:
                                             doc="how (2.20) makes P from (3.6): gram_schmidt (as printed), "
                                                 "gram_schmidt_v2_first, rank_update (no re-orthogonalisation), "
                                                 "squared (s as singular values of a factor of P)")
+    precision: str = precision_field()
 
     def loads(self) -> list[Load]:
         n = steps_of(self.duration, self.dt)
@@ -134,7 +135,7 @@ def build(cfg: DipControllersConfig, controller, noise_std=None, x0=None, save=N
     n_steps = int(round(cfg.duration / cfg.dt))
     loop = jd.Loop(plant=plant, sensor=jd.sensors.WhiteNoise(cfg.noise_std if noise_std is None else noise_std),
                    estimator=jd.Passthrough(), controller=controller, dt=cfg.dt, substeps=cfg.substeps,
-                   state_bound=cfg.state_bound)
+                   state_bound=cfg.state_bound, precision=cfg.precision)
     tail = min(n_steps, int(round(1.0 / cfg.dt)))
     metrics = {"x": jd.metrics.Moments("x"), "u": jd.metrics.Moments("u"),
                "tail": jd.metrics.Window(jd.metrics.MaxAbs("x"), start=n_steps - tail)}

@@ -16,7 +16,7 @@ import numpy as np
 import jaxdip as jd
 from jaxdip.resources import Load, steps_of
 from jaxdip import config as C
-from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext, precision_field
 from jaxdip.runner.figures import band_figure
 from jaxdip.runner.results import fmt_ci
 from jaxdip.runner.summaries import failure_lines, loop_per_seed, loop_summary
@@ -46,6 +46,7 @@ class DipLqrConfig:
     stabilized_tol: float = C.field(0.02, C.positive_finite,
                                     doc="stabilised: max |alpha|, |theta| over the last second below this (rad)")
     record_every: int = C.field(10, C.positive, doc="keep every n-th period for the figures")
+    precision: str = precision_field()
 
     def loads(self) -> list[Load]:
         n = steps_of(self.duration, self.dt)
@@ -63,9 +64,10 @@ class DipLqrConfig:
 
 def build(cfg: DipLqrConfig) -> jd.Rollout:
     """One Monte Carlo trial (the library's dip_lqr scenario with this config's values)."""
-    return dip_lqr(variant=cfg.variant, dt=cfg.dt, substeps=cfg.substeps, duration=cfg.duration,
-                   Q=weight_matrix("Q", cfg.Q, 6), R=cfg.R, noise_std=cfg.noise_std, init_radius=cfg.init_radius,
-                   state_bound=cfg.state_bound, record_every=cfg.record_every)
+    r = dip_lqr(variant=cfg.variant, dt=cfg.dt, substeps=cfg.substeps, duration=cfg.duration,
+                Q=weight_matrix("Q", cfg.Q, 6), R=cfg.R, noise_std=cfg.noise_std, init_radius=cfg.init_radius,
+                state_bound=cfg.state_bound, record_every=cfg.record_every)
+    return jd.with_precision(r, cfg.precision)
 
 
 def simulate(cfg: DipLqrConfig, progress: bool = True, shard: bool | None = None) -> jd.Solution:

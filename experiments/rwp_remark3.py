@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from jaxdip import config as C
-from jaxdip.runner.experiment import Experiment, Outcome, RunContext
+from jaxdip.runner.experiment import Experiment, Outcome, RunContext, precision_field
 from jaxdip.runner.per_seed import PerSeed, mean_of
 from jaxdip.runner.results import fmt_ci
 from jaxdip.resources import Load
@@ -34,6 +34,7 @@ class RwpRemark3Config:
     pendulum_bias: float = C.field(0.05, C.finite, doc="contrast: a pendulum bias d (rad) with d_r = 0 (0: none)")
     tolerance: float = C.field(1e-3, C.nonneg_finite, doc="holds when the paired difference's interval contains "
                                "0 or lies within +-tolerance (rad/s)")
+    precision: str = precision_field()
 
     def loads(self) -> list[Load]:
         from jaxdip.plants import rwp as P
@@ -69,7 +70,7 @@ def compute(cfg: RwpRemark3Config) -> tuple[dict, PerSeed]:
 
     steps = int(round(cfg.duration / P.DT))
     est = homd.HOMDObserver.build(P.DT, substeps=10)
-    base = S.rollout(est, steps=steps, theta0=cfg.theta0, save_every=1)
+    base = jd.with_precision(S.rollout(est, steps=steps, theta0=cfg.theta0, save_every=1), cfg.precision)
     idx = int(round((cfg.duration - cfg.tail) / P.DT))
 
     def wheel_speed_error(d_r: float, d: float = 0.0):

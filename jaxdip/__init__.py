@@ -29,7 +29,7 @@ _NAMES = {
     **dict.fromkeys((
         "RESULTS", "ArgumentError", "ArgumentTypeError", "Actuator", "Aux", "Ball", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux",
         "FunctionPlant", "Identity", "KeySchedule", "Loop", "Passthrough", "Plant", "Rollout", "Sample", "Sensor",
-        "Solution", "State", "Summary", "init_state", "linearize", "metrics", "monte_carlo", "param", "simulate",
+        "Solution", "State", "Summary", "init_state", "linearize", "metrics", "monte_carlo", "param", "simulate", "with_precision",
         "split_lanes", "summary", "to_dataset"), "jaxdip.engine"),
     "run_estimator": "jaxdip.estimators.recorded", "EstimatorRun": "jaxdip.estimators.recorded",
     "read_csv": "jaxdip.runner.records", "write_csv": "jaxdip.runner.records",

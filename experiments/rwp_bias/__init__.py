@@ -69,11 +69,10 @@ def simulate(cfg, cases, duration, n_seeds, desc, measured_velocities=False, qua
     ``cfg.record_every``-th period."""
     n_steps = int(round(duration / cfg.dt))
     q = cfg.quantize if quantize is None else quantize
-    rollouts = [scenario.rollout(est, steps=n_steps, theta0=th0, velocity_std=cfg.init_velocity_std,
-                                 save_every=cfg.record_every, dt=cfg.dt, substeps=cfg.substeps, K=cfg.K, d=d,
-                                 current_limit=cfg.current_limit, measured_velocities=measured_velocities,
-                                 quantize=q, observer_current=cfg.observer_current)
-                for est, d, th0 in cases]
+    rollouts = [jd.with_precision(scenario.rollout(
+        est, steps=n_steps, theta0=th0, velocity_std=cfg.init_velocity_std, save_every=cfg.record_every, dt=cfg.dt,
+        substeps=cfg.substeps, K=cfg.K, d=d, current_limit=cfg.current_limit, measured_velocities=measured_velocities,
+        quantize=q, observer_current=cfg.observer_current), cfg.precision) for est, d, th0 in cases]
     stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *[_loop_and_x0(r) for r in rollouts])
     sol = jd.monte_carlo(rollouts[0], jax.random.PRNGKey(cfg.seed), n_seeds, sweep=(_loop_and_x0, stacked),
                          time_chunk=n_steps, progress=True,

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 from jaxdip import config as C
 from jaxdip.resources import Load, steps_of
+from jaxdip.runner.experiment import precision_field
 
 INF = float("inf")
 
@@ -40,6 +41,7 @@ class RwpBiasConfig:
                                     doc="current in the observers' models under current_limit: the law's "
                                         "(commanded) or the clipped one (applied)")
     quantize: bool = C.field(True, doc="quantise the angles with the Table 1 resolutions")
+    precision: str = precision_field()
     theta0: list[float] = C.field([0.1, 0.15], C.finite, doc="initial pendulum angles of part (a) (rad)")
     init_velocity_std: list[float] = C.field([0.01, 0.1], C.nonneg_finite, C.length(2),
                                              doc="std of the initial theta', theta_r' (rad/s)")

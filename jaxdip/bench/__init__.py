@@ -8,6 +8,8 @@
   ``python -m jaxdip.bench.noise``;
 - ``warm``: where each ``--quick`` run spends its time, cold and warm (import, trace, lower, compile or
   cache load, run, write), ``python -m jaxdip.bench.warm``;
+- ``float32``: which experiments' Monte Carlo loops keep their statistics in float32 and their CPU-time ratio,
+  ``python -m jaxdip.bench.float32`` (docs/performance.md, "float32, per loop");
 - ``peers``: the batch filter/smoother/likelihood against dynamax and the weighted MHE against do-mpc,
   ``python -m jaxdip.bench.peers`` after ``pip install ".[peers]"`` (the only module that imports them).
 """

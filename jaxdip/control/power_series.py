@@ -33,9 +33,10 @@ def third_order_term(f, x):
     def phi(t):
         return f(t * x)
 
-    d1 = lambda t: jax.jvp(phi, (t,), (1.0,))[1]
-    d2 = lambda t: jax.jvp(d1, (t,), (1.0,))[1]
-    d3 = lambda t: jax.jvp(d2, (t,), (1.0,))[1]
+    one = jnp.ones((), x.dtype)  # a tangent of t's dtype (jvp refuses a float64 one for a float32 x)
+    d1 = lambda t: jax.jvp(phi, (t,), (one,))[1]
+    d2 = lambda t: jax.jvp(d1, (t,), (one,))[1]
+    d3 = lambda t: jax.jvp(d2, (t,), (one,))[1]
     return d3(jnp.zeros((), dtype=x.dtype)) / 6.0
 
 
@@ -81,4 +82,4 @@ class PowerSeries(Controller):
 
     def step(self, state, xhat, key, k):
         m = self.plant.m
-        return state, _law(lambda z: self.plant.vector_field(z, jnp.zeros(m)), self, xhat), None
+        return state, _law(lambda z: self.plant.vector_field(z, jnp.zeros(m, xhat.dtype)), self, xhat), None

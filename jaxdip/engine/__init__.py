@@ -9,7 +9,7 @@ from jaxdip.engine.roles import (
     Plant, Sensor, linearize, param,
 )
 from jaxdip.engine.simulate import (
-    RESULTS, Aux, KeySchedule, Loop, Sample, Solution, State, init_state, simulate,
+    RESULTS, Aux, KeySchedule, Loop, Sample, Solution, State, init_state, simulate, with_precision,
 )
 from jaxdip.engine.driver import Ball, Gaussian, Rollout, device_mesh, monte_carlo
 from jaxdip.engine.function_plant import FunctionPlant
@@ -22,7 +22,7 @@ __all__ = [
     "metrics", "Actuator", "Controller", "DiscretePlant", "Estimator", "FanOut", "FanOutAux", "Identity",
     "Passthrough", "Plant", "Sensor", "linearize", "param", "RESULTS", "Aux",
     "KeySchedule", "Loop", "split_lanes",
-    "Sample", "Solution", "State", "init_state", "simulate", "Ball", "Rollout", "device_mesh", "monte_carlo",
+    "Sample", "Solution", "State", "init_state", "simulate", "with_precision", "Ball", "Rollout", "device_mesh", "monte_carlo",
     "Gaussian", "FunctionPlant", "MetricSummary", "Summary", "summary", "ArgumentError", "ArgumentTypeError",
     "to_dataset",
 ]

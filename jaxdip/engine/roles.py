@@ -36,9 +36,18 @@ from jaxdip.engine.integrate import rk4_zoh
 
 from jaxdip._public import public_dir
 
-__all__ = ["param", "Plant", "DiscretePlant", "linearize", "Sensor", "Estimator", "Controller", "Actuator", "Identity",
+__all__ = ["param", "dtype_of", "Plant", "DiscretePlant", "linearize", "Sensor", "Estimator", "Controller", "Actuator", "Identity",
            "Passthrough", "FanOutAux", "FanOut"]
 __dir__ = public_dir(globals())
+
+
+def dtype_of(x) -> jnp.dtype:
+    """The floating dtype a component's state and draws follow: that of ``x`` (a loop's state, float32 in a
+    float32 loop), or the default float (float64 under jaxdip) for anything not floating (or None)."""
+    if x is None:
+        return jnp.result_type(float)
+    dt = jnp.result_type(x)
+    return dt if jnp.issubdtype(dt, jnp.floating) else jnp.result_type(float)
 
 
 def _as_float_array(v):

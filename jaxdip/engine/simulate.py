@@ -22,23 +22,26 @@ components keep stepping on the frozen state, as in the original loop.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
-import numbers
 from typing import Any, Callable, NamedTuple, Optional
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxdip.engine import metrics as _metrics
 from jaxdip.engine.keys import split_lanes
 from jaxdip.engine import checks
-from jaxdip.engine.roles import SAME, Identity, Plant, _as_float_array, param
+from jaxdip.engine.loop_checks import PRECISIONS, check_loop
+from jaxdip.engine.roles import Identity, _as_float_array, param
 
 
 from jaxdip._public import public_dir
 
-__all__ = ["RESULTS", "KeySchedule", "Loop", "Aux", "Sample", "State", "Solution", "init_state", "simulate"]
+__all__ = ["RESULTS", "PRECISIONS", "as_precision", "with_precision", "KeySchedule", "Loop", "Aux", "Sample", "State",
+           "Solution", "init_state", "simulate"]
 __dir__ = public_dir(globals())
 
 
@@ -80,7 +83,10 @@ class Loop(eqx.Module):
     ``dt`` and ``substeps`` are static; ``process_noise_std`` (std of Gaussian noise added to the state after
     every period, scalar or per state), ``state_bound`` (per state or scalar) and ``norm_bound`` (on the
     Euclidean norm of the deviation) are traced leaves. ``keys``
-    divides the trajectory's key among the roles (leave the default).
+    divides the trajectory's key among the roles (leave the default). ``precision`` ("float64" or "float32",
+    static) is the dtype ``simulate`` runs the loop in: with "float32" it casts the loop's floating leaves, x0
+    and the reducers and the whole period, metrics and ``Solution`` are float32 (``with_precision`` sets it on
+    every loop of a pytree).
     """
 
     plant: Any
@@ -102,89 +108,17 @@ class Loop(eqx.Module):
     # draw inside the loop is not batched, and as hundreds of tiny unfused operations per period it cost 3.6x
     # the rest of the eki-dip search's period (docs/performance.md). Memory: steps x n numbers per key.
     noise_ahead: bool = eqx.field(default=False, static=True)
+    # "float32" runs the whole period (plant, noise, components, metrics) in float32: ``simulate`` casts the
+    # loop's floating leaves and x0. Designs (Riccati, MHE weights) are made in float64 before the loop exists.
+    precision: str = eqx.field(default="float64", static=True)
 
     def __check_init__(self):
-        _check_loop(self)
+        check_loop(self)
 
-
-def _sizes(c) -> dict:
-    sizes = getattr(c, "io_sizes", None)
-    return sizes() if callable(sizes) else {}
-
-
-def _count(k, noun: str) -> str:
-    return f"{k} {noun}" if k == 1 else f"{k} {noun}s"
-
-
-def _part(role: str, c) -> str:
-    return f"the {role} {type(c).__name__}"
-
-
-def _check_loop(loop: Loop) -> None:
-    """The parts of a loop against each other (sizes each part knows from its fields: ``io_sizes``), and the
-    loop's own numbers. Run when the loop is built, before anything is traced."""
-    plant = loop.plant
-    if not isinstance(plant, Plant):
-        raise checks.ArgumentTypeError(f"Loop: plant must be a jaxdip Plant (or DiscretePlant), "
-                                       f"got {type(plant).__name__}")
-    # the other roles are duck-typed (``Identity`` is a full-state sensor as well as the ideal actuator): a part
-    # needs init and step
-    for role, c in (("sensor", loop.sensor), ("estimator", loop.estimator), ("controller", loop.controller),
-                    ("actuator", loop.actuator)):
-        if not (callable(getattr(c, "init", None)) and callable(getattr(c, "step", None))):
-            raise checks.ArgumentTypeError(f"Loop: {role} must be a component with init and step (a jaxdip "
-                                           f"{role.capitalize()}), got {type(c).__name__}")
-    if isinstance(loop.dt, bool) or not isinstance(loop.dt, numbers.Real) or not (0 < loop.dt < float("inf")):
-        checks.fail("Loop", f"dt must be a positive finite number of seconds, got {loop.dt!r}")
-    checks.check_int("Loop", "substeps", loop.substeps, 1)
-    n, m = plant.n, plant.m
-    pname = f"the plant {type(plant).__name__}"
-    for name, v in (("process_noise_std", loop.process_noise_std), ("state_bound", loop.state_bound),
-                    ("norm_bound", loop.norm_bound)):
-        if v is None:
-            continue
-        if checks.shape_of(v) not in ((), (n,)) and name != "norm_bound":
-            checks.fail("Loop", f"{name} must be a scalar or ({n},) for {pname} ({n} states), "
-                        f"got {checks.fmt_shape(checks.shape_of(v))}")
-        if name == "process_noise_std":
-            checks.check_nonnegative("Loop", name, v)
-        else:
-            checks.check_positive("Loop", name, v, allow_inf=True)
-
-    def mismatch(what_a, size_a, why_a, what_b, size_b, why_b):
-        a = f" ({why_a})" if why_a else ""
-        b = f" ({why_b})" if why_b else ""
-        checks.fail("Loop", f"{what_a} {size_a}{a} but {what_b} {size_b}{b}")
-
-    sens = _sizes(loop.sensor)
-    if "in" in sens and sens["in"][0] != n:
-        mismatch(f"{_part('sensor', loop.sensor)} reads", _count(sens['in'][0], "state"), sens["in"][1],
-                 f"{pname} has", _count(n, "state"), "")
-    p, p_why = sens.get("out", (None, ""))
-    if p == SAME:
-        p, p_why = n, "a full-state sensor"
-    est = _sizes(loop.estimator)
-    if "in" in est and p is not None and est["in"][0] != p:
-        mismatch(f"{_part('sensor', loop.sensor)} gives", _count(p, "output"), p_why,
-                 f"{_part('estimator', loop.estimator)} expects", _count(est['in'][0], "measurement"), est["in"][1])
-    if "u" in est and est["u"][0] != m:
-        mismatch(f"{pname} has", _count(m, "input"), "", f"{_part('estimator', loop.estimator)} expects",
-                 _count(est['u'][0], "input"), est["u"][1])
-    nh, nh_why = est.get("out", (None, ""))
-    if nh == SAME:
-        nh, nh_why = (p, p_why) if p is not None else (est["in"] if "in" in est else (None, ""))
-    ctrl = _sizes(loop.controller)
-    if "in" in ctrl and nh is not None and ctrl["in"][0] != nh:
-        mismatch(f"{_part('estimator', loop.estimator)} gives", _count(nh, "estimated state"), nh_why,
-                 f"{_part('controller', loop.controller)} expects", _count(ctrl['in'][0], "state"), ctrl["in"][1])
-    if "out" in ctrl and ctrl["out"][0] not in (SAME, m):
-        mismatch(f"{_part('controller', loop.controller)} gives", _count(ctrl['out'][0], "input"), ctrl["out"][1],
-                 f"{pname} has", _count(m, "input"), "")
-    act = _sizes(loop.actuator)
-    for key in ("in", "out"):
-        if key in act and act[key][0] not in (SAME, m):
-            mismatch(f"{_part('actuator', loop.actuator)} {'reads' if key == 'in' else 'gives'}",
-                     _count(act[key][0], "input"), act[key][1], f"{pname} has", _count(m, "input"), "")
+    @property
+    def dtype(self) -> jnp.dtype:
+        """The floating dtype the loop runs in (``precision``)."""
+        return jnp.dtype(self.precision)
 
 
 class Aux(NamedTuple):
@@ -230,8 +164,8 @@ class Solution(NamedTuple):
     result: jax.Array  # RESULTS code
 
 
-def _process_noise(k_proc, shape):
-    return jax.random.normal(k_proc, shape)
+def _process_noise(k_proc, shape, dtype):
+    return jax.random.normal(k_proc, shape, dtype)
 
 
 def _period(loop: Loop, st: State, base, noise=None):
@@ -246,15 +180,18 @@ def _period(loop: Loop, st: State, base, noise=None):
     x_next = loop.plant.period(st.x, u_applied, loop.dt, loop.substeps)
     if loop.process_noise_std is not None:
         if noise is None:
-            noise = _process_noise(k_proc, st.x.shape)
+            noise = _process_noise(k_proc, st.x.shape, st.x.dtype)
         x_next = x_next + loop.process_noise_std * noise
-    sample = Sample(st.k, st.k * loop.dt, st.x, y, xhat, u, u_applied, Aux(a_sens, a_est, a_ctrl, a_act))
+    t = st.k.astype(st.x.dtype) * loop.dt  # int32 k times a Python float would be float64
+    sample = Sample(st.k, t, st.x, y, xhat, u, u_applied, Aux(a_sens, a_est, a_ctrl, a_act))
     return (s_sens, s_est, s_ctrl, s_act), x_next, u, sample
 
 
 def _step(loop: Loop, metrics, base, st: State, noise=None):
     comps, x_next, u, sample = _period(loop, st, base, noise)
-    dev = x_next - loop.plant.equilibrium()
+    with jax.ensure_compile_time_eval():  # a constant in the loop's dtype, not a float64 zeros in the program
+        eq = loop.plant.equilibrium().astype(x_next.dtype)
+    dev = x_next - eq
     out = jnp.any(jnp.abs(dev) > loop.state_bound)
     if loop.norm_bound is not None:
         out = out | (jnp.linalg.norm(dev) > loop.norm_bound)
@@ -289,9 +226,45 @@ def _check_x0(owner: str, loop: Loop, x0) -> None:
     checks.check_finite(owner, "x0", x0)
 
 
+def _cast(tree, dtype):
+    def leaf(a):
+        # JAX and NumPy arrays (a user's np.array field); Python floats are weakly typed and follow the loop
+        if isinstance(a, (jax.Array, np.ndarray)) and jnp.issubdtype(a.dtype, jnp.floating) and a.dtype != dtype:
+            return jnp.asarray(a, dtype)
+        return a
+
+    return jax.tree_util.tree_map(leaf, tree)
+
+
+def as_precision(tree: Any, dtype: Any = None) -> Any:
+    """``tree`` with its floating array leaves in ``dtype`` (a ``Loop``: in its own ``precision``); keys,
+    integers and Python numbers are left alone, and a float64 tree comes back as it is."""
+    if dtype is None:
+        dtype = tree.dtype
+    if tree is None or jnp.dtype(dtype) == jnp.float64:
+        return tree
+    return _cast(tree, jnp.dtype(dtype))
+
+
+def with_precision(tree: Any, precision: str) -> Any:
+    """``tree`` (a ``Loop``, a ``Rollout``, any pytree holding loops) with every loop in it set to
+    ``precision`` ("float64" or "float32"); nothing else changes. How an experiment runs its Monte Carlo loops
+    in float32 while its designs stay float64."""
+    checks.check_choice("with_precision", "precision", precision, PRECISIONS)
+
+    def one(node):
+        if isinstance(node, Loop) and node.precision != precision:
+            return dataclasses.replace(node, precision=precision)
+        return node
+
+    return jax.tree_util.tree_map(one, tree, is_leaf=lambda node: isinstance(node, Loop))
+
+
 def init_state(loop: Loop, x0, key, metrics=None) -> State:
-    """The state before period 0 of the trajectory with key ``key`` starting at ``x0``."""
-    x0 = jnp.asarray(x0, dtype=jnp.result_type(float))
+    """The state before period 0 of the trajectory with key ``key`` starting at ``x0`` (in the loop's
+    ``precision``)."""
+    loop = as_precision(loop)
+    x0 = jnp.asarray(x0, dtype=loop.dtype)
     k_sens, k_est, k_ctrl, k_act = loop.keys.init(key)
     st = State(
         k=jnp.zeros((), jnp.int32),
@@ -333,6 +306,8 @@ def simulate(loop: Loop, x0, key, steps: int, *, save: Optional[Callable] = None
         raise checks.ArgumentTypeError(f"simulate: loop must be a jaxdip Loop, got {type(loop).__name__}")
     if start is None:
         _check_x0("simulate", loop, x0)
+    # the reducers' own arrays (a weight Q) too, so they accumulate in the loop's precision
+    loop, start, metrics = as_precision(loop), as_precision(start, loop.dtype), as_precision(metrics, loop.dtype)
     st = init_state(loop, x0, key, metrics) if start is None else start
     base = loop.keys.base(key)
     if save is not None and steps % save_every:
@@ -340,7 +315,7 @@ def simulate(loop: Loop, x0, key, steps: int, *, save: Optional[Callable] = None
     ahead = None
     if loop.noise_ahead and loop.process_noise_std is not None:
         # period k's key as in the loop (so the numbers are those drawn inside it), all periods at once
-        ahead = jax.vmap(lambda k: _process_noise(loop.keys.period(base, k)[4], st.x.shape))(
+        ahead = jax.vmap(lambda k: _process_noise(loop.keys.period(base, k)[4], st.x.shape, st.x.dtype))(
             st.k + jnp.arange(steps, dtype=st.k.dtype))
 
     def step(c, noise=None):

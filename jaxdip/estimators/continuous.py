@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine import checks
-from jaxdip.engine.roles import Estimator
+from jaxdip.engine.roles import Estimator, dtype_of
 
 from jaxdip._public import public_dir
 
@@ -50,7 +50,7 @@ def integrate_interval(rhs: Callable, params, xi, y0, y1, u, dt: float, substeps
         return y0 + (t / dt) * dy
 
     def rk4(i, x):
-        t = i * h
+        t = i.astype(x.dtype) * h  # an int32 index times a Python float would be float64
         k1 = rhs(params, x, y_at(t), u)
         k2 = rhs(params, x + 0.5 * h * k1, y_at(t + 0.5 * h), u)
         k3 = rhs(params, x + 0.5 * h * k2, y_at(t + 0.5 * h), u)
@@ -86,7 +86,7 @@ class SampledObserver(Estimator):
         return {"in": (cls.n_y, f"{cls.__name__} reads {cls.n_y} values")} if cls.n_y else {}
 
     def init(self, key, x0):
-        dtype = jnp.result_type(float)
+        dtype = dtype_of(x0)  # the loop's: float32 in a float32 loop
         return jnp.zeros(self.n_xi, dtype), jnp.zeros(self.n_y, dtype)
 
     def step(self, state, y, u_prev, key, k):

@@ -60,7 +60,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine import checks
-from jaxdip.engine.roles import Estimator, Plant, param
+from jaxdip.engine.roles import Estimator, Plant, param, dtype_of
 from jaxdip.estimators.linearized import AffineStep, local_model, lti_step
 from jaxdip.estimators.proximal import prox_from_qr, prox_from_svd, qr_factor, svd_factor
 from jaxdip.sim.discretize import Discrete
@@ -108,7 +108,7 @@ class _Centred(Estimator):
     ``_factor()`` (the offline factor, or ()), ``_solve(factor, G, q, xprior)`` and ``n_inputs``."""
 
     def init(self, key, x0):
-        x_init = jnp.asarray(self.xhat0, dtype=jnp.result_type(float))
+        x_init = jnp.asarray(self.xhat0, dtype=dtype_of(x0))
         z = jnp.zeros(self.C.shape[0], x_init.dtype)
         return CPXState(self._factor(), x_init, z, z, jnp.zeros(self.n_inputs, x_init.dtype))
 

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine import checks
-from jaxdip.engine.roles import Estimator, Plant, param
+from jaxdip.engine.roles import Estimator, Plant, param, dtype_of
 from jaxdip.estimators.kalman import GaussianAux, KFState, as_covariance, predict, update
 from jaxdip.estimators.linearized import local_model
 
@@ -51,7 +51,7 @@ class _Gaussian(Estimator):
     """Shared by the KF and the EKF: ``_transition(x, u, j) -> (F, x_next)`` and ``_output(x) -> (H, yhat)``."""
 
     def init(self, key, x0):
-        x = jnp.asarray(self.xhat0, dtype=jnp.result_type(float))
+        x = jnp.asarray(self.xhat0, dtype=dtype_of(x0))
         return KFState(x, jnp.asarray(self.P0, x.dtype))
 
     def step(self, state, y, u_prev, key, k):

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine import checks
-from jaxdip.engine.roles import Estimator, param
+from jaxdip.engine.roles import Estimator, dtype_of, param
 from jaxdip.sim.discretize import zoh
 
 
@@ -63,7 +63,8 @@ class LDF(Estimator):
     def init(self, key, x0):
         zeta = jnp.broadcast_to(self.zeta, self.omega.shape)
         Phi, W = jax.vmap(lambda w, z: _discretise(w, z, self.dt))(self.omega, zeta)
-        filt = jnp.stack([x0[:self.n_pos], jnp.zeros(self.n_pos)], axis=1)  # (p, 2)
+        x0 = jnp.asarray(x0, dtype_of(x0))
+        filt = jnp.stack([x0[:self.n_pos], jnp.zeros(self.n_pos, x0.dtype)], axis=1)  # (p, 2)
         return (Phi, W, filt)
 
     def step(self, state, y, u_prev, key, k):

@@ -63,7 +63,7 @@ def expm_small(M, order: int = 12, theta: float = 0.25, max_squarings: int = 24)
     norm = jnp.max(jnp.sum(jnp.abs(M), axis=-2))
     s = jnp.ceil(jnp.log2(jnp.maximum(norm, 1e-300) / theta))
     s = jnp.clip(jnp.where(jnp.isfinite(s), s, 0.0), 0, max_squarings).astype(jnp.int32)
-    X = M / (2.0**s).astype(M.dtype)
+    X = M / jnp.asarray(2.0, M.dtype) ** s
     eye = jnp.eye(n, dtype=M.dtype)
     E = eye
     for j in range(order, 0, -1):  # Horner: I + X/1 (I + X/2 (I + ... (I + X/order)))

@@ -42,8 +42,9 @@ __dir__ = public_dir(globals())
 def full_linear_model(p: rwp.RWP):
     """(A4, B4, C4) of (9), input column from (2)-(3)."""
     a = homd.a1(p)
-    z = jnp.zeros(())
-    o = jnp.ones(())
+    dt = jnp.result_type(a)  # the model's (float32 inside a float32 loop)
+    z = jnp.zeros((), dt)
+    o = jnp.ones((), dt)
     A = jnp.stack([
         jnp.stack([z, o, z, z]),
         jnp.stack([a + z, z, z, z]),
@@ -52,7 +53,7 @@ def full_linear_model(p: rwp.RWP):
     ])
     J = rwp.inertia(p)
     B = jnp.stack([z, -p.k / J + z, z, p.k / J + p.k / p.Jr + z]).reshape(4, 1)
-    C = jnp.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    C = jnp.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]], dt)
     return A, B, C
 
 

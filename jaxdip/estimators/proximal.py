@@ -106,6 +106,9 @@ def jacobi_svd(G, sweeps: int = 8) -> SVDFactor:
     U = G
     V = jnp.eye(d, dtype=G.dtype)
     pairs = [(i, j) for i in range(d - 1) for j in range(i + 1, d)]
+    # |zeta| bound: zeta^2 must not overflow (1e150 in float64; about 4.6e18 in float32)
+    big = jnp.asarray(min(1e150, float(jnp.finfo(G.dtype).max) ** 0.5 / 4), G.dtype)
+    one = jnp.ones((), G.dtype)  # a sign in G's dtype (where(c, 1.0, -1.0) would be float64)
 
     def sweep(_, UV):
         U, V = UV
@@ -113,8 +116,8 @@ def jacobi_svd(G, sweeps: int = 8) -> SVDFactor:
             ui, uj = U[:, i], U[:, j]
             a, b, g = ui @ ui, uj @ uj, ui @ uj
             zero = g == 0.0
-            zeta = jnp.clip((b - a) / (2.0 * jnp.where(zero, 1.0, g)), -1e150, 1e150)
-            t = jnp.where(zeta >= 0, 1.0, -1.0) / (jnp.abs(zeta) + jnp.sqrt(1.0 + zeta * zeta))
+            zeta = jnp.clip((b - a) / (2.0 * jnp.where(zero, 1.0, g)), -big, big)
+            t = jnp.where(zeta >= 0, one, -one) / (jnp.abs(zeta) + jnp.sqrt(1.0 + zeta * zeta))
             t = jnp.where(zero, 0.0, t)
             c = 1.0 / jnp.sqrt(1.0 + t * t)
             sn = c * t

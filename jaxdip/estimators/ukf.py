@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine import checks
-from jaxdip.engine.roles import Estimator, param
+from jaxdip.engine.roles import Estimator, param, dtype_of
 from jaxdip.estimators.kalman import GaussianAux, KFState, as_covariance, condition, sym
 from jaxdip.estimators.kf import output_size
 
@@ -136,7 +136,7 @@ class UnscentedKalmanFilter(Estimator):
                 "u": (self.n_inputs, f"n_inputs={self.n_inputs}")}
 
     def init(self, key, x0):
-        x = jnp.asarray(self.xhat0, dtype=jnp.result_type(float))
+        x = jnp.asarray(self.xhat0, dtype=dtype_of(x0))
         return KFState(x, jnp.asarray(self.P0, x.dtype))
 
     def step(self, state, y, u_prev, key, k):

@@ -41,7 +41,7 @@ import numpy as np
 
 from jaxdip._public import public_dir
 from jaxdip.engine import checks
-from jaxdip.engine.roles import Estimator, param
+from jaxdip.engine.roles import Estimator, param, dtype_of
 from jaxdip.estimators._weighted_mhe_checks import bounded_coordinates
 from jaxdip.estimators.active_set import dual_active_set
 
@@ -261,7 +261,7 @@ class TimeVaryingMHE(Estimator):
 
     def init(self, key, x0):
         d, p, m, N = self.proc_weight.shape[0], self.meas_weight.shape[0], self.n_inputs, self.N
-        x = jnp.asarray(self.xhat0, dtype=jnp.result_type(float))
+        x = jnp.asarray(self.xhat0, dtype=dtype_of(x0))
         z = lambda *s: jnp.zeros(s, x.dtype)
         return TVMHEState(x, x, z(N + 1, d), z(N + 1, p), z(N, m), z(N + 1, p, d), z(N, d, d), z(N, d, m), z(N, d))
 

@@ -72,7 +72,7 @@ import jax.scipy.linalg as jsl
 import numpy as np
 
 from jaxdip._public import public_dir
-from jaxdip.engine.roles import Estimator, param
+from jaxdip.engine.roles import Estimator, param, dtype_of
 from jaxdip.estimators import _weighted_mhe_checks as validation
 from jaxdip.estimators.active_set import dual_active_set
 from jaxdip.estimators.varying_mhe import window_matrix, window_vector
@@ -317,7 +317,7 @@ class WeightedMHE(Estimator):
 
     def init(self, key, x0):
         d, p, m = self._dims
-        x = jnp.asarray(self.xhat0, dtype=jnp.result_type(float))
+        x = jnp.asarray(self.xhat0, dtype=dtype_of(x0))
         if self.h is None:
             Qm, R = jnp.linalg.qr(self.stacked_matrix(), mode="reduced")
             # the unconstrained estimate is linear in b: X = R^{-1} Q^T b, one matrix-vector product a step

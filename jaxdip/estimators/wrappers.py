@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine import checks
-from jaxdip.engine.roles import Estimator, param
+from jaxdip.engine.roles import Estimator, param, dtype_of
 
 
 from jaxdip._public import public_dir
@@ -74,7 +74,7 @@ class FromTruth(Estimator):
     io_sizes = _inner_sizes
 
     def init(self, key, x0):
-        x0 = jnp.asarray(x0, dtype=jnp.result_type(float))
+        x0 = jnp.asarray(x0, dtype=dtype_of(x0))
         return started_at(self.inner, x0).init(key, x0)
 
     def step(self, state, y, u_prev, key, k):
@@ -91,8 +91,8 @@ class InitialError(Estimator):
     io_sizes = _inner_sizes
 
     def init(self, key, x0):
-        x0 = jnp.asarray(x0, dtype=jnp.result_type(float))
-        x = x0 + self.std * jax.random.normal(key, x0.shape)
+        x0 = jnp.asarray(x0, dtype=dtype_of(x0))
+        x = x0 + self.std * jax.random.normal(key, x0.shape, x0.dtype)
         return started_at(self.inner, x).init(key, x)
 
     def step(self, state, y, u_prev, key, k):
@@ -137,7 +137,7 @@ class Delayed(Estimator):
     io_sizes = _inner_sizes
 
     def init(self, key, x0):
-        x0 = jnp.asarray(x0, dtype=jnp.result_type(float))
+        x0 = jnp.asarray(x0, dtype=dtype_of(x0))
         return self.inner.init(key, x0), x0
 
     def step(self, state, y, u_prev, key, k):

@@ -25,6 +25,7 @@ import jax
 from jaxdip import checkpoint
 from jaxdip import config as cfgmod
 from jaxdip import dataset, distributed, outdir, resources
+from jaxdip.engine.loop_checks import PRECISIONS
 from jaxdip.runner import records
 from jaxdip.runner.per_seed import PerSeed, without_trajectories
 from jaxdip.runner.provenance import png_metadata, provenance_block
@@ -127,11 +128,26 @@ def _keep_unwritable(out_dir: str, exp_id: str, outcome: Outcome) -> str | None:
     return path
 
 
-def provenance(exp_id: str, seeds: int, wall_s: float, compile_effort: str = "full") -> dict:
+def precision_field():
+    """The ``precision`` config key of an experiment whose Monte Carlo loops were measured safe in float32
+    (docs/performance.md, "float32, per loop"): the loops' precision; designs stay float64."""
+    return cfgmod.field("float64", cfgmod.one_of(*PRECISIONS),
+                        doc="precision of the Monte Carlo closed loops (designs stay float64)")
+
+
+def run_dtype(cfg=None) -> str:
+    """What a run computed in: the process's float width, or, for an experiment with a ``precision`` key, the
+    precision of its closed loops (designs stay float64: ``jd.Loop.precision``)."""
+    base = "float64" if jax.config.jax_enable_x64 else "float32"
+    loops = getattr(cfg, "precision", None)
+    return base if loops is None or loops == base else f"{loops} loops, {base} design"
+
+
+def provenance(exp_id: str, seeds: int, wall_s: float, compile_effort: str = "full", cfg=None) -> dict:
     p = {
         "experiment": exp_id,
         "seeds": seeds,
-        "dtype": "float64" if jax.config.jax_enable_x64 else "float32",
+        "dtype": run_dtype(cfg),
         "backend": jax.default_backend(),
         "devices": jax.device_count(),
         "jax_version": jax.__version__,
@@ -289,7 +305,7 @@ def run_experiment(exp: Experiment, cfg, out_dir: str, resume: bool = False, for
         kind = scale(exp, cfg, quick)
         config_text = config_toml(exp, cfg, compile_effort)
         prov = provenance_block(exp.id, cfg, config_text, out_dir, command)
-        metrics = {**provenance(exp.id, seeds, wall, compile_effort), "scale": kind, "provenance": prov,
+        metrics = {**provenance(exp.id, seeds, wall, compile_effort, cfg), "scale": kind, "provenance": prov,
                    "results": outcome.results, "timing": outcome.timing}
         if not main:
             for fig in outcome.figures.values():

@@ -81,7 +81,8 @@ class TrackingErrors(Reducer):
 
     def init(self, template):
         m, c = len(self.names), len(self.current)
-        z, zc, zi = jnp.zeros(m), jnp.zeros(c), jnp.zeros(m, jnp.int32)
+        fl = template.x.dtype  # the loop's
+        z, zc, zi = jnp.zeros(m, fl), jnp.zeros(c, fl), jnp.zeros(m, jnp.int32)
         return {"norm": z, "xl": z, "xl_ext": z, "norm_cur": zc, "xl_cur": zc, "n": zi, "n_ext": zi,
                 "diverged": jnp.zeros(m, bool)}
 

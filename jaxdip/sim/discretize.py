@@ -47,8 +47,10 @@ def zoh(A, B, h) -> Discrete:
 
 @jax.jit
 def _zoh(A, B, h) -> Discrete:
-    A = jnp.asarray(A, dtype=jnp.float64)
-    B = jnp.asarray(B, dtype=jnp.float64)
+    # float64, or float32 for float32 matrices (a design made inside a float32 loop: the LDF's filters)
+    dt = jnp.float32 if jnp.result_type(A, B) == jnp.float32 else jnp.float64
+    A = jnp.asarray(A, dtype=dt)
+    B = jnp.asarray(B, dtype=dt)
     B = B.reshape(A.shape[0], -1)
     n, m = B.shape
     M = jnp.zeros((n + m, n + m), dtype=A.dtype).at[:n, :n].set(A).at[:n, n:].set(B)

@@ -49,7 +49,8 @@ class InputDisturbance(Actuator):
         return {"in": (self.offset_std.shape[0], why), "out": (self.offset_std.shape[0], why)}
 
     def init(self, key, x0):
-        return self.offset_std * jax.random.normal(key, self.offset_std.shape)
+        return self.offset_std * jax.random.normal(key, self.offset_std.shape, self.offset_std.dtype)
 
     def step(self, state, u, key, k):
-        return state, u + state + self.white_std * jax.random.normal(key, self.white_std.shape), state
+        white = self.white_std * jax.random.normal(key, self.white_std.shape, self.white_std.dtype)
+        return state, u + state + white, state
