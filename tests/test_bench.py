@@ -53,3 +53,21 @@ def test_batch_sweep_rates_are_periods_over_time(tmp_path):
     for b, r in res["rates"].items():
         assert r["periods"] >= 100
         assert r["periods_per_s"] == pytest.approx(int(b) * r["periods"] / r["s"], rel=1e-12)
+
+
+def test_batch_sweep_float32_runs_the_float32_loop(tmp_path, monkeypatch):
+    """``--precision float32`` times the loop with every period in float32: the final states it computes are
+    float32 (the float64 run's are float64), and the file records the precision."""
+    import json
+
+    import jax.numpy as jnp
+
+    from jaxdip.bench import batch_sweep
+
+    seen = []
+    real = batch_sweep.monte_carlo
+    monkeypatch.setattr(batch_sweep, "monte_carlo", lambda r, key, b: seen.append(real(r, key, b)) or seen[-1])
+    out = tmp_path / "s32.json"
+    assert batch_sweep.main(["2", "--out", str(out), "--budget", "0.01", "--precision", "float32"]) == 0
+    assert json.loads(out.read_text())["precision"] == "float32"
+    assert seen and all(s.final.x.dtype == jnp.float32 for s in seen)

@@ -1,7 +1,10 @@
 """Periods per second of the scoreboard's loop (dip-lqr: printed DIP, LQR on noisy full-state measurements,
 1 ms periods) against the number of seeds, on whatever backend JAX runs on: where a GPU overtakes the CPU.
 
-    python -m jaxdip.bench.batch_sweep 1,256,1024,4096 --out sweep.json
+    python -m jaxdip.bench.batch_sweep 1,256,1024,4096 --out sweep.json [--precision float32]
+
+``--precision float32`` runs the loop in float32 (``jd.with_precision``: the whole period, noise included; the
+float32 study in docs/performance.md found this loop's statistics safe in float32).
 
 Each batch size is timed on a horizon grown until a call lasts about ``budget / 4`` seconds, after a compiling
 call; the rate is the median of three calls. docs/performance.md has the figures for one H200 and this CPU.
@@ -17,20 +20,23 @@ import jax
 
 from jaxdip.bench.scoreboard import DEFAULT_SUBSTEPS
 from jaxdip.engine.driver import monte_carlo
+from jaxdip.engine.simulate import with_precision
 from jaxdip.scenarios.dip_lqr import dip_lqr
 
 __all__ = ["sweep"]
 
 
-def sweep(batches: list[int], budget: float = 1.0, max_periods: int = 200_000) -> dict:
-    """{"backend", "devices", "jax", "x64", "rates": {batch: {periods, s, periods_per_s, first_call_s}}}."""
+def sweep(batches: list[int], budget: float = 1.0, max_periods: int = 200_000, precision: str = "float64") -> dict:
+    """{"backend", "devices", "jax", "x64", "precision", "rates": {batch: {periods, s, periods_per_s,
+    first_call_s}}}."""
     key = jax.random.PRNGKey(0)
     out = {"backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()], "jax": jax.__version__,
-           "x64": bool(jax.config.jax_enable_x64), "rates": {}}
+           "x64": bool(jax.config.jax_enable_x64), "precision": precision, "rates": {}}
     for b in batches:
         n = 100
         while True:
-            r = dip_lqr(dt=0.001, substeps=DEFAULT_SUBSTEPS, duration=n * 0.001, record_every=None)
+            r = with_precision(dip_lqr(dt=0.001, substeps=DEFAULT_SUBSTEPS, duration=n * 0.001, record_every=None),
+                               precision)
 
             def run(r=r, b=b):
                 return jax.block_until_ready(monte_carlo(r, key, b).final.x)
@@ -58,6 +64,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m jaxdip.bench.batch_sweep", description=__doc__.split("\n\n")[0])
     ap.add_argument("batches", help="comma-separated seed counts, e.g. 1,256,1024,4096")
     ap.add_argument("--out", default="batch_sweep.json", help="JSON file written (default: batch_sweep.json)")
+    ap.add_argument("--precision", choices=("float64", "float32"), default="float64",
+                    help="the loop's precision (default float64)")
     ap.add_argument("--budget", type=float, default=1.0, help="seconds per timed call, roughly (default 1)")
     args = ap.parse_args(argv)
     try:
@@ -66,7 +74,7 @@ def main(argv=None) -> int:
         ap.error(f"batches must be comma-separated integers, got {args.batches!r}")
     if any(b < 1 for b in batches):
         ap.error("every batch size must be at least 1")
-    result = sweep(batches, args.budget)
+    result = sweep(batches, args.budget, precision=args.precision)
     for b, r in result["rates"].items():
         print(f"batch {b:>8}: {r['periods_per_s']:.3e} periods/s ({r['periods']} periods, {r['s']:.3f} s)")
     with open(args.out, "w") as f:
