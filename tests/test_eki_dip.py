@@ -12,7 +12,7 @@ from jaxdip import config as C
 from jaxdip.runner import get, run_experiment
 
 TINY = {"seeds": 4, "ensemble": 6, "iterations": 6, "chunk": 2, "T": 0.3, "t_star": 0.1, "grad_steps": 0,
-        "eval_states": 2, "judge_duration": 0.3, "early_stop": False, "min_success": 2}
+        "eval_states": 2, "judge_duration": 0.3, "early_stop": False, "min_success": 2, "variants_table": False}
 
 
 def _checkpoints(folder) -> list[str]:
@@ -95,3 +95,49 @@ def test_uki_reading_is_wired_and_refuses_resampling():
     p = int(state.aux["mean"].shape[0])
     # UKI evaluates 2p + 1 sigma points of the Gaussian fitted to the initial ensemble, whatever J is
     assert state.members.shape == (2 * p + 1, p) and eki.kalman().schedule.name == "data_misfit"
+
+
+def test_variant_table_rows_run_inside_one_run():
+    """The variant table at toy scale: a row per reading, the main search's row its own results (not run
+    again), the forward evaluations counted per variant (UKI: 2p + 1 sigma points for p = 14 parameters), wall
+    times only in ``timing``, and the report's table."""
+    import experiments.eki_dip as E
+
+    cfg = C.load(E.EkiDipConfig, quick={**TINY, "T": 0.1, "t_star": 0.05, "iterations": 4, "variants_table": True})
+    out = E.run(cfg)
+    rows, walls = out.results["variants"], out.timing["variants_wall_s"]
+    assert list(rows) == ["eki_fixed", "eki_adaptive_end1", "eki_adaptive_end20", "uki_fixed"] == list(walls)
+    main = rows["eki_fixed"]
+    assert main["iterations"] == out.results["iterations"] and main["simulations"] == out.results["simulations"]
+    assert main["stabilized_fraction"] == out.results["stabilized_fraction"]
+    assert main["performance"] == out.results["performance"]["mean"]
+    assert walls["eki_fixed"] == out.timing["search_wall_s"]
+    sizes = {"eki_fixed": 6, "eki_adaptive_end1": 6, "eki_adaptive_end20": 6, "uki_fixed": 2 * 14 + 1}
+    for key, r in rows.items():
+        assert r["status"] == "ok" and 1 <= r["iterations"] <= 4, key
+        assert r["simulations"] == r["iterations"] * sizes[key], key
+        lo, hi = r["stabilized_fraction_ci95"]
+        assert lo <= r["stabilized_fraction"] <= hi and np.isfinite(r["performance"]), key
+        assert walls[key] > 0
+    assert not any("wall" in k for r in rows.values() for k in r)
+    table = [line for line in out.report.splitlines() if line.startswith("| ")]
+    assert len(table) == 1 + len(rows) and table[1].startswith("| eki fixed (thesis) |")
+
+
+def test_a_diverging_reading_is_a_row_that_says_so():
+    """UKI with the fixed step inflates its covariance by 1 + dt = 2 every iteration; where the outputs carry no
+    information (every sigma point fails) nothing shrinks it and it overflows (at thesis scale within the
+    1000 iterations; here from a covariance of 1e300, in 25 doublings): the row says not_finite, with the
+    iterations and sigma-point evaluations it took, and no judge."""
+    import experiments.eki_dip as E
+
+    cfg = C.from_dict(E.EkiDipConfig, {"variant": "uki", "ensemble": 6, "T": 0.02, "t_star": 0.01,
+                                       "init_log_s_std": 1e150, "iterations": 40, "chunk": 40, "early_stop": False})
+
+    def evaluate(m):
+        raise AssertionError("a search that did not end well is not scored")
+
+    row, wall = E.reading_search(cfg, jax.random.PRNGKey(0), evaluate, "uki_fixed")
+    assert row["status"] == "not_finite" and 1 <= row["iterations"] < 40 and wall > 0
+    assert row["simulations"] == row["iterations"] * (2 * 14 + 1)
+    assert row["stabilized_fraction"] is None and row["performance"] is None
