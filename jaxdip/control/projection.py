@@ -66,15 +66,18 @@ def relaxed_continuous(P, fx, gx, x, gamma):
     return -_solve_gPg(P, gx, gamma * (gx.T @ P @ x) + gx.T @ P @ fx)
 
 
-def state_weight(gamma, alpha, x, floor=1e-300):
-    """(2.18): gamma / ||x||^alpha; alpha = 0 gives a constant weight. Finite at x = 0 through the floor."""
+def state_weight(gamma, alpha, x, floor=None):
+    """(2.18): gamma / ||x||^alpha; alpha = 0 gives a constant weight. Finite at x = 0 through the floor
+    (default 1e-300, or the smallest normal number of a float32 x)."""
+    if floor is None:
+        floor = max(1e-300, float(jnp.finfo(jnp.result_type(x)).tiny))
     nx = jnp.maximum(jnp.linalg.norm(x), floor)
     return gamma / nx**alpha
 
 
 def drift_and_input(plant_f, plant_params, x, m):
     """f(x) = plant_f(plant_params, x, 0) and g(x) = d plant_f / du at u = 0 (``m`` inputs)."""
-    u0 = jnp.zeros(m)
+    u0 = jnp.zeros(m, jnp.result_type(x))
     fx = plant_f(plant_params, x, u0)
     gx = jax.jacfwd(plant_f, argnums=2)(plant_params, x, u0)
     return fx, gx
@@ -125,7 +128,7 @@ class RelaxedProjection(Controller):
 
     def step(self, state, xhat, key, k):
         m = self.model
-        x_ref = jnp.zeros(self.P.shape[0]) if self.x_ref is None else self.x_ref
+        x_ref = jnp.zeros(self.P.shape[0], xhat.dtype) if self.x_ref is None else self.x_ref
         x = xhat - x_ref
         fx, gx = drift_and_input(_model_map, m, xhat, m.m)
         if self.linear_input:

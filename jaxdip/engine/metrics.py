@@ -44,7 +44,9 @@ def _select(of: Selector, sample):
 
 def _zeros(of: Selector, template, dtype=None):
     s = jax.eval_shape(lambda t: _select(of, t), template)
-    return jnp.zeros(s.shape, dtype or jnp.result_type(float))
+    if dtype is None:  # a float64 or float32 loop's own dtype; counters (k) accumulate as floats
+        dtype = s.dtype if jnp.issubdtype(s.dtype, jnp.floating) else jnp.result_type(float)
+    return jnp.zeros(s.shape, dtype)
 
 
 _SAMPLE_FIELDS = ("k", "t", "x", "y", "xhat", "u", "u_applied", "aux")  # the fields of ``simulate.Sample``

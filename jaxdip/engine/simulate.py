@@ -38,7 +38,7 @@ from jaxdip.engine.roles import SAME, Identity, Plant, _as_float_array, param
 
 from jaxdip._public import public_dir
 
-__all__ = ["RESULTS", "KeySchedule", "Loop", "Aux", "Sample", "State", "Solution", "init_state", "simulate"]
+__all__ = ["RESULTS", "PRECISIONS", "as_precision", "KeySchedule", "Loop", "Aux", "Sample", "State", "Solution", "init_state", "simulate"]
 __dir__ = public_dir(globals())
 
 
@@ -68,6 +68,9 @@ class KeySchedule(eqx.Module):
         """Keys of the sensor, estimator, controller, actuator and process noise at period ``k``
         (``split(fold_in(base, k), 5)``, as separate keys: see ``split_lanes``)."""
         return split_lanes(jax.random.fold_in(base, k), 5)
+
+
+PRECISIONS = ("float64", "float32")
 
 
 def _optional_array(v):
@@ -102,9 +105,17 @@ class Loop(eqx.Module):
     # draw inside the loop is not batched, and as hundreds of tiny unfused operations per period it cost 3.6x
     # the rest of the eki-dip search's period (docs/performance.md). Memory: steps x n numbers per key.
     noise_ahead: bool = eqx.field(default=False, static=True)
+    # "float32" runs the whole period (plant, noise, components, metrics) in float32: ``simulate`` casts the
+    # loop's floating leaves and x0. Designs (Riccati, MHE weights) are made in float64 before the loop exists.
+    precision: str = eqx.field(default="float64", static=True)
 
     def __check_init__(self):
         _check_loop(self)
+
+    @property
+    def dtype(self) -> jnp.dtype:
+        """The floating dtype the loop runs in (``precision``)."""
+        return jnp.dtype(self.precision)
 
 
 def _sizes(c) -> dict:
@@ -137,6 +148,7 @@ def _check_loop(loop: Loop) -> None:
     if isinstance(loop.dt, bool) or not isinstance(loop.dt, numbers.Real) or not (0 < loop.dt < float("inf")):
         checks.fail("Loop", f"dt must be a positive finite number of seconds, got {loop.dt!r}")
     checks.check_int("Loop", "substeps", loop.substeps, 1)
+    checks.check_choice("Loop", "precision", loop.precision, PRECISIONS)
     n, m = plant.n, plant.m
     pname = f"the plant {type(plant).__name__}"
     for name, v in (("process_noise_std", loop.process_noise_std), ("state_bound", loop.state_bound),
@@ -230,8 +242,8 @@ class Solution(NamedTuple):
     result: jax.Array  # RESULTS code
 
 
-def _process_noise(k_proc, shape):
-    return jax.random.normal(k_proc, shape)
+def _process_noise(k_proc, shape, dtype):
+    return jax.random.normal(k_proc, shape, dtype)
 
 
 def _period(loop: Loop, st: State, base, noise=None):
@@ -246,15 +258,17 @@ def _period(loop: Loop, st: State, base, noise=None):
     x_next = loop.plant.period(st.x, u_applied, loop.dt, loop.substeps)
     if loop.process_noise_std is not None:
         if noise is None:
-            noise = _process_noise(k_proc, st.x.shape)
+            noise = _process_noise(k_proc, st.x.shape, st.x.dtype)
         x_next = x_next + loop.process_noise_std * noise
-    sample = Sample(st.k, st.k * loop.dt, st.x, y, xhat, u, u_applied, Aux(a_sens, a_est, a_ctrl, a_act))
+    sample = Sample(st.k, st.k.astype(st.x.dtype) * loop.dt, st.x, y, xhat, u, u_applied, Aux(a_sens, a_est, a_ctrl, a_act))
     return (s_sens, s_est, s_ctrl, s_act), x_next, u, sample
 
 
 def _step(loop: Loop, metrics, base, st: State, noise=None):
     comps, x_next, u, sample = _period(loop, st, base, noise)
-    dev = x_next - loop.plant.equilibrium()
+    with jax.ensure_compile_time_eval():  # a constant in the loop's dtype, not a float64 zeros in the program
+        eq = loop.plant.equilibrium().astype(x_next.dtype)
+    dev = x_next - eq
     out = jnp.any(jnp.abs(dev) > loop.state_bound)
     if loop.norm_bound is not None:
         out = out | (jnp.linalg.norm(dev) > loop.norm_bound)
@@ -289,9 +303,30 @@ def _check_x0(owner: str, loop: Loop, x0) -> None:
     checks.check_finite(owner, "x0", x0)
 
 
+def _cast(tree, dtype):
+    def leaf(a):
+        if isinstance(a, jax.Array) and jnp.issubdtype(a.dtype, jnp.floating) and a.dtype != dtype:
+            return a.astype(dtype)
+        return a
+
+    return jax.tree_util.tree_map(leaf, tree)
+
+
+def as_precision(tree: Any, dtype: Any = None) -> Any:
+    """``tree`` with its floating array leaves in ``dtype`` (a ``Loop``: in its own ``precision``); keys,
+    integers and Python numbers are left alone, and a float64 tree comes back as it is."""
+    if dtype is None:
+        dtype = tree.dtype
+    if tree is None or jnp.dtype(dtype) == jnp.float64:
+        return tree
+    return _cast(tree, jnp.dtype(dtype))
+
+
 def init_state(loop: Loop, x0, key, metrics=None) -> State:
-    """The state before period 0 of the trajectory with key ``key`` starting at ``x0``."""
-    x0 = jnp.asarray(x0, dtype=jnp.result_type(float))
+    """The state before period 0 of the trajectory with key ``key`` starting at ``x0`` (in the loop's
+    ``precision``)."""
+    loop = as_precision(loop)
+    x0 = jnp.asarray(x0, dtype=loop.dtype)
     k_sens, k_est, k_ctrl, k_act = loop.keys.init(key)
     st = State(
         k=jnp.zeros((), jnp.int32),
@@ -333,6 +368,8 @@ def simulate(loop: Loop, x0, key, steps: int, *, save: Optional[Callable] = None
         raise checks.ArgumentTypeError(f"simulate: loop must be a jaxdip Loop, got {type(loop).__name__}")
     if start is None:
         _check_x0("simulate", loop, x0)
+    # the reducers' own arrays (a weight Q) too, so they accumulate in the loop's precision
+    loop, start, metrics = as_precision(loop), as_precision(start, loop.dtype), as_precision(metrics, loop.dtype)
     st = init_state(loop, x0, key, metrics) if start is None else start
     base = loop.keys.base(key)
     if save is not None and steps % save_every:
@@ -340,7 +377,7 @@ def simulate(loop: Loop, x0, key, steps: int, *, save: Optional[Callable] = None
     ahead = None
     if loop.noise_ahead and loop.process_noise_std is not None:
         # period k's key as in the loop (so the numbers are those drawn inside it), all periods at once
-        ahead = jax.vmap(lambda k: _process_noise(loop.keys.period(base, k)[4], st.x.shape))(
+        ahead = jax.vmap(lambda k: _process_noise(loop.keys.period(base, k)[4], st.x.shape, st.x.dtype))(
             st.k + jnp.arange(steps, dtype=st.k.dtype))
 
     def step(c, noise=None):

@@ -96,6 +96,8 @@ class ContinuousSearch(NamedTuple):
     fail_norm: float = 10.0
     penalty: float = 1000.0
     substeps: int = 2
+    # the evaluations' closed loops in "float32" (``jd.Loop.precision``): performances come back as float32
+    precision: str = "float64"
 
 
 class NoiseStream(jd.KeySchedule):
@@ -132,22 +134,24 @@ def performance_loop(plant, P, cfg: ContinuousSearch, noise_ahead: bool = False)
     fast choice when the evaluations of a batch share their key (the ensemble judged on one sequence)."""
     return _loop(plant, RelaxedProjection(plant, P, cfg.gamma), dt=cfg.dt, substeps=cfg.substeps,
                  process_noise_std=cfg.noise_std, norm_bound=cfg.fail_norm, keys=NoiseStream(),
-                 noise_ahead=noise_ahead)
+                 noise_ahead=noise_ahead, precision=cfg.precision)
 
 
 def rp_performance(plant, P, cfg: ContinuousSearch, key, penalize: bool = True, noise_ahead: bool = False):
     """(2.24) of one evaluation: 1/(T - t*) sum of x^T Q x over the states x_{t*+1} .. x_n (up to a failure),
     or ``penalty`` if the state norm left ``fail_norm`` (``penalize=False``: the sum up to the failure)."""
     n, s = cfg.n_steps, cfg.t_star_steps
-    x0 = cfg.x0_std * jax.random.normal(jax.random.split(key)[0], (plant.n,))
-    sol = jd.simulate(performance_loop(plant, P, cfg, noise_ahead), x0, key, n,
-                      metrics=QuadraticFrom(cfg.Qpos, s + 1))
+    loop = performance_loop(plant, P, cfg, noise_ahead)
+    dtype = loop.dtype
+    x0 = jnp.asarray(cfg.x0_std, dtype) * jax.random.normal(jax.random.split(key)[0], (plant.n,), dtype)
+    Q = jnp.asarray(cfg.Qpos, dtype)
+    sol = jd.simulate(loop, x0, key, n, metrics=QuadraticFrom(Q, s + 1))
     failed = sol.result != jd.RESULTS.ok
     # the reducer saw x_k for the periods whose successor was good; the last good state (x_n, or the one
     # before the failure, where the state is frozen) is the final state
     last = jnp.where(failed, sol.final.failed_at - 1, n)
     xf = sol.final.x
-    acc = sol.metrics + jnp.where(last >= s + 1, xf @ cfg.Qpos @ xf, 0.0)
+    acc = sol.metrics + jnp.where(last >= s + 1, xf @ Q @ xf, 0.0)
     y = acc / (n - s)
     return jnp.where(failed & penalize, cfg.penalty, y)
 

@@ -68,19 +68,20 @@ class WhiteNoise(Sensor):
     """Full-state measurement with white Gaussian noise, y = x + std * xi (``std`` scalar or per state).
 
     The noise is drawn from the first half of ``split(key)``, as ``LinearSensor`` draws its white noise, so
-    the two give identical measurements for the same key. ``draw_dtype="float32"`` draws xi in float32 and
-    casts it to float64: another random stream (not today's default), which passes the same statistical checks
+    the two give identical measurements for the same key. ``draw_dtype`` is the state's dtype by default (a
+    float32 loop draws float32); ``"float32"`` in a float64 loop draws xi in float32 and casts it to float64:
+    another random stream (not today's default), which passes the same statistical checks
     (tests/test_noise_streams.py) and makes the dip-lqr loop 1.11-1.15x faster on a CPU and a saturated GPU
     (docs/performance.md); its resolution (2^-24 relative) is far below any sensor's noise, and its tails end at
     5.42 sigma."""
 
     std: jax.Array = param()
-    draw_dtype: str = eqx.field(default="float64", static=True)
+    draw_dtype: Optional[str] = eqx.field(default=None, static=True)
 
     def __check_init__(self):
         checks.check_scalar_or_vector(self, "std", self.std, why="(one std for every state, or one per state)")
         checks.check_nonnegative(self, "std", self.std)
-        checks.check_choice(self, "draw_dtype", self.draw_dtype, ("float64", "float32"))
+        checks.check_choice(self, "draw_dtype", self.draw_dtype, (None, "float64", "float32"))
 
     def io_sizes(self) -> dict:
         # full-state: y has the plant's size; a per-state std fixes that size
@@ -91,7 +92,8 @@ class WhiteNoise(Sensor):
 
     def step(self, state, x, key, k):
         k_white = split_lanes(key, 2)[0]
-        xi = jax.random.normal(k_white, jnp.shape(x), dtype=jnp.dtype(self.draw_dtype)).astype(jnp.float64)
+        draw = x.dtype if self.draw_dtype is None else jnp.dtype(self.draw_dtype)
+        xi = jax.random.normal(k_white, jnp.shape(x), dtype=draw).astype(x.dtype)
         return state, x + self.std * xi, None
 
 
