@@ -123,6 +123,10 @@ class EkiDipConfig:
     x0_draw: str = C.field("shared", C.one_of("shared", "per_member"),
                            doc="initial state (and noise) of an iteration: one shared by the ensemble, or drawn per "
                                "member as Procedure 1's steps 1-2 say")
+    search_precision: str = C.field("float64", C.one_of("float64", "float32"),
+                                    doc="the search's forward model (its closed loops) in float64 or float32; the "
+                                        "ensemble update, the evaluation states, the gradient search and the "
+                                        "judge stay float64")
     variants_table: bool = C.field(True, doc="also run the variant table's readings (the fixed step, the adaptive "
                                              "step ending at 1 and at 20, UKI with the fixed step) with this "
                                              "config, each judged like the main search, which is not repeated")
@@ -213,7 +217,12 @@ def build(cfg: EkiDipConfig, base):
     members0, v1_lqr = initial_ensemble(cfg, A, B, jax.random.fold_in(base, 1))
     # with one key per iteration for the whole ensemble the noise is drawn once, ahead of the loop (fast);
     # with a key per member it is drawn in the loop, batched
-    G0 = continuous_performance(plant, scfg, n_x0=cfg.n_x0, noise_ahead=cfg.x0_draw == "shared")
+    G32 = continuous_performance(plant, scfg._replace(precision=cfg.search_precision), n_x0=cfg.n_x0,
+                                 noise_ahead=cfg.x0_draw == "shared")
+
+    def G0(m, k):  # the closed loops in search_precision, the performance back in float64 for the update
+        return G32(m, k).astype(jnp.float64)
+
     G = (lambda m, k: jnp.log(G0(m, k))) if cfg.log_performance else G0
     eki = EKI(G=G, template=jax.tree_util.tree_map(lambda a: a[0], members0), y_target=jnp.array([cfg.y_target]),
               R=jnp.array([[cfg.R]]), sigma_w=cfg.sigma_w, project=projection(cfg), failure=cfg.failure,
