@@ -34,7 +34,7 @@ def report(cfg, r, timing):
         f"Ensemble Kalman search ({cfg.variant}, {cfg.schedule} step) on the printed DIP: J = {cfg.ensemble}, up to {cfg.iterations} iterations "
         f"(stopped at {r['iterations']}), T = {cfg.T} s, t* = {cfg.t_star} s, gamma = {cfg.gamma}, state noise std "
         f"{cfg.noise_std} every {cfg.dt * 1e3:g} ms, its closed loops in {cfg.search_precision}. Wall time of the search: **{timing['search_wall_s']:.1f} s** on this "
-        f"machine ({r['simulations']} closed-loop simulations of {cfg.T} s; the thesis used a 12-core cluster)."
+        f"machine, CPU time {timing.get('search_cpu_s', float('nan')):.1f} s over its threads ({r['simulations']} closed-loop simulations of {cfg.T} s; the thesis used a 12-core cluster)."
         + (" Initial states drawn per member (Procedure 1)." if cfg.x0_draw == "per_member" else "")
         + (f" One free basis vector, its singular value fixed at {cfg.init_s[0]:g}." if cfg.free_vectors == 1
            else ""),

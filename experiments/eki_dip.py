@@ -278,7 +278,9 @@ def gradient_search(cfg: EkiDipConfig, plant, scfg, start, key):
 def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
     base = jax.random.PRNGKey(cfg.seed)
     plant, scfg, eki, state, members0, v1_lqr = build(cfg, base)
+    cpu0 = time.process_time()  # every thread of the process: a figure less sensitive than wall time to load
     state, history, eki_wall = ensemble_search(cfg, eki, state, ctx)
+    eki_cpu = time.process_time() - cpu0  # of this session (a resumed run: since the resume)
     found = eki.mean(state)
     iters = int(state.iteration)
 
@@ -303,7 +305,7 @@ def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
         grad["stabilized_fraction"] = grad["judge"]["stabilized_fraction"]
 
     judged, data = judge(cfg, found, cfg.seed + 7)
-    timing = {"search_wall_s": eki_wall, **({"gradient_search_wall_s": grad_wall} if grad else {})}
+    timing = {"search_wall_s": eki_wall, "search_cpu_s": eki_cpu, **({"gradient_search_wall_s": grad_wall} if grad else {})}
     table = {}
     if cfg.variants_table:
         main = variants.row(iters, int(state.members.shape[0]), cfg.n_x0, "ok", judged, perf_eki)
@@ -343,8 +345,8 @@ def reading_search(cfg: EkiDipConfig, base, evaluate, key: str) -> tuple[dict, f
         state, wall, status = e.state, time.perf_counter() - t0, STATUS_NAMES[e.status]
     iters = int(state.iteration)
     found = eki.mean(state)
-    if status == "ok" and not all(np.all(np.isfinite(a)) for a in jax.tree_util.tree_leaves(found)):
-        status = "not_finite"
+    if status == "ok" and not np.all(np.isfinite(np.asarray(member_P(found)))):
+        status = "P_not_finite"  # e.g. UKI's singular values overflowing once every sigma point fails
     if status != "ok":
         return variants.row(iters, points, cfg.n_x0, status), wall
     return variants.row(iters, points, cfg.n_x0, status, judge(cfg, found, cfg.seed + 7)[0], evaluate(found)), wall

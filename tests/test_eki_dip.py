@@ -125,21 +125,26 @@ def test_variant_table_rows_run_inside_one_run():
     assert len(table) == 1 + len(rows) and table[1].startswith("| eki fixed (thesis) |")
 
 
-def test_a_diverging_reading_is_a_row_that_says_so():
+@pytest.mark.parametrize("iterations, status", [(20, "P_not_finite"), (40, "not_finite")])
+def test_a_diverging_reading_is_a_row_that_says_so(iterations, status):
     """UKI with the fixed step inflates its covariance by 1 + dt = 2 every iteration; where the outputs carry no
-    information (every sigma point fails) nothing shrinks it and it overflows (at thesis scale within the
-    1000 iterations; here from a covariance of 1e300, in 25 doublings): the row says not_finite, with the
-    iterations and sigma-point evaluations it took, and no judge."""
+    information (every sigma point fails) nothing shrinks it. At thesis scale the singular values overflow
+    within the 1000 iterations (P not finite: the search ends, its P cannot be judged); later the update
+    itself overflows (the search stops). Here both, from a covariance of 1e300: within 20 iterations, and at
+    iteration 25 of 40. Either is a row that says so, with the iterations and sigma-point evaluations taken,
+    and no judge."""
     import experiments.eki_dip as E
 
     cfg = C.from_dict(E.EkiDipConfig, {"variant": "uki", "ensemble": 6, "T": 0.02, "t_star": 0.01,
-                                       "init_log_s_std": 1e150, "iterations": 40, "chunk": 40, "early_stop": False})
+                                       "init_log_s_std": 1e150, "iterations": iterations, "chunk": iterations,
+                                       "early_stop": False})
 
     def evaluate(m):
         raise AssertionError("a search that did not end well is not scored")
 
     row, wall = E.reading_search(cfg, jax.random.PRNGKey(0), evaluate, "uki_fixed")
-    assert row["status"] == "not_finite" and 1 <= row["iterations"] < 40 and wall > 0
+    assert row["status"] == status and 1 <= row["iterations"] <= iterations and wall > 0
+    assert (row["iterations"] < iterations) == (status == "not_finite")
     assert row["simulations"] == row["iterations"] * (2 * 14 + 1)
     assert row["stabilized_fraction"] is None and row["performance"] is None
 
