@@ -143,8 +143,7 @@ def rp_performance(plant, P, cfg: ContinuousSearch, key, penalize: bool = True, 
     n, s = cfg.n_steps, cfg.t_star_steps
     loop = performance_loop(plant, P, cfg, noise_ahead)
     dtype = loop.dtype
-    # drawn in float64 whatever the loop's precision: a float32 loop starts from the float64 one's x0, rounded
-    x0 = (cfg.x0_std * jax.random.normal(jax.random.split(key)[0], (plant.n,))).astype(dtype)
+    x0 = jnp.asarray(cfg.x0_std, dtype) * jax.random.normal(jax.random.split(key)[0], (plant.n,), dtype)
     Q = jnp.asarray(cfg.Qpos, dtype)
     sol = jd.simulate(loop, x0, key, n, metrics=QuadraticFrom(Q, s + 1))
     failed = sol.result != jd.RESULTS.ok
