@@ -124,8 +124,9 @@ class EkiDipConfig:
                            doc="initial state (and noise) of an iteration: one shared by the ensemble, or drawn per "
                                "member as Procedure 1's steps 1-2 say")
     search_precision: str = C.field("float64", C.one_of("float64", "float32"),
-                                    doc="the search's forward model (its closed loops) in float64 or float32; the "
-                                        "ensemble update, the evaluation states, the gradient search and the "
+                                    doc="the search's forward model (its closed loops) in float64 or float32 "
+                                        "(about half the search's CPU time; not shown safe, so not the default); "
+                                        "the ensemble update, the evaluation states, the gradient search and the "
                                         "judge stay float64")
     variants_table: bool = C.field(True, doc="also run the variant table's readings (the fixed step, the adaptive "
                                              "step ending at 1 and at 20, UKI with the fixed step) with this "
