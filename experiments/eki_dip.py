@@ -41,18 +41,20 @@ from jaxdip.resources import Load, steps_of
 from jaxdip import checkpoint
 from jaxdip import config as C
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
-from jaxdip.runner.results import fmt_ci
 from jaxdip.runner.per_seed import prefixed
-from jaxdip.runner.summaries import failure_lines, loop_per_seed, loop_summary
+from jaxdip.runner.summaries import loop_per_seed, loop_summary
 from jaxdip.plants import dip
 from jaxdip.progress import Progress
 from jaxdip.scenarios import eki_dip as S
-from jaxdip.search import EKI, data_misfit, run_eki
+from jaxdip.search import EKI, SearchStopped, data_misfit, run_eki
+from jaxdip.search.failures import STATUS_NAMES
 from jaxdip.search.eki import align_signs
 from jaxdip.search.p_search import (
     BasisMember, continuous_performance, member_blocks, member_P, performances, project_member,
 )
 from jaxdip.tune import tune
+from experiments import _eki_dip_variants as variants
+from experiments._eki_dip_report import figure, report
 
 
 @dataclass
@@ -121,6 +123,14 @@ class EkiDipConfig:
     x0_draw: str = C.field("shared", C.one_of("shared", "per_member"),
                            doc="initial state (and noise) of an iteration: one shared by the ensemble, or drawn per "
                                "member as Procedure 1's steps 1-2 say")
+    search_precision: str = C.field("float64", C.one_of("float64", "float32"),
+                                    doc="the search's forward model (its closed loops) in float64 or float32 "
+                                        "(about half the search's CPU time; not shown safe, so not the default); "
+                                        "the ensemble update, the evaluation states, the gradient search and the "
+                                        "judge stay float64")
+    variants_table: bool = C.field(True, doc="also run the variant table's readings (the fixed step, the adaptive "
+                                             "step ending at 1 and at 20, UKI with the fixed step) with this "
+                                             "config, each judged like the main search, which is not repeated")
     free_vectors: int = C.field(2, C.one_of(1, 2),
                                 doc="free basis vectors: 2 (V and s searched) or 1 (the thesis's first search: v1 "
                                     "alone, its singular value fixed at init_s[0])")
@@ -208,7 +218,12 @@ def build(cfg: EkiDipConfig, base):
     members0, v1_lqr = initial_ensemble(cfg, A, B, jax.random.fold_in(base, 1))
     # with one key per iteration for the whole ensemble the noise is drawn once, ahead of the loop (fast);
     # with a key per member it is drawn in the loop, batched
-    G0 = continuous_performance(plant, scfg, n_x0=cfg.n_x0, noise_ahead=cfg.x0_draw == "shared")
+    G32 = continuous_performance(plant, scfg._replace(precision=cfg.search_precision), n_x0=cfg.n_x0,
+                                 noise_ahead=cfg.x0_draw == "shared")
+
+    def G0(m, k):  # the closed loops in search_precision, the performance back in float64 for the update
+        return G32(m, k).astype(jnp.float64)
+
     G = (lambda m, k: jnp.log(G0(m, k))) if cfg.log_performance else G0
     eki = EKI(G=G, template=jax.tree_util.tree_map(lambda a: a[0], members0), y_target=jnp.array([cfg.y_target]),
               R=jnp.array([[cfg.R]]), sigma_w=cfg.sigma_w, project=projection(cfg), failure=cfg.failure,
@@ -219,7 +234,7 @@ def build(cfg: EkiDipConfig, base):
     return plant, scfg, eki, eki.init(members0, jax.random.fold_in(base, 2)), members0, v1_lqr
 
 
-def ensemble_search(cfg: EkiDipConfig, eki, state, ctx: RunContext | None):
+def ensemble_search(cfg: EkiDipConfig, eki, state, ctx: RunContext | None, desc: str = "eki-dip search"):
     """run_eki to ``cfg.iterations`` (or the early stop), checkpointed after every chunk to
     ``ctx.checkpoint_path`` and continued from it with ``ctx.resume``. Returns (state, history, wall time)."""
     fp = ctx.fingerprint if ctx is not None else checkpoint.fingerprint(C.to_dict(cfg))
@@ -231,7 +246,7 @@ def ensemble_search(cfg: EkiDipConfig, eki, state, ctx: RunContext | None):
         hist_prev = np.asarray(hist_prev)[: int(state.iteration)]
         wall_before = meta.get("wall_s", 0.0)
     t0 = time.perf_counter()
-    bar = Progress(cfg.iterations, desc="eki-dip search")
+    bar = Progress(cfg.iterations, desc=desc)
     bar.update(int(state.iteration))
 
     def save(st, h):
@@ -264,7 +279,9 @@ def gradient_search(cfg: EkiDipConfig, plant, scfg, start, key):
 def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
     base = jax.random.PRNGKey(cfg.seed)
     plant, scfg, eki, state, members0, v1_lqr = build(cfg, base)
+    cpu0 = time.process_time()  # every thread of the process: a figure less sensitive than wall time to load
     state, history, eki_wall = ensemble_search(cfg, eki, state, ctx)
+    eki_cpu = time.process_time() - cpu0  # of this session (a resumed run: since the resume)
     found = eki.mean(state)
     iters = int(state.iteration)
 
@@ -289,6 +306,12 @@ def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
         grad["stabilized_fraction"] = grad["judge"]["stabilized_fraction"]
 
     judged, data = judge(cfg, found, cfg.seed + 7)
+    timing = {"search_wall_s": eki_wall, "search_cpu_s": eki_cpu, **({"gradient_search_wall_s": grad_wall} if grad else {})}
+    table = {}
+    if cfg.variants_table:
+        main = variants.row(iters, int(state.members.shape[0]), cfg.n_x0, "ok", judged, perf_eki)
+        table["variants"], timing["variants_wall_s"] = variants.compare(
+            cfg, main, eki_wall, lambda key, c: reading_search(c, base, eval_perf, key))
     if grad:
         data.update(grad_data)
     results = {
@@ -304,64 +327,30 @@ def run(cfg: EkiDipConfig, ctx: RunContext | None = None) -> Outcome:
         "performance": perf_eki,
         "history_mean_performance": history[:, 0].tolist(),
         "gradient": grad,
+        **table,
     }
-    timing = {"search_wall_s": eki_wall, **({"gradient_search_wall_s": grad_wall} if grad else {})}
     return Outcome(results, report(cfg, results, timing), {"search_history": figure(cfg, history, grad)},
                    timing=timing, per_seed=data)
 
 
-def figure(cfg, history, grad):
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 3.5))
-    h_plot = np.exp(history[:, 0]) if cfg.log_performance else history[:, 0]
-    ax.semilogy(np.arange(1, len(history) + 1), h_plot,
-                label="EKI: ensemble mean" + (" (geometric) " if cfg.log_performance else " ") + "performance")
-    if grad:
-        sims_per_iter = cfg.ensemble * cfg.n_x0
-        ax.semilogy(np.arange(1, cfg.grad_steps + 1) * cfg.grad_x0 / sims_per_iter,
-                    np.exp(grad["loss_history"]), label="gradient: geometric-mean performance (x-axis: EKI-equivalent iterations)")
-    ax.set_xlabel("iteration (J simulations each)")
-    ax.set_ylabel("performance (2.24)")
-    ax.legend(fontsize=8)
-    ax.set_title("eki-dip search")
-    return fig
-
-
-def report(cfg, r, timing):
-    j = r["judge"]
-    lines = [
-        f"Ensemble Kalman search ({cfg.variant}, {cfg.schedule} step) on the printed DIP: J = {cfg.ensemble}, up to {cfg.iterations} iterations "
-        f"(stopped at {r['iterations']}), T = {cfg.T} s, t* = {cfg.t_star} s, gamma = {cfg.gamma}, state noise std "
-        f"{cfg.noise_std} every {cfg.dt * 1e3:g} ms. Wall time of the search: **{timing['search_wall_s']:.1f} s** on this "
-        f"machine ({r['simulations']} closed-loop simulations of {cfg.T} s; the thesis used a 12-core cluster)."
-        + (" Initial states drawn per member (Procedure 1)." if cfg.x0_draw == "per_member" else "")
-        + (f" One free basis vector, its singular value fixed at {cfg.init_s[0]:g}." if cfg.free_vectors == 1
-           else ""),
-        "",
-        f"- found P: basis rows {np.round(r['P_basis'], 4).tolist()}, singular values "
-        f"{np.round(r['P_singular_values'], 1).tolist()}",
-        f"- performance (2.24) over {cfg.eval_states} common initial states: start {r['performance_start']['mean']:.3g}"
-        f" -> EKI {r['performance']['mean']:.3g} (failed {r['performance']['failed']})",
-        f"- RP with gamma = {cfg.judge_gamma} from {cfg.seeds} random states in a ball of radius {cfg.judge_radius},"
-        f" {cfg.judge_duration} s: stabilised fraction **{fmt_ci(r['stabilized_fraction'], r['stabilized_fraction_ci95'])}**"
-        f", diverged {j['diverged']}",
-        *failure_lines(j, cfg.seeds),
-    ]
-    g = r["gradient"]
-    if g:
-        lines += [
-            "",
-            f"Gradient search (Adam, {g['steps']} steps x {cfg.grad_x0} initial states = {g['simulations']} forward "
-            f"simulations plus as many backward passes, {timing['gradient_search_wall_s']:.1f} s): performance {g['performance']['mean']:.3g}"
-            f" (failed {g['performance']['failed']}); stabilised fraction "
-            f"{fmt_ci(g['judge']['stabilized_fraction'], g['judge']['stabilized_fraction_ci95'])}.",
-            f"EKI used {r['simulations']} simulations for {r['performance']['mean']:.3g}; the gradient search used "
-            f"{g['simulations']} (x about 2 with backward passes) for {g['performance']['mean']:.3g}: "
-            + ("it reaches the EKI's performance." if g["performance"]["mean"] <= r["performance"]["mean"] else
-               f"it falls short by a factor {g['performance']['mean'] / r['performance']['mean']:.3g}."),
-        ]
-    return "\n".join(lines)
+def reading_search(cfg: EkiDipConfig, base, evaluate, key: str) -> tuple[dict, float]:
+    """A row of the variant table: the search of this reading (from the main search's initial ensemble), its
+    wall time, and unless it stopped or ended non-finite, its judge and (2.24) on the evaluation states."""
+    _, _, eki, state, _, _ = build(cfg, base)
+    points = int(state.members.shape[0])
+    t0 = time.perf_counter()
+    try:
+        state, _, wall = ensemble_search(cfg, eki, state, None, desc=f"eki-dip {key.replace('_', ' ')}")
+        status = "ok"
+    except SearchStopped as e:  # a diverging reading is a row that says so
+        state, wall, status = e.state, time.perf_counter() - t0, STATUS_NAMES[e.status]
+    iters = int(state.iteration)
+    found = eki.mean(state)
+    if status == "ok" and not np.all(np.isfinite(np.asarray(member_P(found)))):
+        status = "P_not_finite"  # e.g. UKI's singular values overflowing once every sigma point fails
+    if status != "ok":
+        return variants.row(iters, points, cfg.n_x0, status), wall
+    return variants.row(iters, points, cfg.n_x0, status, judge(cfg, found, cfg.seed + 7)[0], evaluate(found)), wall
 
 
 EXPERIMENT = Experiment(

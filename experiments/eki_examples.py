@@ -30,7 +30,7 @@ from jaxdip import stats
 from jaxdip.control import StateFeedback, dlqr
 from jaxdip.control.projection import RelaxedProjection, projected_closed_loop
 from jaxdip.control.spd import P_v
-from experiments._eki_variants_table import variants_table
+from experiments._eki_variants_table import fraction, run_readings, variants_table, wall_time
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
 from jaxdip.runner.per_seed import PerSeed, fraction_of
 from jaxdip.plants import examples2d
@@ -182,7 +182,8 @@ def search_success(cfg, base):
     return (*stats.wilson(int(ok.sum()), len(ok)), ok)
 
 
-ROWS = (("eki", "fixed"), ("eki", "adaptive"), ("uki", "fixed"), ("uki", "adaptive"))
+READINGS = {f"{v}_{s}": {"variant": v, "schedule": s}
+            for v, s in (("eki", "fixed"), ("eki", "adaptive"), ("uki", "fixed"), ("uki", "adaptive"))}
 
 
 def compare_variants(cfg, base):
@@ -192,26 +193,25 @@ def compare_variants(cfg, base):
     adaptive rows: algorithmic time ``adaptive_end``), and the wall time of the batch (compilation included; in ``timing``)."""
     import time
 
-    rows, walls = {}, {}
     n_judge = min(cfg.judge_states, 200)
-    for variant, schedule in ROWS:
-        c = dataclasses.replace(cfg, variant=variant, schedule=schedule)
 
-        def trial(key, c=c):
-            v, hist = search(c, key)
+    def one(key, c):
+        def trial(k):
+            v, hist = search(c, k)
             done = jnp.sum(jnp.all(jnp.isfinite(hist), axis=1))
-            return stabilizes(c, v, jax.random.fold_in(key, 1), n_judge)[0], done
+            return stabilizes(c, v, jax.random.fold_in(k, 1), n_judge)[0], done
 
         t0 = time.perf_counter()
         ok, done = jd.monte_carlo(trial, base, cfg.compare_seeds, offset=1, chunk=min(cfg.compare_seeds, 50))
         ok, done = np.asarray(ok), np.asarray(done)
-        walls[f"{variant}_{schedule}"] = time.perf_counter() - t0
-        points = cfg.ensemble if variant == "eki" else 2 * 2 + 1
-        rows[f"{variant}_{schedule}"] = {
-            "stabilizing_fraction": float(ok.mean()), "stabilizing_fraction_ci95": stats.wilson(int(ok.sum()), len(ok))[1],
-            "mean_iterations": float(done.mean()),
-            "mean_forward_evaluations": float(done.mean() * points * cfg.n_x0 * cfg.restarts)}
-    return rows, walls
+        wall = time.perf_counter() - t0
+        points = cfg.ensemble if c.variant == "eki" else 2 * 2 + 1
+        return {"stabilizing_fraction": float(ok.mean()),
+                "stabilizing_fraction_ci95": stats.wilson(int(ok.sum()), len(ok))[1],
+                "mean_iterations": float(done.mean()),
+                "mean_forward_evaluations": float(done.mean() * points * cfg.n_x0 * cfg.restarts)}, wall
+
+    return run_readings(cfg, READINGS, one)
 
 
 def _steps(s: dict, k: str) -> str:
@@ -355,7 +355,17 @@ def report(cfg, r, timing=None):
             "The thesis (Fig. 2.1-2.2): relaxed projection is slower than LQR to approach the origin, with less "
             "overshoot, then converges faster once near it. Compare the step counts above and Fig. 2.2.",
         ]
-    return "\n".join(lines + variants_table(cfg, r, timing or {}))
+    if "variants" in r:
+        lines += variants_table(
+            f"Variants ({cfg.compare_seeds} searches per row, seeds 1.., at most {cfg.iterations} iterations; "
+            f"adaptive: the data-misfit controller, stopping at algorithmic time {cfg.adaptive_end:g}; wall times "
+            "under whatever load the machine had, compilation included):", r["variants"],
+            (timing or {}).get("variants_wall_s", {}),
+            [("stabilising fraction [95% CI]", fraction("stabilizing_fraction")),
+             ("mean iterations", lambda k, row, w: f"{row['mean_iterations']:.1f}"),
+             ("mean forward evaluations", lambda k, row, w: f"{row['mean_forward_evaluations']:.0f}"),
+             ("wall time (s)", wall_time)])
+    return "\n".join(lines)
 
 
 @dataclass
