@@ -87,7 +87,8 @@ def dip_lqr_uncached(tmp_path_factory):
 
     One child process (JAX import plus a cold compilation) shared by the tests that need this run: the CLI's
     output contract, the compilation-cache test and the one-process reference of the two-process
-    ``--distributed`` run. ``proc`` is a started :class:`Child`; ``proc.wait()`` before reading ``out``; ``Child`` starts
+    ``--distributed`` run, all in test_cli.py (pytest-xdist makes a session fixture once per worker, and runs a
+    file in one worker). ``proc`` is a started :class:`Child`; ``proc.wait()`` before reading ``out``; ``Child`` starts
     more runs.
     """
     root = tmp_path_factory.mktemp("dip-lqr-tiny")
