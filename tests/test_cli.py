@@ -11,7 +11,7 @@ from jaxdip import cli, cli_args
 from jaxdip import config as C
 import experiments.dip_lqr as dip_lqr
 from jaxdip.runner import registry
-from test_distributed import launch_pair
+from test_distributed import compare_results, launch_pair
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -230,20 +230,6 @@ def test_a_search_where_every_member_fails_ends_with_one_line(tmp_path, capsys):
 # Here, not in test_distributed.py, because its one-process reference is the shared uncached run: pytest-xdist
 # runs a file in one worker and session fixtures once per worker, so in a file of its own it could start a
 # second copy of that run.
-
-def compare_results(a, b, path="results"):
-    """Largest relative difference between two metrics.json result trees (structure and non-floats equal)."""
-    if isinstance(a, dict):
-        assert a.keys() == b.keys(), path
-        return max([compare_results(a[k], b[k], f"{path}.{k}") for k in a], default=0.0)
-    if isinstance(a, list):
-        assert len(a) == len(b), path
-        return max([compare_results(u, v, f"{path}[{i}]") for i, (u, v) in enumerate(zip(a, b))], default=0.0)
-    if isinstance(a, float) and isinstance(b, float):
-        return 0.0 if a == b else abs(a - b) / max(abs(a), abs(b))
-    assert a == b, (path, a, b)
-    return 0.0
-
 
 def test_cli_run_on_two_processes_equals_one_process(tmp_path, dip_lqr_uncached):
     """The acceptance check: ``jaxdip run dip-lqr --quick --distributed`` on two processes (4 devices, 6 seeds:

@@ -219,3 +219,19 @@ def test_monte_carlo_over_two_processes_equals_one_process(tmp_path):
         else:
             # same seeds, other batch shapes: equal to rounding (see test_driver.assert_same)
             assert np.max(np.abs(a - b), initial=0.0) <= 1e-12 * np.max(np.abs(a), initial=0.0), name
+
+
+# ---- used by the CLI's two-process run (test_cli.py) and test_spread.py -------------------------------------------
+
+def compare_results(a, b, path="results"):
+    """Largest relative difference between two metrics.json result trees (structure and non-floats equal)."""
+    if isinstance(a, dict):
+        assert a.keys() == b.keys(), path
+        return max([compare_results(a[k], b[k], f"{path}.{k}") for k in a], default=0.0)
+    if isinstance(a, list):
+        assert len(a) == len(b), path
+        return max([compare_results(u, v, f"{path}[{i}]") for i, (u, v) in enumerate(zip(a, b))], default=0.0)
+    if isinstance(a, float) and isinstance(b, float):
+        return 0.0 if a == b else abs(a - b) / max(abs(a), abs(b))
+    assert a == b, (path, a, b)
+    return 0.0
