@@ -32,6 +32,29 @@ _compile_cache(True)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
+# The files that take longest (summed over their tests, measured with an empty compilation cache), longest first.
+# pytest-xdist's --dist loadfile hands files to the workers in collection order (pyproject passes
+# --no-loadscope-reorder: its default order, most tests first, put these few-test files last, where one of them
+# kept a worker busy for half a minute while the others had nothing left). Starting them first lets the many
+# short files fill in around them. A file missing here only runs later; the order changes no result.
+LONGEST_FIRST = (
+    "test_tutorial.py", "test_kill_resume.py", "test_eki.py", "test_cli.py", "test_cli_faults.py", "test_driver.py",
+    "test_eki_dip.py", "test_dip_cpx_ldf.py", "test_lorenz_mhe.py", "test_tune.py", "test_immune_levelset.py",
+    "test_weighted_mhe.py", "test_simulate.py", "test_search_steps.py", "test_dip_mpc.py",
+    "test_immune_autonomous.py", "test_lorenz_components.py", "test_mpc.py", "test_effort.py",
+    "test_readme_example.py", "test_rwp_theory.py", "test_spread.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    gone = [name for name in LONGEST_FIRST if not os.path.exists(os.path.join(ROOT, "tests", name))]
+    if gone:  # a renamed file would silently drop back to the end
+        raise pytest.UsageError(f"conftest.LONGEST_FIRST names files that are not there: {', '.join(gone)}")
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order
+
+
+
 # The smallest dip-lqr run that still exercises the whole CLI path: 6 seeds (not a multiple of 4 devices, so the
 # distributed run pads), 200 periods, every period recorded.
 TINY_DIP_LQR = ["run", "dip-lqr", "--quick", "--seeds", "6", "--set", "duration=0.2", "--set", "record_every=1"]
@@ -71,7 +94,8 @@ def dip_lqr_uncached(tmp_path_factory):
 
     One child process (JAX import plus a cold compilation) shared by the tests that need this run: the CLI's
     output contract, the compilation-cache test and the one-process reference of the two-process
-    ``--distributed`` run. ``proc`` is a started :class:`Child`; ``proc.wait()`` before reading ``out``; ``Child`` starts
+    ``--distributed`` run, all in test_cli.py (pytest-xdist makes a session fixture once per worker, and runs a
+    file in one worker). ``proc`` is a started :class:`Child`; ``proc.wait()`` before reading ``out``; ``Child`` starts
     more runs.
     """
     root = tmp_path_factory.mktemp("dip-lqr-tiny")

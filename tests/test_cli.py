@@ -11,6 +11,7 @@ from jaxdip import cli, cli_args
 from jaxdip import config as C
 import experiments.dip_lqr as dip_lqr
 from jaxdip.runner import registry
+from test_distributed import compare_results, launch_pair
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -223,3 +224,39 @@ def test_a_search_where_every_member_fails_ends_with_one_line(tmp_path, capsys):
                      "--set", "min_success=4", "--set", "iterations=20", "--set", "x0_std=[20.0, 20.0, 20.0, 0, 0, 0]"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and err[-1].startswith("error: search: ensemble search stopped at iteration 10:"), err[-1:]
+
+
+# ---- the CLI over two processes -------------------------------------------------------------------------------
+# Here, not in test_distributed.py, because its one-process reference is the shared uncached run: pytest-xdist
+# runs a file in one worker and session fixtures once per worker, so in a file of its own it could start a
+# second copy of that run.
+
+def test_cli_run_on_two_processes_equals_one_process(tmp_path, dip_lqr_uncached):
+    """The acceptance check: ``jaxdip run dip-lqr --quick --distributed`` on two processes (4 devices, 6 seeds:
+    padded to 8) against one process (the conftest's run of the same command without ``--distributed``); most of
+    the time goes to compiling the partitioned programs."""
+    dist, p1_out, single = tmp_path / "dist", tmp_path / "p1", dip_lqr_uncached.out
+    run = [*dip_lqr_uncached.args, "--no-compile-cache"]
+    env = {"JAXDIP_NO_PROGRESS": ""}  # progress bars on, to see that only process 0 draws one
+
+    def cmd(i, port):
+        # process 1 gets its own --out only to show that it writes nothing
+        return [sys.executable, "-m", "jaxdip.cli", *run, "--out", str(dist if i == 0 else p1_out),
+                "--distributed", "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2",
+                "--process-id", str(i)]
+
+    (rc0, out0, err0), (rc1, out1, err1) = launch_pair(cmd, **env)
+    assert rc0 == 0, err0[-3000:]
+    assert rc1 == 0, err1[-3000:]
+    assert "wrote" in out0 and "wrote" not in out1  # (gloo logs its connections on stdout)
+    assert "dip-lqr [" in err0 and "dip-lqr [" not in err1
+    assert not p1_out.exists()
+    assert dip_lqr_uncached.proc.wait().returncode == 0, dip_lqr_uncached.proc.stderr[-3000:]
+    m_dist = json.loads((dist / "metrics.json").read_text())
+    m_one = json.loads((single / "metrics.json").read_text())
+    assert m_dist["processes"] == 2 and m_dist["devices"] == 4 and "processes" not in m_one
+    assert m_dist["seeds"] == m_one["seeds"] == 6
+    worst = compare_results(m_dist["results"], m_one["results"])
+    print(f"largest relative difference of results: {worst:.3g}")
+    assert worst <= 1e-12
+    assert sorted(os.listdir(dist)) == sorted(os.listdir(single))

@@ -1,11 +1,11 @@
 """``--distributed``: Monte Carlo over the devices of several processes (``jax.distributed``, gloo collectives on
-CPU) gives the single-process numbers; only process 0 writes; bad values are one-line errors.
+CPU) gives the single-process numbers; bad values are one-line errors.
 
 The multi-process runs are real: two local processes, each with two XLA host devices, joined through a
-coordinator on a free localhost port. The reference is the same computation in one process.
+coordinator on a free localhost port. The reference is the same computation in one process. The CLI run on
+two processes (only process 0 writes) is in test_cli.py, beside the one-process run it is compared with.
 """
 
-import json
 import os
 import socket
 import subprocess
@@ -221,7 +221,7 @@ def test_monte_carlo_over_two_processes_equals_one_process(tmp_path):
             assert np.max(np.abs(a - b), initial=0.0) <= 1e-12 * np.max(np.abs(a), initial=0.0), name
 
 
-# ---- the CLI over two processes -------------------------------------------------------------------------------
+# ---- used by the CLI's two-process run (test_cli.py) and test_spread.py -------------------------------------------
 
 def compare_results(a, b, path="results"):
     """Largest relative difference between two metrics.json result trees (structure and non-floats equal)."""
@@ -235,34 +235,3 @@ def compare_results(a, b, path="results"):
         return 0.0 if a == b else abs(a - b) / max(abs(a), abs(b))
     assert a == b, (path, a, b)
     return 0.0
-
-
-def test_cli_run_on_two_processes_equals_one_process(tmp_path, dip_lqr_uncached):
-    """The acceptance check: ``jaxdip run dip-lqr --quick --distributed`` on two processes (4 devices, 6 seeds:
-    padded to 8) against one process (the conftest's run of the same command without ``--distributed``); most of
-    the time goes to compiling the partitioned programs."""
-    dist, p1_out, single = tmp_path / "dist", tmp_path / "p1", dip_lqr_uncached.out
-    run = [*dip_lqr_uncached.args, "--no-compile-cache"]
-    env = {"JAXDIP_NO_PROGRESS": ""}  # progress bars on, to see that only process 0 draws one
-
-    def cmd(i, port):
-        # process 1 gets its own --out only to show that it writes nothing
-        return [sys.executable, "-m", "jaxdip.cli", *run, "--out", str(dist if i == 0 else p1_out),
-                "--distributed", "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2",
-                "--process-id", str(i)]
-
-    (rc0, out0, err0), (rc1, out1, err1) = launch_pair(cmd, **env)
-    assert rc0 == 0, err0[-3000:]
-    assert rc1 == 0, err1[-3000:]
-    assert "wrote" in out0 and "wrote" not in out1  # (gloo logs its connections on stdout)
-    assert "dip-lqr [" in err0 and "dip-lqr [" not in err1
-    assert not p1_out.exists()
-    assert dip_lqr_uncached.proc.wait().returncode == 0, dip_lqr_uncached.proc.stderr[-3000:]
-    m_dist = json.loads((dist / "metrics.json").read_text())
-    m_one = json.loads((single / "metrics.json").read_text())
-    assert m_dist["processes"] == 2 and m_dist["devices"] == 4 and "processes" not in m_one
-    assert m_dist["seeds"] == m_one["seeds"] == 6
-    worst = compare_results(m_dist["results"], m_one["results"])
-    print(f"largest relative difference of results: {worst:.3g}")
-    assert worst <= 1e-12
-    assert sorted(os.listdir(dist)) == sorted(os.listdir(single))
