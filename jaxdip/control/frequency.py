@@ -45,10 +45,32 @@ def _point(sys: StateSpace, w):
     return jnp.exp(1j * w * sys.dt) if sys.dt else 1j * w
 
 
+def _solve(M, B):
+    """M^-1 B by Gaussian elimination with partial pivoting, written in jax.numpy (n is a model's state count).
+
+    Not ``jnp.linalg.solve``: margins evaluates batches of these solves in several independent loops of one
+    program, and jaxlib 0.10's CPU LAPACK kernels split a batch over the intra-op thread pool and wait for it
+    while holding a pool thread; two such kernels side by side on a two-core machine wait on each other forever
+    (seen as a hang of the margins tests on this project's CI machine). Elimination in jax.numpy compiles to
+    ordinary fused kernels."""
+    n = M.shape[0]
+    A = jnp.concatenate([M, B], axis=1)
+    rows = jnp.arange(n)
+    for j in range(n):
+        p = jnp.argmax(jnp.where(rows >= j, jnp.abs(A[:, j]), -1.0))
+        A = A.at[jnp.array([j, p])].set(A[jnp.stack([p, jnp.asarray(j)])])  # swap rows j and p
+        below = jnp.where(rows > j, A[:, j] / A[j, j], 0.0)
+        A = A - below[:, None] * A[j][None, :]
+    X = A[:, n:]
+    for j in reversed(range(n)):  # back substitution
+        X = X.at[j].set((X[j] - A[j, j + 1:n] @ X[j + 1:]) / A[j, j])
+    return X
+
+
 def evalfr(sys: StateSpace, x) -> jax.Array:
     """The transfer matrix C (x I - A)^-1 B + D at the complex point x (python-control's ``evalfr``)."""
     n = sys.A.shape[0]
-    X = jnp.linalg.solve(x * jnp.eye(n) - sys.A.astype(complex), sys.B.astype(complex))
+    X = _solve(x * jnp.eye(n) - sys.A.astype(complex), sys.B.astype(complex))
     return sys.C @ X + sys.D
 
 
