@@ -15,7 +15,19 @@ import sys
 import traceback
 
 
+def keep_to_cpus() -> None:
+    """Keep this process to the CPUs its parent gave it (``JAXDIP_WORKER_CPUS``, see
+    ``reproduce_pool.cpu_blocks``), before JAX starts its backend and sizes its thread pool from them."""
+    cpus = os.environ.get("JAXDIP_WORKER_CPUS")
+    if cpus and hasattr(os, "sched_setaffinity"):
+        try:
+            os.sched_setaffinity(0, {int(c) for c in cpus.split(",")})
+        except (OSError, ValueError):
+            pass  # the CPUs changed under us: run unpinned, as before
+
+
 def main() -> int:
+    keep_to_cpus()
     answers = os.fdopen(os.dup(1), "w", buffering=1)
     from jaxdip import cli
 

@@ -6,6 +6,21 @@ from types import SimpleNamespace
 
 import pytest
 
+
+def _keep_worker_to_its_cpus() -> None:
+    """Under pytest-xdist, keep worker i to its share of the CPUs (the CLI runs it starts inherit it), before JAX
+    starts: XLA sizes its thread pool from the CPUs a process may use, and two workers whose pools share the cores
+    wait on each other's descheduled threads at every kernel (``jaxdip.reproduce_pool.cpu_blocks``)."""
+    from jaxdip.reproduce_pool import cpu_blocks
+
+    worker, count = os.environ.get("PYTEST_XDIST_WORKER", ""), os.environ.get("PYTEST_XDIST_WORKER_COUNT", "")
+    if worker.startswith("gw") and count.isdigit():
+        blocks = cpu_blocks(int(count))
+        if blocks:
+            os.sched_setaffinity(0, blocks[int(worker[2:]) % len(blocks)])
+
+
+_keep_worker_to_its_cpus()
 os.environ.setdefault("JAXDIP_NO_PROGRESS", "1")
 # the CLI's on-disk compilation cache goes to a throwaway folder, not the user's ~/.cache
 os.environ.setdefault("JAXDIP_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"jaxdip-test-xla-{os.getuid()}"))
