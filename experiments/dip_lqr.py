@@ -144,5 +144,5 @@ EXPERIMENT = Experiment(
     run=run,
     quick={"seeds": 64, "duration": 2.0},
     source="thesis §3.2 (LQR, eq. 3.4) with the Table 3.1 weights, on the Table 3.3 model",
-    quick_cost_s=2,
+    quick_cost_s=2, full_cost_s=14,
 )

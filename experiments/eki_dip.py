@@ -359,4 +359,4 @@ EXPERIMENT = Experiment(
                     "grad_steps": 3, "grad_x0": 2, "eval_states": 8, "judge_duration": 2.0},
     source="thesis §3.2.1, Procedure 1, (2.20), (2.24)",
     resumable=True,
-    quick_cost_s=25)
+    quick_cost_s=25, full_cost_s=254)

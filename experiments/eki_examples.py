@@ -386,9 +386,9 @@ class EkiNonlinearConfig(EkiExampleConfig):
 EXPERIMENTS = (
     Experiment(id="eki-linear", title="ensemble Kalman search for P, linear example of §2.7",
                     config_cls=EkiExampleConfig, run=run, quick={"seeds": 20, "iterations": 60, "compare_seeds": 8},
-                    source="thesis §2.7.1, Fig. 2.1-2.2", quick_cost_s=28),
+                    source="thesis §2.7.1, Fig. 2.1-2.2", quick_cost_s=28, full_cost_s=22),
     Experiment(id="eki-nonlinear", title="ensemble Kalman search for P, nonlinear example of §2.7",
                     config_cls=EkiNonlinearConfig, run=run,
                     quick={"seeds": 10, "iterations": 80, "judge_states": 100, "compare_seeds": 0},
-                    source="thesis §2.7.2, Fig. 2.3", quick_cost_s=7),
+                    source="thesis §2.7.2, Fig. 2.3", quick_cost_s=7, full_cost_s=120),
 )

@@ -378,5 +378,5 @@ EXPERIMENT = Experiment(
     run=run,
     quick={"seeds": 16, "duration": 2.0},
     source="thesis §1.6 (Fig. 1.1-1.2): CPX gamma 0.5, SCPX gamma 50 p 2, EKF and EKF2",
-    quick_cost_s=14,
+    quick_cost_s=14, full_cost_s=249,
 )

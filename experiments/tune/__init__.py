@@ -237,5 +237,5 @@ EXPERIMENT = Experiment(
     quick={"seeds": 4, "heldout_seeds": 16, "duration": 0.5, "steps": 6, "landscape_points": 5},
     source="the documents' hyperparameter values (CPX gamma = 150, paper §5) against gradient tuning",
     resumable=True,
-    quick_cost_s=18,
+    quick_cost_s=18, full_cost_s=56,
 )

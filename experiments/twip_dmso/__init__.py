@@ -375,5 +375,5 @@ EXPERIMENT = Experiment(
     quick={"seeds": 32, "det_seeds": 4, "duration": 5.0, "duration_fine": 2.0, "tail_s": 2.0,
            "kf_readings": False},
     source="Stumfoll MS thesis §8.1 (Figs. 8.1-8.14), DMSO eqs. (3)-(6), (172)-(178), sensors §7.4",
-    quick_cost_s=10,
+    quick_cost_s=10, full_cost_s=58,
 )

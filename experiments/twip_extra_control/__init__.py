@@ -333,5 +333,5 @@ EXPERIMENT = Experiment(
     run=run,
     quick={"seeds": 8, "duration": 10.0, "chunk_seeds": 8},
     source="Stumfoll MS thesis §6.2 (eqs. 86-114) and §8.2 (eqs. 179-185, Table 8.3, Figs. 8.15-8.23)",
-    quick_cost_s=6,
+    quick_cost_s=6, full_cost_s=116,
 )

@@ -93,6 +93,9 @@ class Experiment:
     # cold --quick wall time (s) in the parallel reproduce on a 2-core CPU at the quick compile effort: the
     # parallel reproduce starts the long ones first (10 where not measured)
     quick_cost_s: float = 10.0
+    # the same for the full run: its wall time (s) in a full-scale reproduce worker kept to one core of a 2-core
+    # CPU, cold compilation cache; the full reproduce starts the long ones first (60 where not measured)
+    full_cost_s: float = 60.0
     # False for an experiment whose run gives no Outcome.per_seed yet: --per-seed is refused before it runs
     per_seed: bool = True
 
