@@ -98,7 +98,8 @@ def run_argv(args, exp_id: str) -> list[str]:
 def run_parallel(args, reg, jobs: int, stopped: str) -> int:
     """Run the experiments ``reg`` (``[(id, Experiment)]``) in ``jobs`` workers; 0 or the exit code (on an
     interrupt after the one-line note ``stopped``)."""
-    order = sorted(reg, key=lambda r: -(r[1].quick_cost_s if args.quick else r[1].full_cost_s))
+    cost = "quick_cost_s" if args.quick else "full_cost_s"
+    order = sorted(reg, key=lambda r: -getattr(r[1], cost, 0.0))  # stable: unmeasured entries keep their order
     pending = [exp_id for exp_id, _ in order]
     failed: list = []
     logs = tempfile.mkdtemp(prefix="jaxdip-reproduce-")
