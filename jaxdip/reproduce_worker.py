@@ -15,10 +15,10 @@ import sys
 import traceback
 
 
-def keep_to_cpus() -> None:
-    """Keep this process to the CPUs its parent gave it (``JAXDIP_WORKER_CPUS``, see
+def keep_to_cpus(cpus: str | None = None) -> None:
+    """Keep this process to ``cpus`` ("0,1"; default: the ``JAXDIP_WORKER_CPUS`` its parent gave it, see
     ``reproduce_pool.cpu_blocks``), before JAX starts its backend and sizes its thread pool from them."""
-    cpus = os.environ.get("JAXDIP_WORKER_CPUS")
+    cpus = os.environ.get("JAXDIP_WORKER_CPUS") if cpus is None else cpus
     if cpus and hasattr(os, "sched_setaffinity"):
         try:
             os.sched_setaffinity(0, {int(c) for c in cpus.split(",")})

@@ -12,12 +12,13 @@ def _keep_worker_to_its_cpus() -> None:
     starts: XLA sizes its thread pool from the CPUs a process may use, and two workers whose pools share the cores
     wait on each other's descheduled threads at every kernel (``jaxdip.reproduce_pool.cpu_blocks``)."""
     from jaxdip.reproduce_pool import cpu_blocks
+    from jaxdip.reproduce_worker import keep_to_cpus
 
     worker, count = os.environ.get("PYTEST_XDIST_WORKER", ""), os.environ.get("PYTEST_XDIST_WORKER_COUNT", "")
     if worker.startswith("gw") and count.isdigit():
         blocks = cpu_blocks(int(count))
         if blocks:
-            os.sched_setaffinity(0, blocks[int(worker[2:]) % len(blocks)])
+            keep_to_cpus(",".join(map(str, blocks[int(worker[2:]) % len(blocks)])))
 
 
 _keep_worker_to_its_cpus()

@@ -373,5 +373,6 @@ EXPERIMENT = Experiment(
     quick={"seeds": 16, "no_bias_duration": 2.0, "bias_seeds": 2, "bias_duration": 6.0, "lowpass_duration": 20.0,
            "reduced_duration": 10.0, "gamma_check_duration": 40.0},
     source="Aranovskiy et al., IEEE Access 2020: (7), (9)-(28), Tables 1-2, Figs. 3-6",
-    quick_cost_s=18, full_cost_s=53,  # estimated at balanced from its run alone
+    quick_cost_s=18,  # estimated at balanced from its run alone
+    full_cost_s=53,
 )

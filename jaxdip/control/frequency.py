@@ -58,7 +58,7 @@ def _solve(M, B):
     rows = jnp.arange(n)
     for j in range(n):
         p = jnp.argmax(jnp.where(rows >= j, jnp.abs(A[:, j]), -1.0))
-        A = A.at[jnp.array([j, p])].set(A[jnp.stack([p, jnp.asarray(j)])])  # swap rows j and p
+        A = A.at[jnp.array([j, p])].set(A[jnp.array([p, j])])  # swap rows j and p
         below = jnp.where(rows > j, A[:, j] / A[j, j], 0.0)
         A = A - below[:, None] * A[j][None, :]
     X = A[:, n:]
