@@ -119,3 +119,21 @@ def test_box_muller_against_numpy():
     r = np.sqrt(-2.0 * np.log(1.0 - u[0]))
     want = np.concatenate([r * np.cos(2 * np.pi * u[1]), r * np.sin(2 * np.pi * u[1])])[:7]
     np.testing.assert_allclose(np.asarray(N.box_muller(key, (7,))), want, rtol=1e-14)
+
+
+def test_no_draw_bound_is_the_loop_with_zero_noise():
+    """``NoDraw`` (the bench's bound: the loop less its noise draw) runs the same loop as a zero-std
+    ``WhiteNoise``, whose y = x + 0 xi is x exactly: the same final states to the bit, and not those of the noisy
+    loop."""
+    import equinox as eqx
+    from jaxdip.scenarios.dip_lqr import dip_lqr
+
+    r = dip_lqr(duration=0.05, substeps=1, record_every=None)
+    key = jax.random.PRNGKey(3)
+
+    def final(sensor):
+        return np.asarray(jd.monte_carlo(eqx.tree_at(lambda r: r.loop.sensor, r, sensor), key, 8).final.x)
+
+    zero = final(jd.sensors.WhiteNoise(jnp.zeros(6)))
+    np.testing.assert_array_equal(final(N.NoDraw()), zero)
+    assert not np.array_equal(final(r.loop.sensor), zero)

@@ -14,6 +14,9 @@ with ``jax.random.normal`` (threefry bits, then a float64 inverse error function
 - ``block``: one draw per seed and chunk of periods, ``normal(fold_in(base, chunk), (chunk, 6))``, the loop
   reading row k of it (no per-period key derivation at all), and with it ``float32`` or ``unsafe_rbg``.
 
+The library's own loop is timed too (``engine_rates``), with today's draw, ``unsafe_rbg`` keys, the float32 draw,
+and ``NoDraw`` (y = x): the last is the bound that no way of drawing the noise can pass.
+
 ``CANDIDATES`` maps each name to ``(key impl, draw, block)``; ``noise`` draws a (seeds, steps, 6) array of one
 candidate's stream, which the tests (tests/test_noise_streams.py) check statistically against today's. Timings
 on a CPU are CPU seconds of this process (``time.process_time``), so other load on the machine enters less than
@@ -166,17 +169,25 @@ def measure(names, seeds: int = 1024, steps: int = 1000, chunk: int = 100, round
             for name in names}
 
 
+class NoDraw(jd.Sensor):
+    """y = x, drawing nothing: the loop without any sensor noise, the bound a cheaper draw cannot pass."""
+
+    def step(self, state, x, key, k):
+        return state, x, None
+
+
 def engine_rates(seeds: int = 1024, steps: int = 1000, rounds: int = 5) -> dict:
     """ns per seed-period (median CPU time, interleaved rounds) of the library's own dip-lqr loop
     (``jd.monte_carlo`` of the scenario's rollout, one RK4 step, no recording): today's keys, ``unsafe_rbg`` keys
-    (a typed key given to ``monte_carlo``: the whole key schedule on that generator), and
-    ``WhiteNoise(draw_dtype="float32")``."""
+    (a typed key given to ``monte_carlo``: the whole key schedule on that generator),
+    ``WhiteNoise(draw_dtype="float32")``, and ``NoDraw`` (no noise at all: what any draw could gain at most)."""
     from jaxdip.scenarios.dip_lqr import dip_lqr
 
     r = dip_lqr(duration=steps * DT, substeps=1, record_every=None)
     r32 = eqx.tree_at(lambda r: r.loop.sensor, r, jd.sensors.WhiteNoise(NOISE_STD, draw_dtype="float32"))
+    r0 = eqx.tree_at(lambda r: r.loop.sensor, r, NoDraw())
     cases = {"threefry": (r, jax.random.PRNGKey(0)), "unsafe_rbg": (r, jax.random.key(0, impl="unsafe_rbg")),
-             "float32": (r32, jax.random.PRNGKey(0))}
+             "float32": (r32, jax.random.PRNGKey(0)), "no_draw": (r0, jax.random.PRNGKey(0))}
     progs = {name: jax.jit(lambda key, r=rollout: jd.monte_carlo(r, key, seeds).metrics)
              for name, (rollout, _) in cases.items()}
     for name, f in progs.items():
