@@ -99,7 +99,7 @@ def run_parallel(args, reg, jobs: int, stopped: str) -> int:
     """Run the experiments ``reg`` (``[(id, Experiment)]``) in ``jobs`` workers; 0 or the exit code (on an
     interrupt after the one-line note ``stopped``)."""
     cost = "quick_cost_s" if args.quick else "full_cost_s"
-    order = sorted(reg, key=lambda r: -getattr(r[1], cost, 0.0))  # stable: unmeasured entries keep their order
+    order = sorted(reg, key=lambda r: -getattr(r[1], cost, 0.0))  # stable; an entry without an Experiment stays put
     pending = [exp_id for exp_id, _ in order]
     failed: list = []
     logs = tempfile.mkdtemp(prefix="jaxdip-reproduce-")
