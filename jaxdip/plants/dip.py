@@ -24,6 +24,7 @@ import jax.numpy as jnp
 
 from jaxdip.engine import checks
 from jaxdip.engine.roles import Plant, param
+from jaxdip.plants.trig import sincos
 
 from jaxdip._public import public_dir
 
@@ -68,14 +69,19 @@ def solve_sym3(m11, m12, m13, m22, m23, m33, b1, b2, b3):
     )
 
 
+def _sin_cos(p: "DIP", v):
+    # "vectorised": jaxdip.plants.trig.sincos, about 1.5x the loop's throughput, but not the C library's last bits
+    return sincos(v) if p.trig == "vectorised" else (jnp.sin(v), jnp.cos(v))
+
+
 def f_printed(p: "DIP", x, u):
     """Equations of motion as printed in thesis §3.1.1, with Mw in the cart mass."""
     _xc, a, th, xcd, ad, thd = x[0], x[1], x[2], x[3], x[4], x[5]
     V = jnp.reshape(u, (-1,))[0]
     # four trig evaluations instead of six: the sums by the angle-addition identities (the trig calls are most
     # of the cost of a right-hand side; the identities agree with direct evaluation to a few ulp)
-    s_a, c_a = jnp.sin(a), jnp.cos(a)
-    s_t, c_t = jnp.sin(th), jnp.cos(th)
+    s_a, c_a = _sin_cos(p, a)
+    s_t, c_t = _sin_cos(p, th)
     s_at, c_at = s_a * c_t + c_a * s_t, c_a * c_t - s_a * s_t
     s_2at, c_2at = s_a * c_at + c_a * s_at, c_a * c_at - s_a * s_at
     m_a = p.M1 * p.l1 + p.M2 * p.L1 + p.Mh * p.L1
@@ -159,7 +165,13 @@ def f_lagrangian(p: "DIP", x, u):
 
 class DIP(Plant):
     """The DIP: the Table 3.3 parameters of the thesis (SI units) are its array fields, the variant
-    (``"printed"``, the default, or ``"lagrangian"``, module doc) is static."""
+    (``"printed"``, the default, or ``"lagrangian"``, module doc) is static.
+
+    ``trig`` (static) picks how the printed equations evaluate sin and cos: ``"library"`` (the default, the C
+    library's, as every published number of this project was computed) or ``"vectorised"``
+    (``jaxdip.plants.trig.sincos``: within a few ulp of it, and the dip-lqr loop about 1.5x faster on a CPU;
+    docs/performance.md). Loops with quantised encoders (dip-cpx-ldf) amplify any last-bit difference, so there
+    the two give different trajectories and statistics that agree only within their intervals."""
 
     Bc: jax.Array = param(5.4)  # viscous damping at the motor pinion
     B1: jax.Array = param(0.0024)  # viscous damping at the lower pendulum axis
@@ -183,12 +195,14 @@ class DIP(Plant):
     Rm: jax.Array = param(2.6)
     rmp: jax.Array = param(6.35e-3)
     variant: str = eqx.field(default="printed", static=True)
+    trig: str = eqx.field(default="library", static=True)
 
     state_names = STATE_NAMES
     input_names = ("V",)
 
     def __check_init__(self):
         checks.check_choice(self, "variant", self.variant, ("printed", "lagrangian"))
+        checks.check_choice(self, "trig", self.trig, ("library", "vectorised"))
         checks.check_physical(self, positive=("g", "I1", "I2", "Kg", "l1", "l2", "L1", "L2", "Mc", "M1",
                                               "M2", "Rm", "rmp"),
                               nonnegative=("Bc", "B1", "B2", "Jm", "Km", "Kt", "Mh", "Mw"))  # Kt = Km = 0: no motor
