@@ -15,7 +15,8 @@ with ``jax.random.normal`` (threefry bits, then a float64 inverse error function
   reading row k of it (no per-period key derivation at all), and with it ``float32`` or ``unsafe_rbg``.
 
 The library's own loop is timed too (``engine_rates``), with today's draw, ``unsafe_rbg`` keys, the float32 draw,
-and ``NoDraw`` (y = x): the last is the bound that no way of drawing the noise can pass.
+and ``NoDraw`` (y = x): the last is the bound that no way of drawing the noise can pass; and three of them
+again with the DIP's sin and cos in vectorised operations (``DIP(trig="vectorised")``).
 
 ``CANDIDATES`` maps each name to ``(key impl, draw, block)``; ``noise`` draws a (seeds, steps, 6) array of one
 candidate's stream, which the tests (tests/test_noise_streams.py) check statistically against today's. Timings
@@ -180,14 +181,20 @@ def engine_rates(seeds: int = 1024, steps: int = 1000, rounds: int = 5) -> dict:
     """ns per seed-period (median CPU time, interleaved rounds) of the library's own dip-lqr loop
     (``jd.monte_carlo`` of the scenario's rollout, one RK4 step, no recording): today's keys, ``unsafe_rbg`` keys
     (a typed key given to ``monte_carlo``: the whole key schedule on that generator),
-    ``WhiteNoise(draw_dtype="float32")``, and ``NoDraw`` (no noise at all: what any draw could gain at most)."""
+    ``WhiteNoise(draw_dtype="float32")``, and ``NoDraw`` (no noise at all: what any draw could gain at most);
+    then the first, the third and the fourth again with ``DIP(trig="vectorised")`` (sin and cos in vectorised
+    operations instead of the C library's)."""
+    from jaxdip.plants.dip import DIP
     from jaxdip.scenarios.dip_lqr import dip_lqr
 
     r = dip_lqr(duration=steps * DT, substeps=1, record_every=None)
     r32 = eqx.tree_at(lambda r: r.loop.sensor, r, jd.sensors.WhiteNoise(NOISE_STD, draw_dtype="float32"))
     r0 = eqx.tree_at(lambda r: r.loop.sensor, r, NoDraw())
+    vec = DIP(trig="vectorised")
     cases = {"threefry": (r, jax.random.PRNGKey(0)), "unsafe_rbg": (r, jax.random.key(0, impl="unsafe_rbg")),
              "float32": (r32, jax.random.PRNGKey(0)), "no_draw": (r0, jax.random.PRNGKey(0))}
+    for name, base in (("vectorised_trig", r), ("vectorised_trig_float32", r32), ("vectorised_trig_no_draw", r0)):
+        cases[name] = (eqx.tree_at(lambda r: r.loop.plant, base, vec), jax.random.PRNGKey(0))
     progs = {name: jax.jit(lambda key, r=rollout: jd.monte_carlo(r, key, seeds).metrics)
              for name, (rollout, _) in cases.items()}
     for name, f in progs.items():
@@ -221,7 +228,7 @@ def main() -> None:
     eng = engine_rates(args.seeds, args.steps, args.rounds)
     print("the library's loop (jd.monte_carlo of the dip-lqr rollout), ns per seed-period")
     for name, v in eng.items():
-        print(f"{name:<18}{v:>10.1f}{1e9 / v:>12.3g}{eng['threefry'] / v:>9.2f}")
+        print(f"{name:<24}{v:>10.1f}{1e9 / v:>12.3g}{eng['threefry'] / v:>9.2f}")
 
 
 if __name__ == "__main__":
