@@ -6,14 +6,17 @@ import json
 import os
 import re
 import shlex
+import signal
 import sys
+import threading
 import time
 
 import numpy as np
 
 from jaxdip import xla_flags
 from jaxdip.cli_args import check_paths, parser, special_kind
-from jaxdip.cli_errors import (Signals, component_refusal, emit, error, guarded, note, numerical, riccati_keys,
+from jaxdip.cli_errors import (Signals, component_refusal, emit, error, guarded, interrupt_seen, note, numerical,
+                               remember_sigint, riccati_keys,
                                run_refusal, warn)
 from jaxdip.messages import listing, unknown
 from jaxdip.reproduce_pool import run_argv, run_parallel
@@ -74,7 +77,8 @@ def _distributed(args) -> int:
         args.jobs = 1
     timeout = args.connect_timeout or distributed.DEFAULT_TIMEOUT_S
     try:
-        pid, _ = distributed.initialize(args.coordinator, args.num_processes, args.process_id, timeout_s=timeout)
+        pid, _ = distributed.initialize(args.coordinator, args.num_processes, args.process_id, timeout_s=timeout,
+                                        stop=interrupt_seen)
     except distributed.DistributedError as e:
         code = error("--distributed", str(e))
         if e.stuck:
@@ -375,7 +379,13 @@ def main(argv=None) -> int:
             return int(e.code or 0)
         return _command(args, argv)
 
-    return guarded(command)
+    if threading.current_thread() is not threading.main_thread():  # signal handlers are the main thread's to set
+        return guarded(command)
+    old = remember_sigint()
+    try:
+        return guarded(command)
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 if __name__ == "__main__":

@@ -23,7 +23,7 @@ import os
 import signal
 import sys
 import warnings
-from typing import Callable
+from typing import Any, Callable
 
 from jaxdip.messages import MAX_LINE, clean, shorten
 
@@ -290,6 +290,27 @@ def run_refusal(e: Exception, cfg, exp_id: str) -> int | None:
     return None
 
 
+_SEEN: list = []  # the signals any handler below has taken in this process
+
+
+def interrupt_seen() -> bool:
+    """Whether this process has taken Ctrl-C (or, inside ``Signals``, SIGTERM) since ``main`` began, even where the
+    KeyboardInterrupt it raised was swallowed: Python prints and drops an exception raised inside a
+    garbage-collector callback, and JAX runs one at every collection, so a Ctrl-C can land there and vanish."""
+    return bool(_SEEN)
+
+
+def remember_sigint() -> Any:
+    """From here on Ctrl-C raises KeyboardInterrupt as Python's own handler does, and is remembered
+    (``interrupt_seen``, cleared here), for the waits that poll it. Returns the handler it replaced."""
+    def handler(signum, frame):
+        _SEEN.append(signum)
+        raise KeyboardInterrupt
+
+    _SEEN.clear()
+    return signal.signal(signal.SIGINT, handler)
+
+
 class Signals:
     """SIGINT and SIGTERM stop a run: the first raises KeyboardInterrupt and is remembered, so a run whose
     library code swallowed it still refuses to write its folder (``run_experiment``'s ``stop_requested``)."""
@@ -300,6 +321,7 @@ class Signals:
 
     def _handler(self, signum, frame):
         self.hit = signum
+        _SEEN.append(signum)
         raise KeyboardInterrupt
 
     def __enter__(self):

@@ -20,7 +20,7 @@ import sys
 import tempfile
 import threading
 import time
-from typing import Any, Optional
+from typing import Any, Callable, Optional
 
 from jaxdip.messages import shown
 
@@ -87,14 +87,17 @@ def _host_port(address: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
-def wait_for_coordinator(address: str, deadline: float) -> None:
+def wait_for_coordinator(address: str, deadline: float, stop: Optional[Callable[[], bool]] = None) -> None:
     """Until ``deadline`` (``time.monotonic``), try a plain TCP connection to ``address`` every quarter second:
     a coordinator that is not up yet may still come, one that never answers is reported here, in Python, where
     Ctrl-C works, instead of inside ``jax.distributed.initialize`` (which ignores SIGINT and aborts the process
-    with a C++ stack trace when its own timeout passes)."""
+    with a C++ stack trace when its own timeout passes). ``stop()`` true (a Ctrl-C seen, even one swallowed on
+    its way: a KeyboardInterrupt raised inside a garbage-collector callback, such as JAX's, is printed and
+    dropped) ends the wait as Ctrl-C does."""
     host, port = _host_port(address)
     last = "no answer"
     while True:
+        _check_stop(stop)
         left = deadline - time.monotonic()
         if left <= 0:
             raise DistributedError(f"no coordinator answered at {address} ({last}); start process 0 first, check "
@@ -148,7 +151,12 @@ class _StderrHeld:
         return False
 
 
-def _in_thread(fn, deadline: float, what: str):
+def _check_stop(stop: Optional[Callable[[], bool]]) -> None:
+    if stop is not None and stop():
+        raise KeyboardInterrupt
+
+
+def _in_thread(fn, deadline: float, what: str, stop: Optional[Callable[[], bool]] = None):
     """``fn()`` in a helper thread while this one waits, so Ctrl-C (a KeyboardInterrupt here) and ``deadline``
     both end the wait; a call still running then is stuck in C++ (``DistributedError.stuck``), and the caller
     must end the process without waiting for it."""
@@ -163,6 +171,7 @@ def _in_thread(fn, deadline: float, what: str):
     t = threading.Thread(target=target, name="jax.distributed.initialize", daemon=True)
     t.start()
     while t.is_alive():
+        _check_stop(stop)
         if time.monotonic() >= deadline:
             raise DistributedError(f"{what}; raise --connect-timeout if the other processes start later",
                                    stuck=True)
@@ -173,11 +182,13 @@ def _in_thread(fn, deadline: float, what: str):
 
 
 def initialize(coordinator: Optional[str] = None, num_processes: Optional[int | str] = None,
-               process_id: Optional[int | str] = None, timeout_s: float = DEFAULT_TIMEOUT_S) -> tuple[int, int]:
+               process_id: Optional[int | str] = None, timeout_s: float = DEFAULT_TIMEOUT_S,
+               stop: Optional[Callable[[], bool]] = None) -> tuple[int, int]:
     """Initialise ``jax.distributed`` (before any JAX computation); returns (process_id, num_processes).
 
     Every process waits at most ``timeout_s`` for the others, and Ctrl-C ends the wait. On CPU the
-    cross-process collectives are gloo's. Raises ``DistributedError`` with a one-line reason.
+    cross-process collectives are gloo's. Raises ``DistributedError`` with a one-line reason. ``stop``: a
+    predicate polled while waiting (the CLI's record of a Ctrl-C); true ends the wait with KeyboardInterrupt.
     """
     import jax
 
@@ -187,7 +198,7 @@ def initialize(coordinator: Optional[str] = None, num_processes: Optional[int | 
         if got["process_id"] == 0:
             check_port_free(got["coordinator"])
         else:
-            wait_for_coordinator(got["coordinator"], deadline)
+            wait_for_coordinator(got["coordinator"], deadline, stop)
     # CPU collectives: without an implementation a CPU computation spanning processes cannot run. gloo is the
     # default of recent JAX; naming it keeps versions whose default is "none" working.
     try:
@@ -202,7 +213,7 @@ def initialize(coordinator: Optional[str] = None, num_processes: Optional[int | 
             _in_thread(lambda: jax.distributed.initialize(got["coordinator"], got["num_processes"],
                                                           got["process_id"],
                                                           initialization_timeout=int(left) + 30),
-                       deadline, f"the processes did not all join at {where} within {timeout_s:g} s")
+                       deadline, f"the processes did not all join at {where} within {timeout_s:g} s", stop)
     except DistributedError:
         raise
     except ValueError as e:

@@ -338,6 +338,26 @@ def _distributed(port, pid, *extra):
             "--process-id", str(pid), *extra]
 
 
+def _cpu_ticks(pid: int) -> int:
+    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    return int(fields[11]) + int(fields[12])  # utime + stime
+
+
+def _wait_until_idle(p: subprocess.Popen, limit_s: float = 120.0) -> None:
+    """Until the child uses no CPU for half a second: its imports are done and it waits. A fixed sleep is not
+    enough on a loaded machine, where the imports can take longer than the sleep, and a Ctrl-C that lands inside
+    them is Python's to handle, not the command's."""
+    time.sleep(1.0)
+    end = time.monotonic() + limit_s
+    last = _cpu_ticks(p.pid)
+    while time.monotonic() < end and p.poll() is None:
+        time.sleep(0.5)
+        now = _cpu_ticks(p.pid)
+        if now - last <= 1:
+            return
+        last = now
+
+
 @pytest.mark.parametrize("pid", [1, 0])
 def test_ctrl_c_during_the_connection(world, pid):
     """Process 1 waiting for a coordinator that never comes, process 0 for a process that never joins: Ctrl-C
@@ -346,7 +366,7 @@ def test_ctrl_c_during_the_connection(world, pid):
     before = snapshot(work), snapshot(victim)
     p = subprocess.Popen([sys.executable, "-m", "jaxdip.cli", *_distributed(_closed_port(), pid)], cwd=work,
                          env=_env(), stderr=subprocess.PIPE, text=True)
-    time.sleep(3.0)  # imports done, waiting
+    _wait_until_idle(p)
     assert p.poll() is None
     p.send_signal(signal.SIGINT)
     t0 = time.monotonic()
@@ -395,3 +415,44 @@ def test_reproduce_refusal_starts_no_worker(world):
     assert r.returncode == 2 and one_line(r.stderr).startswith("error: --out: notes.txt exists"), r.stderr
     assert (snapshot(work), snapshot(victim)) == before
 
+
+
+def test_a_ctrl_c_swallowed_in_a_gc_callback_still_ends_the_connection_wait():
+    """Python prints and drops an exception raised inside a garbage-collector callback (JAX runs one at every
+    collection), so a Ctrl-C whose KeyboardInterrupt lands there is lost. The CLI's handler remembers it, and the
+    distributed waits poll that record."""
+    import gc
+    import threading
+
+    from jaxdip import distributed
+    from jaxdip.cli_errors import interrupt_seen, remember_sigint
+
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers run in the main thread only")
+    fired, lost = [], []
+
+    def callback(phase, info):
+        if phase == "start" and not fired:
+            fired.append(True)
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(10_000):  # the handler runs between these bytecodes, inside the callback
+                pass
+
+    old_hook, sys.unraisablehook = sys.unraisablehook, lambda u: lost.append(u.exc_type)
+    old = remember_sigint()
+    assert not interrupt_seen()
+    gc.callbacks.append(callback)
+    try:
+        gc.collect()
+    finally:
+        gc.callbacks.remove(callback)
+        signal.signal(signal.SIGINT, old)
+        sys.unraisablehook = old_hook
+    assert lost == [KeyboardInterrupt]  # swallowed: without the record this Ctrl-C would be gone
+    assert interrupt_seen()
+    t0 = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        distributed.wait_for_coordinator(f"127.0.0.1:{_closed_port()}", time.monotonic() + 30, interrupt_seen)
+    with pytest.raises(KeyboardInterrupt):
+        distributed._in_thread(lambda: time.sleep(5), time.monotonic() + 30, "never", interrupt_seen)
+    assert time.monotonic() - t0 < 2
