@@ -114,3 +114,11 @@ def test_higher_derivatives_at_zero_and_elsewhere_are_the_sines_and_cosines():
     c3 = jax.grad(jax.grad(jax.grad(lambda v: sincos(v)[1])))
     np.testing.assert_allclose([float(c3(x0)) for x0 in (0.0, 0.3, -2.0)], [np.sin(x0) for x0 in (0.0, 0.3, -2.0)],
                                rtol=0, atol=1e-13)
+
+
+def test_the_derivative_is_the_defined_rule_on_the_computed_values():
+    """d sin = cos dx and d cos = -sin dx from the values sincos returns, to the bit: the rule, not the formula
+    traced (whose tangents XLA copied into every consumer; a CPX loop ran 12.7x slower)."""
+    x = jnp.asarray(np.linspace(-10.0, 10.0, 1001))
+    (s, c), (ds, dc) = jax.jvp(sincos, (x,), (jnp.ones_like(x),))
+    assert np.array_equal(np.asarray(ds), np.asarray(c)) and np.array_equal(np.asarray(dc), np.asarray(-s))
