@@ -385,7 +385,8 @@ def main(argv=None) -> int:
     try:
         return guarded(command)
     finally:
-        signal.signal(signal.SIGINT, old)
+        if old is not None:  # None: a handler set outside Python, which cannot be put back from here
+            signal.signal(signal.SIGINT, old)
 
 
 if __name__ == "__main__":
