@@ -169,8 +169,9 @@ class DIP(Plant):
 
     ``trig`` (static) picks how the printed equations evaluate sin and cos: ``"library"`` (the default, the C
     library's, as every published number of this project was computed) or ``"vectorised"``
-    (``jaxdip.plants.trig.sincos``: within a few ulp of it; the dip-lqr loop runs about 1.5x faster on a CPU,
-    but a CPX loop, which linearises the model every period, about 2x slower; docs/performance.md). Loops with
+    (``jaxdip.plants.trig.sincos``: within a few ulp of it; the bench's LQR loop at 4096 seeds runs about 1.5x
+    faster on a CPU, but a CPX loop, which linearises the model every period, about 2x slower, and the
+    experiments' quick runs were not faster; docs/performance.md). Loops with
     quantised encoders (dip-cpx-ldf) amplify any last-bit difference, so there the two give different
     trajectories and statistics that agree only within their intervals."""
 
