@@ -54,7 +54,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # kept a worker busy for half a minute while the others had nothing left). Starting them first lets the many
 # short files fill in around them. A file missing here only runs later; the order changes no result.
 LONGEST_FIRST = (
-    "test_tutorial.py", "test_kill_resume.py", "test_eki.py", "test_cli.py", "test_cli_faults.py", "test_driver.py",
+    "test_tutorial.py", "test_kill_resume.py", "test_eki.py", "test_cli.py", "test_cli_faults.py",
+    "test_cli_distributed_faults.py", "test_driver.py",
     "test_eki_dip.py", "test_dip_cpx_ldf.py", "test_lorenz_mhe.py", "test_tune.py", "test_immune_levelset.py",
     "test_weighted_mhe.py", "test_simulate.py", "test_search_steps.py", "test_dip_mpc.py",
     "test_immune_autonomous.py", "test_lorenz_components.py", "test_mpc.py", "test_effort.py",

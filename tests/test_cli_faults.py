@@ -3,7 +3,8 @@ error of at most 300 characters with no raw control character, and the working f
 beside it left exactly as they were (``snapshots.snapshot``).
 
 The table runs in this process (nothing in it compiles); what needs a real process (a closed pipe, a FIFO, an
-ASCII-only terminal, a memory limit, a deleted working folder, Ctrl-C during a connection) runs as a child.
+ASCII-only terminal, a memory limit, a deleted working folder) runs as a child; ``--distributed``'s faults are
+in test_cli_distributed_faults.py.
 """
 
 from __future__ import annotations
@@ -12,11 +13,9 @@ import dataclasses
 import errno
 import logging
 import os
-import signal
 import socket
 import subprocess
 import sys
-import time
 import warnings
 
 import pytest
@@ -24,6 +23,7 @@ import pytest
 from jaxdip import cli, reproduce_pool
 import experiments.dip_lqr as dip_lqr
 from jaxdip.resources import FLOAT_BYTES, COPIES, USABLE, available_bytes
+from cli_faults_support import RUN, child_env, make_world, one_line, run_child
 from snapshots import snapshot
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -31,30 +31,9 @@ LONG = "x" * 100_000
 ESC = "\x1b]0;owned\x07\x1b[2J"  # a terminal title change and a screen clear
 
 
-def one_line(err: str) -> str:
-    """The single line of ``err``, after checking the contract's form."""
-    assert err.endswith("\n") and err.count("\n") == 1, repr(err[:2000])
-    line = err[:-1]
-    assert len(line) <= 300, len(line)
-    assert not any(ord(c) < 32 or 0x7F <= ord(c) < 0xA0 for c in line), repr(line)
-    return line
-
-
 @pytest.fixture
 def world(tmp_path, monkeypatch):
-    """``work`` (the working folder, with a user's file and folder) and ``victim`` beside it."""
-    work, victim = tmp_path / "work", tmp_path / "victim"
-    for d in (work, victim):
-        (d / "sub").mkdir(parents=True)
-        (d / "notes.txt").write_text("mine\n")
-        (d / "sub" / "data.csv").write_text("1,2\n")
-    (work / "bad_seeds.toml").write_text("seeds = -3\n")
-    (work / "bad_dt.toml").write_text('dt = "fast"\n')
-    os.mkfifo(work / "fifo.toml")
-    monkeypatch.chdir(work)
-    monkeypatch.setenv("JAXDIP_NO_PROGRESS", "1")
-    monkeypatch.setenv("XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))  # restored after the test
-    return work, victim
+    return make_world(tmp_path, monkeypatch)
 
 
 def _sock(path):
@@ -62,8 +41,6 @@ def _sock(path):
     s.bind(str(path))
     return s
 
-
-RUN = ["run", "dip-lqr", "--quick", "--out", "o"]
 
 CASES = [
     # -- a value in the config file is checked even when a flag replaces it
@@ -206,24 +183,12 @@ def test_warnings_of_a_command_that_goes_on_are_shown(world, capsys, monkeypatch
 # ---- faults that need a process of their own -----------------------------------------------------------------
 
 
-def _env(**extra):
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("SLURM_", "OMPI_", "PMI_", "JAX_COORD"))}
-    env.update(JAXDIP_NO_PROGRESS="1", **extra)
-    return env
-
-
-def _child(args, cwd, timeout=60, **popen):
-    popen.setdefault("stdout", subprocess.PIPE)
-    return subprocess.run([sys.executable, "-m", "jaxdip.cli", *args], cwd=cwd, env=popen.pop("env", _env()),
-                          stderr=subprocess.PIPE, text=True, timeout=timeout, **popen)
-
-
 def test_numpy_warning_before_a_late_refusal(world):
     """R = 1e308: NumPy warns of an overflow in the Riccati design, which then fails: one line, not the warning's
     two and the error's one."""
     work, victim = world
     before = snapshot(work), snapshot(victim)
-    r = _child([*RUN, "--set", "R=1e308"], work)
+    r = run_child([*RUN, "--set", "R=1e308"], work)
     assert r.returncode == 2 and one_line(r.stderr).startswith("error: Q, R: cannot solve the CARE"), r.stderr
     assert (snapshot(work), snapshot(victim)) == before
 
@@ -231,7 +196,7 @@ def test_numpy_warning_before_a_late_refusal(world):
 def test_fifo_config_does_not_hang(world):
     work, victim = world
     before = snapshot(work), snapshot(victim)
-    r = _child([*RUN, "--config", "fifo.toml"], work, timeout=30)
+    r = run_child([*RUN, "--config", "fifo.toml"], work, timeout=30)
     assert r.returncode == 2 and one_line(r.stderr).startswith("error: --config: fifo.toml is a FIFO"), r.stderr
     assert (snapshot(work), snapshot(victim)) == before
 
@@ -245,7 +210,7 @@ def test_fifo_as_output_does_not_hang(world, argv):
     (work / "repro").mkdir()
     os.mkfifo(work / "repro" / "REPORT.md")
     before = snapshot(work), snapshot(victim)
-    r = _child(argv, work, timeout=30)
+    r = run_child(argv, work, timeout=30)
     assert r.returncode == 2 and "is a FIFO" in one_line(r.stderr), r.stderr
     assert (snapshot(work), snapshot(victim)) == before
 
@@ -253,7 +218,7 @@ def test_fifo_as_output_does_not_hang(world, argv):
 def test_closed_pipe_exits_quietly(world):
     """``jaxdip config dip-lqr | head -0``: the reader is gone before the first write."""
     before = snapshot(world[0]), snapshot(world[1])
-    p = subprocess.Popen([sys.executable, "-m", "jaxdip.cli", "config", "dip-lqr"], cwd=world[0], env=_env(),
+    p = subprocess.Popen([sys.executable, "-m", "jaxdip.cli", "config", "dip-lqr"], cwd=world[0], env=child_env(),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     p.stdout.close()
     err = p.communicate(timeout=60)[1]
@@ -265,7 +230,7 @@ def test_closed_pipe_exits_quietly(world):
 def test_full_disk_behind_stdout(world, argv):
     before = snapshot(world[0]), snapshot(world[1])
     with open("/dev/full", "w") as full:
-        r = _child(argv, world[0], stdout=full)
+        r = run_child(argv, world[0], stdout=full)
     assert r.returncode == 2 and one_line(r.stderr).startswith("error: stdout: cannot write standard output: "
                                                                "No space left"), r.stderr
     assert (snapshot(world[0]), snapshot(world[1])) == before
@@ -274,11 +239,11 @@ def test_full_disk_behind_stdout(world, argv):
 def test_ascii_terminal(world):
     """LANG=C and an ASCII-only encoding: the config's non-ASCII text and an error echoing a non-ASCII value
     come out escaped, never as UnicodeEncodeError."""
-    env = _env(LANG="C", LC_ALL="C", PYTHONIOENCODING="ascii")
+    env = child_env(LANG="C", LC_ALL="C", PYTHONIOENCODING="ascii")
     before = snapshot(world[0]), snapshot(world[1])
-    r = _child(["config", "dip-lqr"], world[0], env=env)
+    r = run_child(["config", "dip-lqr"], world[0], env=env)
     assert r.returncode == 0 and r.stderr == "" and "\\xa7" in r.stdout
-    r = _child([*RUN, "--set", "seeds=\u00e9t\u00e9"], world[0], env=env)
+    r = run_child([*RUN, "--set", "seeds=\u00e9t\u00e9"], world[0], env=env)
     assert r.returncode == 2 and one_line(r.stderr).startswith("error: seeds: expected an integer, got '\\xe9t"), \
         r.stderr
     assert (snapshot(world[0]), snapshot(world[1])) == before
@@ -292,7 +257,7 @@ def test_deleted_working_folder(tmp_path):
     (victim / "keep.txt").write_text("keep\n")
     before = snapshot(victim)
     script = f"cd {gone} && rmdir {gone} && exec {sys.executable} -m jaxdip.cli run dip-lqr --quick --out o"
-    r = subprocess.run(["sh", "-c", script], env=_env(PYTHONPATH=ROOT), capture_output=True, text=True, timeout=60)
+    r = subprocess.run(["sh", "-c", script], env=child_env(PYTHONPATH=ROOT), capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and one_line(r.stderr).startswith("error: --out: a relative path, and the working "
                                                                "folder is gone"), r.stderr
     assert snapshot(victim) == before and not gone.exists()
@@ -302,7 +267,7 @@ def _vm_size_after_import() -> int:
     """The address space a ``jaxdip run`` uses once its experiments are imported (JAX's backend started)."""
     code = ("from jaxdip.runner import registry; registry()\n"
             "print([l.split()[1] for l in open('/proc/self/status') if l.startswith('VmSize:')][0])")
-    r = subprocess.run([sys.executable, "-c", code], env=_env(), capture_output=True, text=True, timeout=60)
+    r = subprocess.run([sys.executable, "-c", code], env=child_env(), capture_output=True, text=True, timeout=60)
     return int(r.stdout) * 1024
 
 
@@ -321,81 +286,9 @@ def test_memory_limit_is_part_of_the_resource_check(world):
         pytest.skip("this machine has too little free memory to tell the limit from the machine")
     before = snapshot(work), snapshot(victim)
     script = f"ulimit -v {limit // 1024} && exec {sys.executable} -m jaxdip.cli {' '.join(RUN)} --seeds {seeds}"
-    r = subprocess.run(["sh", "-c", script], cwd=work, env=_env(), capture_output=True, text=True, timeout=60)
+    r = subprocess.run(["sh", "-c", script], cwd=work, env=child_env(), capture_output=True, text=True, timeout=60)
     line = one_line(r.stderr)
     assert r.returncode == 2 and line.startswith("error: --seeds: the Monte Carlo"), r.stderr
-    assert (snapshot(work), snapshot(victim)) == before
-
-
-def _closed_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _distributed(port, pid, *extra):
-    return [*RUN, "--distributed", "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2",
-            "--process-id", str(pid), *extra]
-
-
-def _cpu_ticks(pid: int) -> int:
-    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
-    return int(fields[11]) + int(fields[12])  # utime + stime
-
-
-def _wait_until_idle(p: subprocess.Popen, limit_s: float = 120.0) -> None:
-    """Until the child uses no CPU for half a second: its imports are done and it waits. A fixed sleep is not
-    enough on a loaded machine, where the imports can take longer than the sleep, and a Ctrl-C that lands inside
-    them is Python's to handle, not the command's."""
-    time.sleep(1.0)
-    end = time.monotonic() + limit_s
-    last = _cpu_ticks(p.pid)
-    while time.monotonic() < end and p.poll() is None:
-        time.sleep(0.5)
-        now = _cpu_ticks(p.pid)
-        if now - last <= 1:
-            return
-        last = now
-
-
-@pytest.mark.parametrize("pid", [1, 0])
-def test_ctrl_c_during_the_connection(world, pid):
-    """Process 1 waiting for a coordinator that never comes, process 0 for a process that never joins: Ctrl-C
-    ends either at once, with one line (it used to be ignored until JAX aborted minutes later)."""
-    work, victim = world
-    before = snapshot(work), snapshot(victim)
-    p = subprocess.Popen([sys.executable, "-m", "jaxdip.cli", *_distributed(_closed_port(), pid)], cwd=work,
-                         env=_env(), stderr=subprocess.PIPE, text=True)
-    _wait_until_idle(p)
-    assert p.poll() is None
-    p.send_signal(signal.SIGINT)
-    t0 = time.monotonic()
-    err = p.communicate(timeout=20)[1]
-    assert p.returncode == 130 and one_line(err) == "interrupted: nothing was written", err
-    assert time.monotonic() - t0 < 10
-    assert (snapshot(work), snapshot(victim)) == before
-
-
-def test_connection_timeout(world):
-    work, victim = world
-    before = snapshot(work), snapshot(victim)
-    t0 = time.monotonic()
-    r = _child(_distributed(_closed_port(), 1, "--connect-timeout", "1"), work, timeout=60)
-    line = one_line(r.stderr)
-    assert r.returncode == 2 and line.startswith("error: --distributed: no coordinator answered at 127.0.0.1:"), line
-    assert time.monotonic() - t0 < 30
-    assert (snapshot(work), snapshot(victim)) == before
-
-
-def test_coordinator_port_in_use(world):
-    work, victim = world
-    with socket.socket() as busy:
-        busy.bind(("127.0.0.1", 0))
-        busy.listen()
-        before = snapshot(work), snapshot(victim)
-        r = _child(_distributed(busy.getsockname()[1], 0, "--connect-timeout", "5"), work, timeout=60)
-    line = one_line(r.stderr)
-    assert r.returncode == 2 and "is in use on this machine" in line, line
     assert (snapshot(work), snapshot(victim)) == before
 
 
@@ -410,49 +303,7 @@ def test_reproduce_refusal_starts_no_worker(world):
             "reproduce_pool.Workers = NoWorkers\n"
             "sys.exit(cli.main(['reproduce', '--quick', '--jobs', '2', '--out', 'notes.txt']))\n")
     before = snapshot(work), snapshot(victim)
-    r = subprocess.run([sys.executable, "-c", code], cwd=work, env=_env(), capture_output=True, text=True,
+    r = subprocess.run([sys.executable, "-c", code], cwd=work, env=child_env(), capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 2 and one_line(r.stderr).startswith("error: --out: notes.txt exists"), r.stderr
     assert (snapshot(work), snapshot(victim)) == before
-
-
-
-def test_a_ctrl_c_swallowed_in_a_gc_callback_still_ends_the_connection_wait():
-    """Python prints and drops an exception raised inside a garbage-collector callback (JAX runs one at every
-    collection), so a Ctrl-C whose KeyboardInterrupt lands there is lost. The CLI's handler remembers it, and the
-    distributed waits poll that record."""
-    import gc
-    import threading
-
-    from jaxdip import distributed
-    from jaxdip.cli_errors import interrupt_seen, remember_sigint
-
-    if threading.current_thread() is not threading.main_thread():
-        pytest.skip("signal handlers run in the main thread only")
-    fired, lost = [], []
-
-    def callback(phase, info):
-        if phase == "start" and not fired:
-            fired.append(True)
-            os.kill(os.getpid(), signal.SIGINT)
-            for _ in range(10_000):  # the handler runs between these bytecodes, inside the callback
-                pass
-
-    old_hook, sys.unraisablehook = sys.unraisablehook, lambda u: lost.append(u.exc_type)
-    old = remember_sigint()
-    assert not interrupt_seen()
-    gc.callbacks.append(callback)
-    try:
-        gc.collect()
-    finally:
-        gc.callbacks.remove(callback)
-        signal.signal(signal.SIGINT, old)
-        sys.unraisablehook = old_hook
-    assert lost == [KeyboardInterrupt]  # swallowed: without the record this Ctrl-C would be gone
-    assert interrupt_seen()
-    t0 = time.monotonic()
-    with pytest.raises(KeyboardInterrupt):
-        distributed.wait_for_coordinator(f"127.0.0.1:{_closed_port()}", time.monotonic() + 30, interrupt_seen)
-    with pytest.raises(KeyboardInterrupt):
-        distributed._in_thread(lambda: time.sleep(5), time.monotonic() + 30, "never", interrupt_seen)
-    assert time.monotonic() - t0 < 2
