@@ -184,17 +184,16 @@ def engine_rates(seeds: int = 1024, steps: int = 1000, rounds: int = 5) -> dict:
     ``WhiteNoise(draw_dtype="float32")``, and ``NoDraw`` (no noise at all: what any draw could gain at most);
     then the first, the third and the fourth again with ``DIP(trig="vectorised")`` (sin and cos in vectorised
     operations instead of the C library's)."""
-    from jaxdip.plants.dip import DIP
+    from jaxdip.bench.scoreboard import float32_draw, vectorised_trig
     from jaxdip.scenarios.dip_lqr import dip_lqr
 
     r = dip_lqr(duration=steps * DT, substeps=1, record_every=None)
-    r32 = eqx.tree_at(lambda r: r.loop.sensor, r, jd.sensors.WhiteNoise(NOISE_STD, draw_dtype="float32"))
+    r32 = float32_draw(r)
     r0 = eqx.tree_at(lambda r: r.loop.sensor, r, NoDraw())
-    vec = DIP(trig="vectorised")
     cases = {"threefry": (r, jax.random.PRNGKey(0)), "unsafe_rbg": (r, jax.random.key(0, impl="unsafe_rbg")),
              "float32": (r32, jax.random.PRNGKey(0)), "no_draw": (r0, jax.random.PRNGKey(0))}
     for name, base in (("vectorised_trig", r), ("vectorised_trig_float32", r32), ("vectorised_trig_no_draw", r0)):
-        cases[name] = (eqx.tree_at(lambda r: r.loop.plant, base, vec), jax.random.PRNGKey(0))
+        cases[name] = (vectorised_trig(base), jax.random.PRNGKey(0))
     progs = {name: jax.jit(lambda key, r=rollout: jd.monte_carlo(r, key, seeds).metrics)
              for name, (rollout, _) in cases.items()}
     for name, f in progs.items():

@@ -70,7 +70,8 @@ def solve_sym3(m11, m12, m13, m22, m23, m33, b1, b2, b3):
 
 
 def _sin_cos(p: "DIP", v):
-    # "vectorised": jaxdip.plants.trig.sincos, about 1.5x the loop's throughput, but not the C library's last bits
+    # "vectorised": jaxdip.plants.trig.sincos, about 1.5x a plant-only loop's throughput (slower where the loop
+    # linearises the model), and not the C library's last bits
     return sincos(v) if p.trig == "vectorised" else (jnp.sin(v), jnp.cos(v))
 
 
