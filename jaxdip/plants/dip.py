@@ -70,8 +70,8 @@ def solve_sym3(m11, m12, m13, m22, m23, m33, b1, b2, b3):
 
 
 def _sin_cos(p: "DIP", v):
-    # "vectorised": jaxdip.plants.trig.sincos, about 1.5x a plant-only loop's throughput (slower where the loop
-    # linearises the model), and not the C library's last bits
+    # "vectorised": jaxdip.plants.trig.sincos, about 1.6x a plant-only loop's throughput, and not the C library's
+    # last bits (docs/performance.md: where it is faster and where not)
     return sincos(v) if p.trig == "vectorised" else (jnp.sin(v), jnp.cos(v))
 
 
@@ -170,9 +170,9 @@ class DIP(Plant):
 
     ``trig`` (static) picks how the printed equations evaluate sin and cos: ``"library"`` (the default, the C
     library's, as every published number of this project was computed) or ``"vectorised"``
-    (``jaxdip.plants.trig.sincos``: within a few ulp of it; the bench's LQR loop at 4096 seeds runs about 1.5x
-    faster on a CPU, but a CPX loop, which linearises the model every period, about 2x slower, and the
-    experiments' quick runs were not faster; docs/performance.md). Loops with
+    (``jaxdip.plants.trig.sincos``: within a few ulp of it; the bench's LQR loop at 4096 seeds runs about 1.6x
+    faster on a CPU, dip-cpx-ldf's CPX loop 1.5x, but its LDF loop 2.5x slower when the power-series
+    controller's model takes it, and the experiments' quick runs were not faster; docs/performance.md). Loops with
     quantised encoders (dip-cpx-ldf) amplify any last-bit difference, so there the two give different
     trajectories and statistics that agree only within their intervals."""
 
