@@ -118,7 +118,7 @@ def test_higher_derivatives_at_zero_and_elsewhere_are_the_sines_and_cosines():
 
 def test_the_derivative_is_the_defined_rule_on_the_computed_values():
     """d sin = cos dx and d cos = -sin dx from the values sincos returns, to the bit: the rule, not the formula
-    traced (whose tangents XLA copied into every consumer; dip-cpx-ldf's loop, whose power-series control takes
+    traced (whose tangents XLA copied into every consumer; a dip-cpx-ldf run, whose power-series control takes
     three derivatives of the model every period, ran 12.7x slower)."""
     x = jnp.asarray(np.linspace(-10.0, 10.0, 1001))
     (s, c), (ds, dc) = jax.jvp(sincos, (x,), (jnp.ones_like(x),))
