@@ -134,3 +134,14 @@ def test_sin_and_cos_each_come_out_of_a_division():
     inner = call.params["call_jaxpr"].jaxpr
     made_by = {v: e.primitive.name for e in inner.eqns for v in e.outvars}
     assert [made_by[v] for v in inner.outvars] == ["div", "div"]
+
+
+def test_the_vectorised_dip_takes_one_sincos_for_both_angles():
+    """One formula for the stacked angles: with one per angle, two copies of its reduction steps went into the
+    kernel of the power-series control's third derivative, and dip-cpx-ldf's LDF loop ran 2.5x slower than with
+    the C library's trig (docs/performance.md)."""
+    from jaxdip.plants.dip import DIP
+
+    jaxpr = jax.make_jaxpr(lambda x: DIP(trig="vectorised").vector_field(x, jnp.zeros(1)))(jnp.full(6, 0.1)).jaxpr
+    calls = [e for e in jaxpr.eqns if e.primitive.name == "custom_jvp_call"]
+    assert len(calls) == 1 and calls[0].invars[0].aval.shape == (2,)

@@ -69,10 +69,16 @@ def solve_sym3(m11, m12, m13, m22, m23, m33, b1, b2, b3):
     )
 
 
-def _sin_cos(p: "DIP", v):
-    # "vectorised": jaxdip.plants.trig.sincos, about 1.6x a plant-only loop's throughput, and not the C library's
-    # last bits (docs/performance.md: where it is faster and where not)
-    return sincos(v) if p.trig == "vectorised" else (jnp.sin(v), jnp.cos(v))
+def _sin_cos(p: "DIP", a, th):
+    """(sin a, cos a, sin th, cos th). "vectorised": jaxdip.plants.trig.sincos, about 1.6x a plant-only loop's
+    throughput, and not the C library's last bits (docs/performance.md: where it is faster and where not)."""
+    if p.trig == "vectorised":
+        # one formula for both angles: two separate ones put two copies of its reduction steps into the kernel of
+        # the power-series control's third derivative, where dip-cpx-ldf's LDF loop ran 2.5x slower than with the
+        # C library's trig (1.0x now)
+        s, c = sincos(jnp.stack([a, th]))
+        return s[0], c[0], s[1], c[1]
+    return jnp.sin(a), jnp.cos(a), jnp.sin(th), jnp.cos(th)
 
 
 def f_printed(p: "DIP", x, u):
@@ -81,8 +87,7 @@ def f_printed(p: "DIP", x, u):
     V = jnp.reshape(u, (-1,))[0]
     # four trig evaluations instead of six: the sums by the angle-addition identities (the trig calls are most
     # of the cost of a right-hand side; the identities agree with direct evaluation to a few ulp)
-    s_a, c_a = _sin_cos(p, a)
-    s_t, c_t = _sin_cos(p, th)
+    s_a, c_a, s_t, c_t = _sin_cos(p, a, th)
     s_at, c_at = s_a * c_t + c_a * s_t, c_a * c_t - s_a * s_t
     s_2at, c_2at = s_a * c_at + c_a * s_at, c_a * c_at - s_a * s_at
     m_a = p.M1 * p.l1 + p.M2 * p.L1 + p.Mh * p.L1
