@@ -73,9 +73,8 @@ def _sin_cos(p: "DIP", a, th):
     """(sin a, cos a, sin th, cos th). "vectorised": jaxdip.plants.trig.sincos, about 1.6x a plant-only loop's
     throughput, and not the C library's last bits (docs/performance.md: where it is faster and where not)."""
     if p.trig == "vectorised":
-        # one formula for both angles: two separate ones put two copies of its reduction steps into the kernel of
-        # the power-series control's third derivative, where dip-cpx-ldf's LDF loop ran 2.5x slower than with the
-        # C library's trig (1.0x now)
+        # one formula for both angles: with one per angle, dip-cpx-ldf's LDF loop ran 2.5x slower than with the C
+        # library's trig when the power-series control's third derivative took this model (0.9x with one)
         s, c = sincos(jnp.stack([a, th]))
         return s[0], c[0], s[1], c[1]
     return jnp.sin(a), jnp.cos(a), jnp.sin(th), jnp.cos(th)
@@ -176,8 +175,8 @@ class DIP(Plant):
     ``trig`` (static) picks how the printed equations evaluate sin and cos: ``"library"`` (the default, the C
     library's, as every published number of this project was computed) or ``"vectorised"``
     (``jaxdip.plants.trig.sincos``: within a few ulp of it; the bench's LQR loop at 4096 seeds runs about 1.6x
-    faster on a CPU, dip-cpx-ldf's CPX loop 1.5x, but its LDF loop 2.5x slower when the power-series
-    controller's model takes it, and the experiments' quick runs were not faster; docs/performance.md). Loops with
+    faster on a CPU, dip-cpx-ldf's CPX and LDF loops about 1.5x, but the experiments' quick runs, mostly
+    compilation, were slower; docs/performance.md). Loops with
     quantised encoders (dip-cpx-ldf) amplify any last-bit difference, so there the two give different
     trajectories and statistics that agree only within their intervals."""
 
