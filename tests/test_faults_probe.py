@@ -11,19 +11,11 @@ import os
 
 import pytest
 
+from cli_faults_support import RUN, one_line
 from jaxdip import cli
 from snapshots import snapshot
 
-RUN = ["run", "dip-lqr", "--quick", "--out", "o"]
 ESC = "\x1b[2J"
-
-
-def one_line(err: str) -> str:
-    assert err.endswith("\n") and err.count("\n") == 1, repr(err[:500])
-    line = err[:-1]
-    assert len(line) <= 300, len(line)
-    assert not any(ord(c) < 32 or 0x7F <= ord(c) < 0xA0 for c in line), repr(line)
-    return line
 
 
 def _marker(text: str):
