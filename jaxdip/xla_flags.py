@@ -86,4 +86,8 @@ def use_compile_cache() -> str | None:
     # innermost frame alone (the line that made the operation) keeps the key to the code that shapes the program;
     # locations are debug information, so the compiled code is the same (docs/performance.md, warm start).
     jax.config.update("jax_include_full_tracebacks_in_locations", False)
+    # and the traced programs before it, so a warm run skips tracing and lowering as well (jaxdip.program_cache)
+    from jaxdip import program_cache
+
+    program_cache.enable(os.path.join(folder, "programs"))
     return None

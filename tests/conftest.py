@@ -45,6 +45,13 @@ def host_devices_flags(n: int) -> str:
 # workers) and the CLI runs the tests start share what one of them compiled, and a second run of the suite on
 # the same machine compiles little.
 _compile_cache(True)
+# ... but not the traced programs (jaxdip.program_cache) in the test processes themselves: the suite starts cold,
+# where a stored program costs about 9% more than a direct call (it is lowered twice: exported, then called), and
+# few of its programs repeat. The CLI runs the tests start keep it, as a user's runs do, and
+# tests/test_program_cache.py turns it on where it checks it.
+from jaxdip import program_cache  # noqa: E402
+
+program_cache.enable(None)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

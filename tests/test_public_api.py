@@ -23,7 +23,8 @@ NOT_PUBLIC = ["jaxdip.bench", "jaxdip.runner", "jaxdip.scenarios", "jaxdip.theor
               "jaxdip.checkpoint", "jaxdip.cli", "jaxdip.cli_args", "jaxdip.cli_compare", "jaxdip.cli_config",
               "jaxdip.cli_errors", "jaxdip.cli_sweep",
               "jaxdip.config", "jaxdip.config_toml", "jaxdip.distributed", "jaxdip.messages", "jaxdip.progress",
-              "jaxdip.reproduce_pool", "jaxdip.reproduce_worker", "jaxdip.resources", "jaxdip.xla_flags"]
+              "jaxdip.reproduce_pool", "jaxdip.reproduce_worker", "jaxdip.resources", "jaxdip.xla_flags",
+              "jaxdip.program_cache", "jaxdip.program_key"]
 
 
 def public_modules() -> list[str]:

@@ -34,6 +34,7 @@ import numpy as np
 import optax
 
 from jaxdip import checkpoint as ckpt
+from jaxdip import program_cache
 from jaxdip import config as C
 from jaxdip import stats
 from jaxdip.runner.experiment import Experiment, Outcome, RunContext
@@ -59,10 +60,11 @@ def run(cfg: TuneConfig, ctx: RunContext | None = None, progress: bool = True) -
     tune_seeds = np.arange(cfg.seeds)
     held_seeds = HELDOUT_OFFSET + np.arange(cfg.heldout_seeds)
     J_tune = tg.objective(tune_seeds, smooth=cfg.smoothing == "straight_through")
-    J_eval = jax.jit(tg.objective(tune_seeds, smooth=False))  # forward values are the same; no gradient needed
+    # forward values are the same; no gradient needed. Through the program cache: a warm run skips their traces
+    J_eval = program_cache.jit(tg.objective(tune_seeds, smooth=False), "J_eval")
     held_obj = tg.objective(held_seeds, smooth=False, scenarios=cfg.scenario_spreads())
-    held = jax.jit(held_obj.per_seed)
-    held_div = jax.jit(held_obj.diverged) if held_obj.diverged is not None else None
+    held = program_cache.jit(held_obj.per_seed)
+    held_div = program_cache.jit(held_obj.diverged) if held_obj.diverged is not None else None
 
     res = tune(J_tune, tg.paper, key, steps=cfg.steps, lr=cfg.lr, spec=tg.spec, clip=cfg.clip,
                optimizer=optax.rprop(cfg.lr) if cfg.optimizer == "rprop" else None,

@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip import program_cache
 from jaxdip.engine import checks
 from jaxdip.engine import metrics as _metrics
 from jaxdip.engine.roles import param
@@ -152,6 +153,16 @@ def _m_advance(f, key, state, n):
 
 def _m_finalize(f, key, state, n):
     return _metrics.finalize(f.metrics, state.metrics)
+
+
+def _call_batch(method, fn, where, values, base, idx, args, n, detail=None, out_sharding=None):
+    """``_batch``, or with the program cache on (the CLI's) and one device, the program stored for the call's
+    key: a warm process then skips tracing and lowering too. The compiled code and the results are the same."""
+    if out_sharding is None:
+        out = program_cache.call(_batch_body, (method, fn, where, values, base, idx, args, n, detail), "_batch")
+        if out is not program_cache.MISS:
+            return out
+    return _batch(method, fn, where, values, base, idx, args, n, detail, out_sharding)
 
 
 @eqx.filter_jit
@@ -350,7 +361,7 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
             idx = jax.device_put(idx, NamedSharding(device_mesh(devices), PartitionSpec("seeds")))
         if not rollout or len(sizes) == 1 or detail is not None or index:
             # the whole horizon at once: one program, one dispatch
-            out = wait(_batch(call, fn, where, values, key, idx, None, 0, detail))
+            out = wait(_call_batch(call, fn, where, values, key, idx, None, 0, detail))
             if multi:
                 out = _gather(out, devices)
             if detail is not None:
@@ -363,15 +374,15 @@ def monte_carlo(fn: Callable, key, n: int, *, offset: int = 0, chunk: Optional[i
         # The initial state leaves that do not depend on the seed (counters, zeros) would come out replicated,
         # while the advance's outputs are split over the seeds: the second chunk would then see other input
         # shardings than the first and compile the loop again. Lay them out as the advance will.
-        state = _batch(_m_init, fn, where, values, key, idx, None, 0, out_sharding=carry_sharding)
+        state = _call_batch(_m_init, fn, where, values, key, idx, None, 0, out_sharding=carry_sharding)
         saved = []
         for size in sizes:
-            state, s = _batch(_m_advance, fn, where, values, key, idx, state, size)
+            state, s = _call_batch(_m_advance, fn, where, values, key, idx, state, size)
             saved.append((_gather(wait(s), devices) if multi else wait(s)) if s is not None else None)
             if s is None:
                 wait(state)
             bar.update(size)
-        mets = _batch(_m_finalize, fn, where, values, key, idx, state, 0)
+        mets = _call_batch(_m_finalize, fn, where, values, key, idx, state, 0)
         if multi:
             state, mets = _gather((state, mets), devices)
         outs.append(Solution(state, _concat(saved, seed_axis + 1), mets, state.result))

@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 
 import jaxdip as jd
+from jaxdip import program_cache
 from jaxdip.control.projection import RelaxedProjection
 from jaxdip.control.spd import P_v, P_Vs, orthonormalize
 from jaxdip.search import steps
@@ -170,7 +171,7 @@ def continuous_performance(plant, cfg: ContinuousSearch, n_x0: int = 1, penalize
     return G
 
 
-@eqx.filter_jit
+@program_cache.jit
 def performances(plant, cfg: ContinuousSearch, member: BasisMember, key, n: int, penalize: bool = True):
     """``n`` independent evaluations G(member, k) (one initial state each), k in ``split(key, n)``: a vector."""
     G = continuous_performance(plant, cfg, 1, penalize)
@@ -185,7 +186,7 @@ def lowest_y1(eki, vs, key, n_states: int):
     return vs[jnp.argmin(score)]
 
 
-@eqx.filter_jit
+@program_cache.jit
 def direction_search(eki, key, *, ensemble: int, init_var: float, iterations: int, restarts: int = 1,
                      select_states: int = 64, final: str = "mean"):
     """Procedure 1 over unit vectors v (P = P_v): one whole search as a pure function of its key; returns

@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip import program_cache
 from jaxdip.engine import checks
 
 from jaxdip._public import public_dir
@@ -72,7 +73,7 @@ def on_devices(fn: Callable, state, devices: Optional[list]):
     laid out as the calls return it (whole on every device), so the second call finds the program the first
     compiled. Every process must make the same calls in the same order."""
     if devices is None:
-        return jax.jit(fn), state
+        return program_cache.jit(fn), state
     from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
     mesh = Mesh(np.array(devices), (AXIS,))

@@ -20,6 +20,7 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from jaxdip import checkpoint as ckpt
+from jaxdip import program_cache
 from jaxdip.progress import Progress
 from jaxdip.tune.objective import Objective
 from jaxdip.tune.transforms import unconstrained_spec, to_constrained, to_unconstrained
@@ -146,7 +147,7 @@ def tune(objective: Callable, init_params, key, *, steps: int = 100, lr: float =
     def j_of_u(u, k):
         return objective(to_constrained(spec, u), k)
 
-    value_and_grad = _over_processes(objective, spec, mode) or jax.jit(value_and_grad_fn(j_of_u, mode))
+    value_and_grad = _over_processes(objective, spec, mode) or program_cache.jit(value_and_grad_fn(j_of_u, mode))
 
     @jax.jit
     def apply(st: _State, loss, g):

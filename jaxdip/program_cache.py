@@ -1,0 +1,177 @@
+"""Traced programs kept on disk (``jax.export``), so a warm run skips tracing and lowering, not only compilation.
+
+XLA's persistent cache keys a compiled program by its lowered module, so every run still traces the Python
+code and lowers it before that cache can answer: in a warm ``--quick`` run that was most of the time left
+(docs/performance.md, warm start). This cache sits one step earlier: it keys a call by everything its trace can
+depend on, known without tracing (``jaxdip.program_key``), and on a hit calls the stored program (StableHLO,
+serialised by ``jax.export``) as it is; the compiled code then comes from XLA's cache as before.
+
+A call the key cannot pin down goes the ordinary way (``MISS``): ``Unkeyable`` arguments, a program that does not
+export (a host callback), an entry that cannot be read (it is exported again over it). Results are the same
+either way: the stored program is the one JAX would have compiled (tests/test_program_cache.py compares them bit
+for bit, and ``jaxdip reproduce --quick`` gives the same results with and without it).
+
+Off unless ``enable`` is called: the CLI turns it on with the compilation cache, in a ``programs`` folder inside
+it (``--no-compile-cache`` turns both off). Entries are a few hundred kB; nothing removes old ones (as for XLA's
+cache, deleting the folder is safe).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import pickle
+import tempfile
+from typing import Any, Callable
+
+from jaxdip.program_key import Unkeyable, fingerprint, function_key, is_input
+
+__all__ = ["MISS", "call", "enable", "enabled_folder", "jit"]
+
+MISS = object()  # what ``call`` returns when the call must go the ordinary way
+
+_FOLDER: list[str | None] = [None]
+_MEMO: dict[bytes, tuple[Callable, Any] | None] = {}  # key -> (compiled wrapper, output tree), None: not exportable
+
+
+def enable(folder: str | None) -> None:
+    """Keep exported programs in ``folder`` (created on first write); ``None`` turns the cache off."""
+    _FOLDER[0] = folder
+    _MEMO.clear()
+
+
+def enabled_folder() -> str | None:
+    """The folder in use, or None when the cache is off."""
+    return _FOLDER[0]
+
+
+def _write_atomic(path: str, data: bytes) -> None:
+    folder = os.path.dirname(path)
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp.")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+
+
+def _named(name: str, exported) -> Callable:
+    def run(*leaves):
+        return exported.call(*leaves)
+
+    run.__name__ = run.__qualname__ = name  # compile events and logs name the program as the direct call would
+    return run
+
+
+def _load(path: str, name: str):
+    with open(path, "rb") as fh:
+        return _load_blob(fh.read(), name)
+
+
+def _export(fun: Callable, packed: tuple, name: str):
+    import jax
+
+    leaves, in_tree = jax.tree_util.tree_flatten(packed)
+    where = [i for i, leaf in enumerate(leaves) if is_input(leaf)]
+    box = {}
+
+    def flat(*dynamic):
+        full = list(leaves)
+        for i, v in zip(where, dynamic):
+            full[i] = v
+        args, kwargs = jax.tree_util.tree_unflatten(in_tree, full)
+        out = fun(*args, **kwargs)
+        out_leaves, box["tree"] = jax.tree_util.tree_flatten(out)
+        return out_leaves
+
+    # not ``name``: JAX logs "Compiling <name>" when it lowers, and the wrapper that runs the program is lowered
+    # under ``name`` (one such line per program, as for a direct call)
+    flat.__name__ = flat.__qualname__ = f"{name}_export"
+    avals = [jax.ShapeDtypeStruct(leaves[i].shape, leaves[i].dtype, weak_type=getattr(leaves[i], "weak_type", False))
+             for i in where]
+    exported = jax.export.export(jax.jit(flat))(*avals)
+    tree_hex = pickle.dumps(box["tree"]).hex().encode()
+    return tree_hex + b"\n" + exported.serialize()
+
+
+def call(fun: Callable, args: tuple, name: str | None = None, kwargs: dict | None = None,
+         fun_key: tuple[bytes, frozenset] | None = None):
+    """``fun(*args)`` through a stored program, or ``MISS`` when the cache is off or the call cannot go through
+    it (the caller then calls ``fun`` the ordinary way). ``fun`` must be pure, its inputs the array leaves of
+    ``args`` (as under ``jax.jit``). ``name``: what compile events call the program (``fun``'s name)."""
+    name = name or getattr(fun, "__name__", "program")
+    folder = _FOLDER[0]
+    if folder is None:
+        return MISS
+    import jax
+
+    packed = (tuple(args), dict(kwargs or {}))
+    try:
+        key = fingerprint(fun, packed, fun_key)
+    except Unkeyable:
+        return MISS
+    if key not in _MEMO:
+        path = os.path.join(folder, key.hex()[:40] + ".jaxexport")
+        entry = None
+        if os.path.exists(path):
+            try:
+                entry = _load(path, name)
+            except Exception:  # a damaged or foreign file: export again over it
+                entry = None
+        if entry is None:
+            try:
+                blob = _export(fun, packed, name)
+            except Exception:  # e.g. a host callback, which does not export: the ordinary call reports real errors
+                _MEMO[key] = None
+                return MISS
+            try:
+                _write_atomic(path, blob)
+            except OSError:
+                pass  # a read-only cache still serves this process from memory
+            entry = _load_blob(blob, name)
+        _MEMO[key] = entry
+    entry = _MEMO[key]
+    if entry is None:
+        return MISS
+    run, out_tree = entry
+    leaves = [leaf for leaf in jax.tree_util.tree_leaves(packed) if is_input(leaf)]
+    return jax.tree_util.tree_unflatten(out_tree, run(*leaves))
+
+
+def jit(fun: Callable, name: str | None = None) -> Callable:
+    """``equinox.filter_jit(fun)`` (array leaves traced, everything else static), through a stored program
+    when the cache is on and the call can be keyed (``call``). ``fun``'s closure is part of the key, by value,
+    taken at the first call: as under ``jax.jit``, what changes between calls must be an argument."""
+    import equinox as eqx
+
+    direct = eqx.filter_jit(fun)
+    name = name or getattr(fun, "__name__", "program")
+    known: list = []  # [function_key(fun)], or [None]: fun cannot be keyed
+
+    @functools.wraps(fun)
+    def run(*args, **kwargs):
+        if _FOLDER[0] is not None:
+            if not known:
+                try:
+                    known.append(function_key(fun))
+                except Unkeyable:
+                    known.append(None)
+            if known[0] is not None:
+                out = call(fun, args, name, kwargs, known[0])
+                if out is not MISS:
+                    return out
+        return direct(*args, **kwargs)
+
+    return run
+
+
+def _load_blob(blob: bytes, name: str):
+    import jax
+
+    tree_hex, program = blob.split(b"\n", 1)
+    exported = jax.export.deserialize(bytearray(program))
+    return jax.jit(_named(name, exported)), pickle.loads(bytes.fromhex(tree_hex.decode()))
