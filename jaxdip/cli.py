@@ -346,6 +346,11 @@ def _command(args, argv) -> int:
         if args.cmd != "bench" and (code := _set_effort(args)):
             return code
         _compile_cache(not args.no_compile_cache)
+        if args.cmd == "bench":
+            # the bench times the loops as a library user calls them: no program-cache lookup inside its timings
+            from jaxdip import program_cache
+
+            program_cache.enable(None)
     if args.cmd == "reproduce" and args.resume and args.distributed:
         # each process would judge the folders on its own disk, and they must agree on the experiments that run
         return error("--resume", "not with --distributed: resume a single-process reproduction")

@@ -31,7 +31,7 @@ __all__ = ["MISS", "call", "enable", "enabled_folder", "jit"]
 MISS = object()  # what ``call`` returns when the call must go the ordinary way
 
 _FOLDER: list[str | None] = [None]
-_MEMO: dict[bytes, tuple[Callable, Any] | None] = {}  # key -> (compiled wrapper, output tree), None: not exportable
+_MEMO: dict[bytes, Any] = {}  # key -> _Program, or None: not exportable
 
 
 def enable(folder: str | None) -> None:
@@ -59,12 +59,34 @@ def _write_atomic(path: str, data: bytes) -> None:
         raise
 
 
-def _named(name: str, exported) -> Callable:
-    def run(*leaves):
-        return exported.call(*leaves)
+class _Program:
+    """An exported program and its output tree; called through one ``jax.jit`` per device its inputs are on.
 
-    run.__name__ = run.__qualname__ = name  # compile events and logs name the program as the direct call would
-    return run
+    The device is given to ``jit`` explicitly: an exported program's outputs are committed to their device, so
+    the second call of a loop (tune's steps: the gradient, the update, the gradient again) would otherwise see
+    committed inputs where the first saw uncommitted ones, and compile the same program again."""
+
+    def __init__(self, exported, out_tree, name: str):
+        self.exported, self.out_tree, self.name = exported, out_tree, name
+        self.by_device: dict = {}
+
+    def __call__(self, leaves: list):
+        import jax
+
+        devices = {d for leaf in leaves if hasattr(leaf, "devices") for d in leaf.devices()}
+        device = devices.pop() if len(devices) == 1 else jax.devices()[0]
+        if devices:  # inputs on several devices (each on one): not a case the cache serves
+            raise Unkeyable("inputs on different devices")
+        run = self.by_device.get(device)
+        if run is None:
+            exported = self.exported
+
+            def program(*xs):
+                return exported.call(*xs)
+
+            program.__name__ = program.__qualname__ = self.name  # compile events name it as the direct call
+            run = self.by_device[device] = jax.jit(program, in_shardings=jax.sharding.SingleDeviceSharding(device))
+        return jax.tree_util.tree_unflatten(self.out_tree, run(*leaves))
 
 
 def _load(path: str, name: str):
@@ -137,9 +159,10 @@ def call(fun: Callable, args: tuple, name: str | None = None, kwargs: dict | Non
     entry = _MEMO[key]
     if entry is None:
         return MISS
-    run, out_tree = entry
-    leaves = [leaf for leaf in jax.tree_util.tree_leaves(packed) if is_input(leaf)]
-    return jax.tree_util.tree_unflatten(out_tree, run(*leaves))
+    try:
+        return entry([leaf for leaf in jax.tree_util.tree_leaves(packed) if is_input(leaf)])
+    except Unkeyable:
+        return MISS
 
 
 def jit(fun: Callable, name: str | None = None) -> Callable:
@@ -173,5 +196,4 @@ def _load_blob(blob: bytes, name: str):
     import jax
 
     tree_hex, program = blob.split(b"\n", 1)
-    exported = jax.export.deserialize(bytearray(program))
-    return jax.jit(_named(name, exported)), pickle.loads(bytes.fromhex(tree_hex.decode()))
+    return _Program(jax.export.deserialize(bytearray(program)), pickle.loads(bytes.fromhex(tree_hex.decode())), name)

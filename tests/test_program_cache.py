@@ -193,3 +193,27 @@ def test_jit_stores_once_and_serves_the_next_process(folder):
     again = program_cache.jit(lqr)(2.0 * a, b, jnp.eye(2), jnp.eye(1))  # new values, the same program
     assert len(os.listdir(folder)) == 1
     assert_bitwise(jax.jit(lqr)(2.0 * a, b, jnp.eye(2), jnp.eye(1)), again)
+
+
+def test_a_loop_feeding_a_stored_program_its_own_outputs_compiles_it_once(folder):
+    # a stored program's outputs are committed to their device; its next call must find the program the first
+    # call compiled (tune's steps: value and gradient, update, value and gradient again)
+    import functools
+
+    from jaxdip.control.designs import lqr
+
+    compiled = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda ev, d, **kw: compiled.append(kw.get("fun_name")) if ev.endswith("backend_compile_duration") else None)
+    a, b, r = jnp.array([[0.0, 1.0], [2.0, -0.5]]), jnp.array([[0.0], [1.0]]), jnp.eye(1)
+    design = functools.partial(lqr, a, b)
+    step = program_cache.jit(design, "riccati_step")
+    q = jnp.eye(2)  # uncommitted
+    p1 = step(q, r)[1]
+    assert len(os.listdir(folder)) == 1
+    p2 = step(p1, r)[1]  # committed: the program's own output
+    p3 = step(p2, r)[1]
+    assert compiled.count("jit(riccati_step)") == 1, compiled
+    program_cache.enable(None)
+    direct = jax.jit(design)
+    assert_bitwise(p3, direct(direct(direct(q, r)[1], r)[1], r)[1])
