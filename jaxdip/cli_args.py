@@ -178,7 +178,8 @@ def parser(description: str = DESCRIPTION) -> Parser:
                             "balanced); results agree to the last bits")
     for q in (r, b, rp):
         q.add_argument("--no-compile-cache", action="store_true",
-                       help="do not read or write the on-disk cache of compiled code (see JAXDIP_CACHE_DIR)")
+                       help="do not read or write the on-disk caches of compiled code and traced programs (see "
+                            "JAXDIP_CACHE_DIR)")
     for q in (r, rp):
         d = q.add_argument_group("several processes (jax.distributed)")
         d.add_argument("--distributed", action="store_true",

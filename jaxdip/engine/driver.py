@@ -8,7 +8,9 @@ numbers alone, in any batch, in any chunking over seeds or time, and on any numb
 Compilation: every batch runs through one module-level ``eqx.filter_jit`` function. Array leaves of ``fn``
 (every hyperparameter) are traced arguments and everything else (the static fields, the functions) is the
 cache key, so a second call with new numbers but the same structure reuses the compiled program, and a sweep
-over a hyperparameter is one program with the swept leaf batched.
+over a hyperparameter is one program with the swept leaf batched. With the program cache on (the CLI's,
+``jaxdip.program_cache``) a batch on one device is served from the traced program stored for its key, so a
+warm process skips the trace too.
 """
 
 from __future__ import annotations
