@@ -39,7 +39,6 @@ class Unkeyable(Exception):
     """An argument the cache cannot fingerprint: the call goes the ordinary way."""
 
 
-
 @functools.lru_cache(maxsize=None)
 def _tree_hash(root: str) -> str:
     h = hashlib.sha256()
