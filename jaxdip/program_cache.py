@@ -192,8 +192,32 @@ def jit(fun: Callable, name: str | None = None) -> Callable:
     return run
 
 
+# What a stored output tree may name: the tree's own type and registry, and container classes. A pickle may call
+# whatever it names, so a file planted in the cache folder must not reach a function (os.system, a file remover).
+_TREE_GLOBALS = {("jaxlib._jax.pytree", "PyTreeDef"), ("jax._src.tree_util", "default_registry")}
+
+
+class _TreeUnpickler(pickle.Unpickler):
+    def find_class(self, module: str, name: str):
+        if (module, name) in _TREE_GLOBALS:
+            return super().find_class(module, name)
+        if module.split(".")[0] in ("jaxdip", "experiments", "equinox", "builtins", "collections"):
+            import equinox as eqx
+
+            obj = super().find_class(module, name)
+            if isinstance(obj, type) and (obj in (tuple, list, dict, type(None)) or issubclass(obj, eqx.Module)
+                                          or (issubclass(obj, tuple) and hasattr(obj, "_fields"))):
+                return obj
+        raise pickle.UnpicklingError(f"{module}.{name} may not appear in a stored program's output tree")
+
+
 def _load_blob(blob: bytes, name: str):
+    import io
+
     import jax
 
     tree_hex, program = blob.split(b"\n", 1)
-    return _Program(jax.export.deserialize(bytearray(program)), pickle.loads(bytes.fromhex(tree_hex.decode())), name)
+    out_tree = _TreeUnpickler(io.BytesIO(bytes.fromhex(tree_hex.decode()))).load()
+    if not isinstance(out_tree, jax.tree_util.PyTreeDef):
+        raise pickle.UnpicklingError("a stored program's output tree is not a tree structure")
+    return _Program(jax.export.deserialize(bytearray(program)), out_tree, name)

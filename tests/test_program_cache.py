@@ -4,6 +4,7 @@ key goes the ordinary way."""
 
 import dataclasses
 import os
+import pickle
 import subprocess
 import sys
 import textwrap
@@ -217,3 +218,22 @@ def test_a_loop_feeding_a_stored_program_its_own_outputs_compiles_it_once(folder
     program_cache.enable(None)
     direct = jax.jit(design)
     assert_bitwise(p3, direct(direct(direct(q, r)[1], r)[1], r)[1])
+
+
+def test_a_planted_entry_cannot_run_code(folder, tmp_path):
+    # an entry's output tree is a pickle: one naming a function (here one that would write a file) is refused,
+    # and the call exports its program again
+    r, key = rollout(), jax.random.PRNGKey(3)
+    want = jd.monte_carlo(r, key, 4)
+    marker = tmp_path / "planted"
+
+    class Plant:
+        def __reduce__(self):
+            return (open, (str(marker), "w"))
+
+    for name in os.listdir(folder):
+        program = (folder / name).read_bytes().split(b"\n", 1)[1]
+        (folder / name).write_bytes(pickle.dumps(Plant()).hex().encode() + b"\n" + program)
+    program_cache.enable(str(folder))
+    assert_bitwise(want, jd.monte_carlo(r, key, 4))
+    assert not marker.exists()
