@@ -26,12 +26,15 @@ from typing import Any, Callable
 
 from jaxdip.program_key import Unkeyable, fingerprint, function_key, is_input
 
-__all__ = ["MISS", "call", "enable", "enabled_folder", "jit"]
+__all__ = ["MISS", "call", "counts", "enable", "enabled_folder", "jit"]
 
 MISS = object()  # what ``call`` returns when the call must go the ordinary way
 
 _FOLDER: list[str | None] = [None]
 _MEMO: dict[bytes, Any] = {}  # key -> _Program, or None: not exportable
+# how this process's calls went: programs read from disk, exported and written, and calls that went the ordinary
+# way (not keyable, not exportable); ``python -m jaxdip.bench.warm`` reports them
+_COUNTS = {"read": 0, "exported": 0, "ordinary": 0}
 
 
 def enable(folder: str | None) -> None:
@@ -43,6 +46,12 @@ def enable(folder: str | None) -> None:
 def enabled_folder() -> str | None:
     """The folder in use, or None when the cache is off."""
     return _FOLDER[0]
+
+
+def counts() -> dict[str, int]:
+    """This process's programs read from disk and exported, and its calls that went the ordinary way while the
+    cache was on."""
+    return dict(_COUNTS)
 
 
 def _write_atomic(path: str, data: bytes) -> None:
@@ -135,34 +144,39 @@ def call(fun: Callable, args: tuple, name: str | None = None, kwargs: dict | Non
     try:
         key = fingerprint(fun, packed, fun_key)
     except Unkeyable:
+        _COUNTS["ordinary"] += 1
         return MISS
     if key not in _MEMO:
-        path = os.path.join(folder, key.hex()[:40] + ".jaxexport")
-        entry = None
-        if os.path.exists(path):
-            try:
-                entry = _load(path, name)
-            except Exception:  # a damaged or foreign file: export again over it
-                entry = None
-        if entry is None:
-            try:
-                blob = _export(fun, packed, name)
-            except Exception:  # e.g. a host callback, which does not export: the ordinary call reports real errors
-                _MEMO[key] = None
-                return MISS
-            try:
-                _write_atomic(path, blob)
-            except OSError:
-                pass  # a read-only cache still serves this process from memory
-            entry = _load_blob(blob, name)
-        _MEMO[key] = entry
+        _MEMO[key] = _entry(fun, packed, name, os.path.join(folder, key.hex()[:40] + ".jaxexport"))
     entry = _MEMO[key]
-    if entry is None:
-        return MISS
     try:
-        return entry([leaf for leaf in jax.tree_util.tree_leaves(packed) if is_input(leaf)])
+        if entry is not None:
+            return entry([leaf for leaf in jax.tree_util.tree_leaves(packed) if is_input(leaf)])
     except Unkeyable:
-        return MISS
+        pass
+    _COUNTS["ordinary"] += 1
+    return MISS
+
+
+def _entry(fun: Callable, packed: tuple, name: str, path: str):
+    """The program stored at ``path``, or exported now (and written there); None when it does not export."""
+    if os.path.exists(path):
+        try:
+            entry = _load(path, name)
+            _COUNTS["read"] += 1
+            return entry
+        except Exception:  # a damaged or foreign file: export again over it
+            pass
+    try:
+        blob = _export(fun, packed, name)
+    except Exception:  # e.g. a host callback, which does not export: the ordinary call reports real errors
+        return None
+    try:
+        _write_atomic(path, blob)
+    except OSError:
+        pass  # a read-only cache still serves this process from memory
+    _COUNTS["exported"] += 1
+    return _load_blob(blob, name)
 
 
 def jit(fun: Callable, name: str | None = None) -> Callable:
@@ -183,7 +197,9 @@ def jit(fun: Callable, name: str | None = None) -> Callable:
                     known.append(function_key(fun))
                 except Unkeyable:
                     known.append(None)
-            if known[0] is not None:
+            if known[0] is None:
+                _COUNTS["ordinary"] += 1
+            else:
                 out = call(fun, args, name, kwargs, known[0])
                 if out is not MISS:
                     return out

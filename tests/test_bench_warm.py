@@ -19,9 +19,9 @@ def test_union_of_nested_and_overlapping_spans_against_a_grid():
 
 
 def test_table_totals_each_column():
-    cols = ("process", "import", "trace", "lower", "compile", "programs", "hits", "run", "write")
-    rows = [{"id": f"e{i}", "warm": {c: (i + 1) * (3 if c in ("programs", "hits") else 0.5) for c in cols}}
-            for i in range(3)]
-    rows = [{**r, "warm": {c: int(v) if c in ("programs", "hits") else v for c, v in r["warm"].items()}} for r in rows]
+    counts = ("programs", "hits", "stored", "ordinary")
+    cols = ("process", "import", "trace", "lower", "compile", *counts, "run", "write")
+    rows = [{"id": f"e{i}", "warm": {c: (i + 1) * (3 if c in counts else 0.5) for c in cols}} for i in range(3)]
+    rows = [{**r, "warm": {c: int(v) if c in counts else v for c, v in r["warm"].items()}} for r in rows]
     last = table(rows, "warm").strip().splitlines()[-1]
-    assert last == "| **total** | " + " | ".join("18" if c in ("programs", "hits") else "3.00" for c in cols) + " |"
+    assert last == "| **total** | " + " | ".join("18" if c in counts else "3.00" for c in cols) + " |"

@@ -237,3 +237,14 @@ def test_a_planted_entry_cannot_run_code(folder, tmp_path):
     program_cache.enable(str(folder))
     assert_bitwise(want, jd.monte_carlo(r, key, 4))
     assert not marker.exists()
+
+
+def test_counts_say_how_the_calls_went(folder):
+    r, key = rollout(), jax.random.PRNGKey(4)
+    before = program_cache.counts()
+    jd.monte_carlo(r, key, 4)  # one program, exported
+    program_cache.enable(str(folder))
+    jd.monte_carlo(r, key, 4)  # read back
+    assert program_cache.call(driver._batch_body, (object(),), "_batch") is program_cache.MISS
+    after = program_cache.counts()
+    assert {k: after[k] - before[k] for k in after} == {"read": 1, "exported": 1, "ordinary": 1}

@@ -12,6 +12,8 @@ of the union of its spans, not their sum. Per run the table gives:
 - ``import``: importing jaxdip's CLI and the experiment's module;
 - ``trace`` / ``lower`` / ``compile``: the union of the phase's spans (``compile`` is a cache load when warm);
 - ``programs``: executables built (compiled or loaded), ``hits`` of them served by the persistent cache;
+- ``stored``: traced programs read from the program cache (``jaxdip.program_cache``; ``exported`` in the JSON:
+  those traced and written), ``ordinary``: calls that could not go through it (several devices, a tracer);
 - ``run``: the experiment's own wall time (metrics.json's ``wall_s``) less trace, lower and compile;
 - ``write``: the rest of the command (config, output folder, figures saved as PNG, report).
 
@@ -37,7 +39,7 @@ PHASES = {
     "compile": "/jax/core/compile/backend_compile_duration",
 }
 _HIT = "/jax/compilation_cache/cache_hits"
-_COLUMNS = ("process", "import", "trace", "lower", "compile", "programs", "hits", "run", "write")
+_COLUMNS = ("process", "import", "trace", "lower", "compile", "programs", "hits", "stored", "ordinary", "run", "write")
 
 
 def _union(spans: list[tuple[float, float]]) -> float:
@@ -82,7 +84,11 @@ def _child(exp_id: str, out: str, result: str) -> int:
     with open(os.path.join(out, "metrics.json")) as fh:
         wall = json.load(fh)["wall_s"]
     phase = {k: _union(spans[v]) for k, v in PHASES.items()}
+    from jaxdip import program_cache
+
+    stored = program_cache.counts()
     rec = {"import": imported, **phase, "programs": sum(names.values()), "hits": hits[0],
+           "stored": stored["read"], "exported": stored["exported"], "ordinary": stored["ordinary"],
            "run": max(wall - sum(phase.values()), 0.0), "write": max(command - wall, 0.0),
            "program_names": names, "costliest": sorted(cost.items(), key=lambda kv: -kv[1])[:12], "rc": rc}
     with open(result, "w") as fh:
