@@ -56,6 +56,9 @@ def _child(exp_id: str, out: str, result: str) -> int:
     from jaxdip import cli
     from jaxdip.runner import get
 
+    # the host device count first, as `jaxdip run` sets it before it imports the experiment: a module that builds
+    # arrays on import (ifn-protection's) would otherwise start JAX with one device
+    cli._use_all_cores(1)
     get(exp_id)
     imported = time.perf_counter() - t0
     import jax.monitoring as mon
