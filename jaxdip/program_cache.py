@@ -210,6 +210,7 @@ def jit(fun: Callable, name: str | None = None) -> Callable:
 
 # What a stored output tree may name: the tree's own type and registry, and container classes. A pickle may call
 # whatever it names, so a file planted in the cache folder must not reach a function (os.system, a file remover).
+# The two names are where jaxlib pickles a PyTreeDef from; a version that moves them only makes entries export again.
 _TREE_GLOBALS = {("jaxlib._jax.pytree", "PyTreeDef"), ("jax._src.tree_util", "default_registry")}
 
 
