@@ -21,9 +21,9 @@ from __future__ import annotations
 import functools
 import os
 import pickle
-import tempfile
 from typing import Any, Callable
 
+from jaxdip.outdir.files import write_file_atomic
 from jaxdip.program_key import Unkeyable, fingerprint, function_key, is_input
 
 __all__ = ["MISS", "call", "counts", "enable", "enabled_folder", "jit"]
@@ -52,20 +52,6 @@ def counts() -> dict[str, int]:
     """This process's programs read from disk and exported, and its calls that went the ordinary way while the
     cache was on."""
     return dict(_COUNTS)
-
-
-def _write_atomic(path: str, data: bytes) -> None:
-    folder = os.path.dirname(path)
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp.")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
 
 
 class _Program:
@@ -172,7 +158,8 @@ def _entry(fun: Callable, packed: tuple, name: str, path: str):
     except Exception:  # e.g. a host callback, which does not export: the ordinary call reports real errors
         return None
     try:
-        _write_atomic(path, blob)
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        write_file_atomic(path, blob)
     except OSError:
         pass  # a read-only cache still serves this process from memory
     _COUNTS["exported"] += 1
@@ -208,20 +195,20 @@ def jit(fun: Callable, name: str | None = None) -> Callable:
     return run
 
 
-# What a stored output tree may name: the tree's own type and registry, and container classes. A pickle may call
-# whatever it names, so a file planted in the cache folder must not reach a function (os.system, a file remover).
-# The two names are where jaxlib pickles a PyTreeDef from; a version that moves them only makes entries export again.
-_TREE_GLOBALS = {("jaxlib._jax.pytree", "PyTreeDef"), ("jax._src.tree_util", "default_registry")}
-
-
 class _TreeUnpickler(pickle.Unpickler):
-    def find_class(self, module: str, name: str):
-        if (module, name) in _TREE_GLOBALS:
-            return super().find_class(module, name)
-        if module.split(".")[0] in ("jaxdip", "experiments", "equinox", "builtins", "collections"):
-            import equinox as eqx
+    """Reads a stored output tree, naming nothing but the tree type, its registry and container classes: a
+    pickle may call whatever it names, so a file planted in the cache folder must not reach a function
+    (os.system, a file remover). Only modules of the project, JAX, equinox and the builtins are imported to look
+    a name up."""
 
+    def find_class(self, module: str, name: str):
+        import equinox as eqx
+        import jax
+
+        if module.split(".")[0] in ("jax", "jaxlib", "jaxdip", "experiments", "equinox", "builtins", "collections"):
             obj = super().find_class(module, name)
+            if obj is jax.tree_util.PyTreeDef or obj is jax.tree_util.default_registry:
+                return obj
             if isinstance(obj, type) and (obj in (tuple, list, dict, type(None)) or issubclass(obj, eqx.Module)
                                           or (issubclass(obj, tuple) and hasattr(obj, "_fields"))):
                 return obj
