@@ -218,7 +218,6 @@ def run(cfg: DipControllersConfig, ctx: RunContext | None = None, progress: bool
     axes[0].legend(fontsize=8)
     axes[-1].set_xlabel("time (s)")
     axes[0].set_title("DIP from the thesis's x0 (Fig. 3.3), no noise")
-    fig.tight_layout()
     return Outcome(results=results, report=report(cfg, results), figures={"fig3_3_controllers": fig},
                    per_seed=stacked(parts, "controller"))
 

@@ -138,7 +138,6 @@ def run(cfg: DipMpcConfig, ctx: RunContext | None = None, progress: bool = True)
     ax.set_ylabel("stabilised fraction (95% CI)")
     ax.set_title(f"DIP, |u| <= {cfg.u_max:g} V, {cfg.seeds} seeds")
     ax.legend(fontsize=8)
-    fig.tight_layout()
     return Outcome(results=results, report=report(cfg, results), figures={"stabilized": fig},
                    per_seed=table_part(parts))
 

@@ -215,7 +215,6 @@ def figure(r: dict):
         ax.set_title(f"{s}: Fig. 7.1 analogue")
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
-    fig.tight_layout()
     return fig
 
 

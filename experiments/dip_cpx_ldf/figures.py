@@ -30,7 +30,6 @@ def velocity_figure(cfg, tr, gamma_crit):
     ax.legend(fontsize=8, loc="upper right")
     for a in axes:
         a.grid(alpha=0.3)
-    fig.tight_layout()
     return fig
 
 
@@ -56,5 +55,4 @@ def sweep_figure(cfg, sw, gamma_crit):
         a.grid(alpha=0.3, which="both")
     a1.legend(fontsize=8)
     a1.set_title(f"CPX gamma sweep: {sw['seeds']} seeds per gamma, {cfg.duration} s")
-    fig.tight_layout()
     return fig

@@ -65,7 +65,6 @@ def fig_optimal_sets(model, checks, flat, costs):
         ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
     axes[0].set_ylabel(DIST_LABEL)
     fig.suptitle("Which cells to protect, and when: each policy prevents the same number of infections")
-    fig.tight_layout()
     return fig
 
 
@@ -85,7 +84,6 @@ def fig_F(curves, V, th):
                  fontsize=10)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
     return fig
 
 
@@ -125,7 +123,6 @@ def fig_mc(mc, R0):
     ax2.set_xlabel("simulation / formula - 1 (%), 95% interval")
     ax2.legend(fontsize=8)
     ax2.grid(alpha=0.3)
-    fig.tight_layout()
     return fig
 
 
@@ -159,7 +156,6 @@ def fig_costs(checks, flat_res):
     ax.axhline(1.0, color="k", lw=0.6)
     ax.legend(fontsize=7, ncol=2, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
     ax.grid(alpha=0.3, axis="y")
-    fig.tight_layout()
     return fig
 
 
@@ -180,7 +176,6 @@ def fig_extinction(gen_plot):
     ax.set_title("Will the infection die out? (dots: simulation, 95%; lines: theory)", fontsize=10)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
     return fig
 
 
@@ -197,5 +192,4 @@ def fig_tuning(tq, tm, x):
     ax.set_title("Learning the threshold from the target alone", fontsize=10)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
     return fig

@@ -23,7 +23,6 @@ def figures(cfg, per_trial: dict, rec) -> dict:
     ax.set_title(f"lorenz-mhe: error per trial ({cfg.seeds} trials; cf. thesis Fig. 1.1)")
     ax.grid(alpha=0.3)
     plt.setp(ax.get_xticklabels(), rotation=30)
-    fig1.tight_layout()
 
     t, (xl, cpx_l, scpx_l, ekf_l, ekf2_l) = rec
     fig2, ax = plt.subplots(figsize=(9, 3.5))
@@ -35,5 +34,4 @@ def figures(cfg, per_trial: dict, rec) -> dict:
     ax.set_title(f"trial {cfg.figure_trial}: SCPX and EKF estimates of xL (cf. thesis Fig. 1.2)")
     ax.legend(loc="upper right", fontsize=8)
     ax.grid(alpha=0.3)
-    fig2.tight_layout()
     return {"errors_per_method": fig1, "xL_scpx_vs_ekf": fig2}

@@ -30,7 +30,6 @@ def _fig3(cfg, curves):
             ax.grid(alpha=0.3)
         axes[0, j].legend(fontsize=8)
     fig.suptitle("Fig. 3: stabilisation with the differentiators (10), (12) and the Luenberger observer (9)")
-    fig.tight_layout()
     return fig
 
 
@@ -56,7 +55,6 @@ def _fig4(cfg, curve, res_b):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     axes[0].set_title(f"Fig. 4: law (8) with (10), (12) for d = {cfg.bias:g} (seed 0)")
-    fig.tight_layout()
     return fig
 
 
@@ -78,7 +76,6 @@ def _fig_bias(cfg, items, title):
         ax.legend(fontsize=8)
     axes[-1].set_xlabel("time (s)")
     axes[0].set_title(title)
-    fig.tight_layout()
     return fig
 
 

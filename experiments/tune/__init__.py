@@ -182,7 +182,6 @@ def figure(cfg, tg, r):
     a2.legend(fontsize=8)
     for a in (a1, a2):
         a.grid(alpha=0.3, which="both")
-    fig.tight_layout()
     return fig
 
 

@@ -274,7 +274,6 @@ def fig_states(name, traces, dt):
     axes[0].legend(fontsize=7, ncol=2)
     axes[-1].set_xlabel("time (s)")
     axes[0].set_title(f"twip-dmso {name}: states and estimates (seed 0)")
-    fig.tight_layout()
     return fig
 
 
@@ -298,7 +297,6 @@ def fig_errors(name, traces, dt, t_max=1.0, log=False):
     axes[-1].set_xlabel("time (s)")
     what = "log |estimation error| over the run" if log else f"estimation error, first {t_max:g} s"
     axes[0].set_title(f"twip-dmso {name}: {what} (seed 0)")
-    fig.tight_layout()
     return fig
 
 
@@ -315,7 +313,6 @@ def fig_uncertainty(name, tr: Trace, dt):
     axes[0].legend(fontsize=8)
     axes[-1].set_xlabel("time (s)")
     axes[0].set_title(f"twip-dmso {name}: uncertainty and its DMSO estimate (seed 0)")
-    fig.tight_layout()
     return fig
 
 

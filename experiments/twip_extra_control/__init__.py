@@ -160,7 +160,6 @@ def fig_case(case, traces: dict, cfg):
     axes[0].legend(fontsize=7, loc="best")
     axes[0].set_title(f"{case}: states, seed 0 (cf. Fig. {fs})")
     axes[-1].set_xlabel("time (s)")
-    fig.tight_layout()
     fig2, ax = plt.subplots(figsize=(7, 3.2))
     ax.plot(t, traces["nominal"]["u"], lw=1.0, label="optimal control (nominal system)")
     ax.plot(t, traces["extra"]["u_nom"], lw=1.0, label="nominal control u_nom")
@@ -171,7 +170,6 @@ def fig_case(case, traces: dict, cfg):
     ax.set_title(f"{case}: control signals, seed 0 (cf. Fig. {fsn})")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
-    fig2.tight_layout()
     return fig, fig2
 
 
@@ -270,7 +268,6 @@ def fig_variants(cfg, r):
     axes[1].set_ylim(0, 105)
     axes[0].set_ylim(-60, 70)
     axes[0].legend(fontsize=7, loc="lower left")
-    fig.tight_layout()
     return fig
 
 

@@ -54,17 +54,25 @@ def _solve(M, B):
     (seen as a hang of the margins tests on this project's CI machine). Elimination in jax.numpy compiles to
     ordinary fused kernels."""
     n = M.shape[0]
-    A = jnp.concatenate([M, B], axis=1)
     rows = jnp.arange(n)
-    for j in range(n):
+
+    # one loop step per column, not an unrolled copy of each: margins evaluates the solve in a dozen places
+    # (and differentiates some), and the unrolled form made each margins program seconds to compile
+    def eliminate(j, A):
         p = jnp.argmax(jnp.where(rows >= j, jnp.abs(A[:, j]), -1.0))
-        A = A.at[jnp.array([j, p])].set(A[jnp.array([p, j])])  # swap rows j and p
+        A = A.at[jnp.stack([j, p])].set(A[jnp.stack([p, j])])  # swap rows j and p
         below = jnp.where(rows > j, A[:, j] / A[j, j], 0.0)
-        A = A - below[:, None] * A[j][None, :]
-    X = A[:, n:]
-    for j in reversed(range(n)):  # back substitution
-        X = X.at[j].set((X[j] - A[j, j + 1:n] @ X[j + 1:]) / A[j, j])
-    return X
+        return A - below[:, None] * A[j][None, :]
+
+    A = jax.lax.fori_loop(0, n, eliminate, jnp.concatenate([M, B], axis=1))
+    U = A[:, :n]
+
+    def substitute(k, X):  # back substitution, last row first; the entries left of the diagonal multiply zeros
+        j = n - 1 - k
+        after = jnp.where(rows > j, U[j], 0.0)
+        return X.at[j].set((X[j] - after @ X) / U[j, j])
+
+    return jax.lax.fori_loop(0, n, substitute, A[:, n:])
 
 
 def evalfr(sys: StateSpace, x) -> jax.Array:

@@ -26,5 +26,4 @@ def band_figure(t, series: dict, ylabel: str = "", title: str = ""):
     axes[-1, 0].set_xlabel("time (s)")
     if title:
         axes[0, 0].set_title(title)
-    fig.tight_layout()
     return fig
