@@ -3,6 +3,7 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from jaxdip import checkpoint
 from jaxdip.search import EKI, ensemble_update, run_eki
@@ -105,14 +106,19 @@ print(float(np.max(np.abs(np.asarray(out[0][0].members) - np.asarray(out[1][0].m
 """
 
 
-def test_members_split_over_devices_give_the_same_search():
+@pytest.mark.parametrize("effort", ["balanced", pytest.param("full", marks=pytest.mark.slow)])
+def test_members_split_over_devices_give_the_same_search(effort):
     # every device runs the update itself on the gathered performances: bit-identical to one device. Checked at
-    # XLA's default level (full runs): at the suite's -O0 the two programs differ in the last bits (1e-14)
+    # the levels runs compile at, balanced (--quick; 10 s cold) and full (full runs; 15 s cold, so with -m slow):
+    # at the suite's -O0 the two programs differ in the last bits (1e-14)
     import os
     import subprocess
     import sys
 
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    from jaxdip import xla_flags
+
+    flags = " ".join(f"--{k}={str(v).lower()}" for k, v in xla_flags.EFFORTS[effort].items())
+    env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count=2 {flags}".strip(), JAX_PLATFORMS="cpu")
     out = subprocess.run([sys.executable, "-c", SHARD_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     d_members, d_hist = map(float, out.stdout.split()[-2:])
