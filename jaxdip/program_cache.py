@@ -68,25 +68,42 @@ class _Program:
     def __call__(self, leaves: list):
         import jax
 
+        if self.exported.nr_devices > 1:  # a partitioned program: its inputs carry their shardings (the key's)
+            place = frozenset(d for leaf in leaves if hasattr(leaf, "devices") for d in leaf.devices())
+            if len(place) != self.exported.nr_devices:
+                raise Unkeyable("inputs on other devices than the program's")
+            run = self.by_device.get(place)
+            if run is None:
+                run = self.by_device[place] = jax.jit(self._program())
+            return jax.tree_util.tree_unflatten(self.out_tree, run(*leaves))
         devices = {d for leaf in leaves if hasattr(leaf, "devices") for d in leaf.devices()}
         device = devices.pop() if len(devices) == 1 else jax.devices()[0]
         if devices:  # inputs on several devices (each on one): not a case the cache serves
             raise Unkeyable("inputs on different devices")
         run = self.by_device.get(device)
         if run is None:
-            exported = self.exported
-
-            def program(*xs):
-                return exported.call(*xs)
-
-            program.__name__ = program.__qualname__ = self.name  # compile events name it as the direct call
-            run = self.by_device[device] = jax.jit(program, in_shardings=jax.sharding.SingleDeviceSharding(device))
+            run = self.by_device[device] = jax.jit(self._program(),
+                                                   in_shardings=jax.sharding.SingleDeviceSharding(device))
         return jax.tree_util.tree_unflatten(self.out_tree, run(*leaves))
 
+    def _program(self) -> Callable:
+        exported = self.exported
 
-def _load(path: str, name: str):
-    with open(path, "rb") as fh:
-        return _load_blob(fh.read(), name)
+        def program(*xs):
+            return exported.call(*xs)
+
+        program.__name__ = program.__qualname__ = self.name  # compile events name it as the direct call
+        return program
+
+
+def _spread(leaf):
+    """The sharding of an input laid out over several devices (exported with it: it shapes the partitioned
+    program and is part of the key), else None."""
+    import jax
+
+    if isinstance(leaf, jax.Array) and len(leaf.devices()) > 1:
+        return leaf.sharding
+    return None
 
 
 def _export(fun: Callable, packed: tuple, name: str):
@@ -108,9 +125,14 @@ def _export(fun: Callable, packed: tuple, name: str):
     # not ``name``: JAX logs "Compiling <name>" when it lowers, and the wrapper that runs the program is lowered
     # under ``name`` (one such line per program, as for a direct call)
     flat.__name__ = flat.__qualname__ = f"{name}_export"
-    avals = [jax.ShapeDtypeStruct(leaves[i].shape, leaves[i].dtype, weak_type=getattr(leaves[i], "weak_type", False))
+    avals = [jax.ShapeDtypeStruct(leaves[i].shape, leaves[i].dtype, weak_type=getattr(leaves[i], "weak_type", False),
+                                  sharding=_spread(leaves[i]))
              for i in where]
     exported = jax.export.export(jax.jit(flat))(*avals)
+    if exported.nr_devices > 1 and not any(a.sharding is not None for a in avals):
+        # partitioned inside (a Monte Carlo that shards its own batches) on inputs of one device: a stored
+        # program cannot be called so (JAX asks its inputs to be on as many devices as it was exported for)
+        raise Unkeyable("partitioned over devices its inputs are not on")
     tree_hex = pickle.dumps(box["tree"]).hex().encode()
     return tree_hex + b"\n" + exported.serialize()
 
@@ -144,26 +166,44 @@ def call(fun: Callable, args: tuple, name: str | None = None, kwargs: dict | Non
     return MISS
 
 
+# what an entry holds for a program the cache refused by design (``_export``'s Unkeyable), so the next process
+# goes the ordinary way without tracing it a second time to find that out
+_ORDINARY = b"ordinary\n"
+
+
 def _entry(fun: Callable, packed: tuple, name: str, path: str):
     """The program stored at ``path``, or exported now (and written there); None when it does not export."""
     if os.path.exists(path):
         try:
-            entry = _load(path, name)
+            with open(path, "rb") as fh:
+                blob = fh.read()
+            if blob == _ORDINARY:
+                return None
+            entry = _load_blob(blob, name)
             _COUNTS["read"] += 1
             return entry
         except Exception:  # a damaged or foreign file: export again over it
             pass
     try:
         blob = _export(fun, packed, name)
+    except Unkeyable:
+        blob = _ORDINARY
     except Exception:  # e.g. a host callback, which does not export: the ordinary call reports real errors
         return None
+    if blob == _ORDINARY:
+        _write(path, blob)
+        return None
+    _write(path, blob)
+    _COUNTS["exported"] += 1
+    return _load_blob(blob, name)
+
+
+def _write(path: str, blob: bytes) -> None:
     try:
         os.makedirs(os.path.dirname(path), exist_ok=True)
         write_file_atomic(path, blob)
     except OSError:
         pass  # a read-only cache still serves this process from memory
-    _COUNTS["exported"] += 1
-    return _load_blob(blob, name)
 
 
 def jit(fun: Callable, name: str | None = None) -> Callable:

@@ -12,7 +12,9 @@ tracing it.
 
 What it cannot pin down raises ``Unkeyable``: an object of a class from outside the project that carries state,
 a function or class from a module outside the project, the standard library and the installed packages (a user's
-script: its helpers in other files would not be in the key), a tracer, an array over several devices.
+script: its helpers in other files would not be in the key), a tracer, an array over several processes or
+laid out other than by a ``NamedSharding``. An array over several devices of this process counts with its
+sharding (the program's partitioning depends on it), by value.
 
 Nothing here depends on the process: Python's string hashing (which orders the frozenset constants of
 bytecode) is kept out, so a key computed in one process is found by the next.
@@ -30,7 +32,7 @@ import sys
 import types
 from typing import Any, Callable
 
-__all__ = ["Unkeyable", "fingerprint", "function_key", "is_input"]
+__all__ = ["Unkeyable", "fingerprint", "function_key", "is_input", "sharding_value"]
 
 _ALWAYS = ("jax", "jaxlib", "equinox", "numpy")
 
@@ -129,6 +131,9 @@ def _static(k: _Key, obj: Any, depth: int = 0) -> None:
         return
     if isinstance(obj, np.dtype):
         k.put("dtype", str(obj))
+        return
+    if isinstance(obj, jax.sharding.Sharding):
+        k.put("sharding", sharding_value(obj))
         return
     if id(obj) in k.stack:
         raise Unkeyable("a cycle")
@@ -260,6 +265,19 @@ def _treedef(k: _Key, td, depth: int = 0) -> None:
         _treedef(k, child, depth + 1)
 
 
+def sharding_value(sharding) -> tuple:
+    """A ``NamedSharding`` by value: its mesh's devices (ids, kind, arrangement), axis names, partition spec and
+    memory kind. Other shardings raise Unkeyable."""
+    import jax
+
+    if not isinstance(sharding, jax.sharding.NamedSharding):
+        raise Unkeyable(f"a {type(sharding).__name__}")
+    mesh = sharding.mesh
+    devices = [(d.id, d.platform, d.device_kind) for d in mesh.devices.flat]
+    spec = tuple(tuple(p) if isinstance(p, (tuple, list)) else p for p in sharding.spec)
+    return ("named", devices, tuple(mesh.devices.shape), tuple(mesh.axis_names), spec, sharding.memory_kind)
+
+
 def is_input(leaf: Any) -> bool:
     """Whether a leaf is one of the program's inputs (an array), not part of its key by value."""
     import jax
@@ -294,9 +312,12 @@ def fingerprint(fun: Callable, args: tuple, fun_key: tuple[bytes, frozenset] | N
         if is_input(leaf):
             if isinstance(leaf, jax.core.Tracer):
                 raise Unkeyable("a tracer")
-            if isinstance(leaf, jax.Array) and (len(leaf.devices()) != 1 or not leaf.is_fully_addressable):
-                raise Unkeyable("an array over several devices")
-            k.put("input", tuple(leaf.shape), str(leaf.dtype), bool(getattr(leaf, "weak_type", False)))
+            layout = None
+            if isinstance(leaf, jax.Array) and len(leaf.devices()) != 1:
+                if not leaf.is_fully_addressable:
+                    raise Unkeyable("an array over several processes")
+                layout = sharding_value(leaf.sharding)
+            k.put("input", tuple(leaf.shape), str(leaf.dtype), bool(getattr(leaf, "weak_type", False)), layout)
         else:
             _static(k, leaf)
     for name in _ALWAYS:

@@ -248,3 +248,53 @@ def test_counts_say_how_the_calls_went(folder):
     assert program_cache.call(driver._batch_body, (object(),), "_batch") is program_cache.MISS
     after = program_cache.counts()
     assert {k: after[k] - before[k] for k in after} == {"read": 1, "exported": 1, "ordinary": 1}
+
+
+SHARDED = textwrap.dedent("""
+    import jax, numpy as np
+    import jaxdip as jd
+    from jaxdip import program_cache, program_key
+    from jaxdip.scenarios.dip_lqr import dip_lqr
+
+    assert len(jax.devices()) == 2
+    r, key, folder = dip_lqr(dt=1e-3, substeps=1, duration=0.1, record_every=5), jax.random.PRNGKey(3), {folder!r}
+    compiled = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda ev, d, **kw: compiled.append(kw.get("fun_name")) if ev.endswith("backend_compile_duration") else None)
+
+    def run():
+        # whole horizon, and over time in chunks (the carry laid out over the devices by the first call)
+        return jd.monte_carlo(r, key, 16, shard=True), jd.monte_carlo(r, key, 16, shard=True, time_chunk=25)
+
+    program_cache.enable(None)
+    plain = run()
+    program_cache.enable(folder)
+    first = run()
+    stored = program_cache.counts()
+    program_cache.enable(folder)  # a new process: the files on disk only
+    compiled.clear()
+    again = run()
+    served = program_cache.counts()
+    for out in (first, again):
+        for u, v in zip(jax.tree_util.tree_leaves(plain), jax.tree_util.tree_leaves(out)):
+            np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
+    x = jax.numpy.arange(16.0)
+    split = jax.device_put(x, jax.sharding.NamedSharding(jd.engine.driver.device_mesh(), jax.sharding.PartitionSpec("seeds")))
+    keys = {{program_key.fingerprint(jd.engine.driver._batch_body, (a,)) for a in (x, split)}}
+    print(stored["exported"], stored["ordinary"], served["read"] - stored["read"], served["exported"] - stored["exported"],
+          served["ordinary"] - stored["ordinary"], compiled.count("jit(_batch)"), len(keys))
+""")
+
+
+def test_sharded_batches_are_stored_and_give_the_ordinary_results_bit_for_bit(tmp_path):
+    from conftest import host_devices_flags
+
+    env = dict(os.environ, XLA_FLAGS=host_devices_flags(2), JAX_PLATFORMS="cpu")
+    script = SHARDED.format(folder=str(tmp_path / "programs"))
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    exported, ordinary, read, again, ordinary_again, compiles, keys = map(int, out.stdout.split()[-7:])
+    assert exported >= 3 and ordinary == 0  # every sharded batch went through the cache
+    assert read == exported and again == 0 and ordinary_again == 0  # and the next process read them all
+    assert compiles == exported  # each stored program compiles once, the loop over time chunks included
+    assert keys == 2  # the same array on one device and over two is another program

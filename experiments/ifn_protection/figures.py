@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip import program_cache
 from jaxdip.immune.controls import breakpoints
 from jaxdip.immune.costs import RadialCost
 
 
-@eqx.filter_jit
+@program_cache.jit
 def _raster(model, control, t, rho):
     """The indicator of a control on a (t, |x|) grid (x along the first axis)."""
     key = jax.random.PRNGKey(0)

@@ -158,12 +158,13 @@ def _m_finalize(f, key, state, n):
 
 
 def _call_batch(method, fn, where, values, base, idx, args, n, detail=None, out_sharding=None):
-    """``_batch``, or with the program cache on (the CLI's) and one device, the program stored for the call's
-    key: a warm process then skips tracing and lowering too. The compiled code and the results are the same."""
-    if out_sharding is None:
-        out = program_cache.call(_batch_body, (method, fn, where, values, base, idx, args, n, detail), "_batch")
-        if out is not program_cache.MISS:
-            return out
+    """``_batch``, or with the program cache on (the CLI's), the program stored for the call's key, on one
+    device or sharded over this process's devices: a warm process then skips tracing and lowering too. The
+    compiled code and the results are the same."""
+    out = program_cache.call(_batch_laid_out, (method, fn, where, values, base, idx, args, n, detail, out_sharding),
+                             "_batch")
+    if out is not program_cache.MISS:
+        return out
     return _batch(method, fn, where, values, base, idx, args, n, detail, out_sharding)
 
 
@@ -172,6 +173,10 @@ def _batch(method, fn, where, values, base, idx, args, n, detail=None, out_shard
     """vmap of ``method(fn, fold_in(base, i), arg_i, n)`` over the seed indices ``idx`` (and over the sweep).
     ``detail``: split each seed's output into (per seed, detail) and keep the detail of the batch's first seed.
     ``out_sharding``: lay every output out so (a sharding, static)."""
+    return _batch_laid_out(method, fn, where, values, base, idx, args, n, detail, out_sharding)
+
+
+def _batch_laid_out(method, fn, where, values, base, idx, args, n, detail, out_sharding):
     out = _batch_body(method, fn, where, values, base, idx, args, n, detail)
     if out_sharding is not None:
         out = jax.lax.with_sharding_constraint(out, out_sharding)

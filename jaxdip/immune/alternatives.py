@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip import program_cache
 from jaxdip.immune import quadrature as Q
 from jaxdip.immune.controls import BallWindow, LevelSet, RandomTilt
 from jaxdip.immune.model import Infection
@@ -52,7 +53,7 @@ def _radius_for(model, cost, V, s0, s1, n_gl, iters=60):
     return jnp.where(feasible, jnp.exp(lr), jnp.inf)
 
 
-@eqx.filter_jit
+@program_cache.jit
 def _grid_costs(model, cost, V, s0, s1, n_gl):
     def one(a, b):
         rho = _radius_for(model, cost, V, a, b, n_gl)

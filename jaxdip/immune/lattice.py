@@ -19,11 +19,11 @@ from __future__ import annotations
 
 import math
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip import program_cache
 from jaxdip.immune.autonomous import log_cell_density, log_interval_prob
 from jaxdip.immune.model import Infection
 
@@ -49,7 +49,7 @@ def _log_cell_prob(model, t, xc, size):
     return jnp.sum(log_interval_prob((xc - size / 2) / sigma, (xc + size / 2) / sigma))
 
 
-@eqx.filter_jit
+@program_cache.jit
 def _cells_mass(model, cost, log_theta, offset, centres, s_end, size, n_s: int):
     f = _rule(model, cost, log_theta, size, offset)
     x, w = np.polynomial.legendre.leggauss(GL_POINTS)

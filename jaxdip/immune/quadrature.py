@@ -26,11 +26,11 @@ from __future__ import annotations
 import functools
 from typing import NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdip import program_cache
 from jaxdip.immune.controls import LevelSet
 from jaxdip.immune.model import Infection, mass_fraction
 
@@ -127,7 +127,7 @@ def masses(model: Infection, control, cost, n: int = 4096) -> Masses:
 
 
 @_memoised
-@eqx.filter_jit
+@program_cache.jit
 def _masses(model: Infection, control, cost, n: int) -> Masses:
     n = n + (n % 2)
     bp = model.s_of_t(control.breakpoints(model))

@@ -24,6 +24,7 @@ import numpy as np
 import optax
 
 from jaxdip.engine.driver import monte_carlo
+from jaxdip import program_cache
 from jaxdip.immune import quadrature as Q
 from jaxdip.immune.controls import LevelSet
 from jaxdip.immune.model import Infection
@@ -59,8 +60,14 @@ def expected_progeny_mc(model: Infection, cost, log_r, key, n: int):
 
 
 # value and derivative in log r, compiled once each and shared by the gradient checks and the optimiser
-_quad_vg = eqx.filter_jit(jax.value_and_grad(expected_progeny_quadrature, argnums=2))
-_mc_vg = eqx.filter_jit(jax.value_and_grad(_progeny_mc, argnums=2))
+@program_cache.jit
+def _quad_vg(model, cost, log_r, n):
+    return jax.value_and_grad(expected_progeny_quadrature, argnums=2)(model, cost, log_r, n)
+
+
+@program_cache.jit
+def _mc_vg(model, cost, log_r, key, n):
+    return jax.value_and_grad(_progeny_mc, argnums=2)(model, cost, log_r, key, n)
 
 
 def progeny_and_slope(model: Infection, cost, log_r, *, method: str = "quadrature", key=None, n: int = 4096):

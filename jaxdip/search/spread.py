@@ -76,16 +76,21 @@ def on_devices(fn: Callable, state, devices: Optional[list]):
         return program_cache.jit(fn), state
     from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-    mesh = Mesh(np.array(devices), (AXIS,))
-    whole = NamedSharding(mesh, PartitionSpec())
-    fn = jax.shard_map(fn, mesh=mesh, in_specs=PartitionSpec(), out_specs=PartitionSpec(), check_vma=False)
+    whole = NamedSharding(Mesh(np.array(devices), (AXIS,)), PartitionSpec())
     if jax.process_count() > 1:
         # each process supplies its devices' copies of its (identical) value
         state = jax.tree_util.tree_map(
             lambda a: jax.make_array_from_callback(np.shape(a), whole, lambda i, a=np.asarray(a): a[i]), state)
     else:
         state = jax.device_put(state, whole)
-    return jax.jit(fn), state
+    # through the program cache as on one device (the sharding is part of the key, by value); arrays over
+    # several processes are not keyed and go the ordinary way
+    def on_mesh(*args):
+        return jax.shard_map(fn, mesh=whole.mesh, in_specs=PartitionSpec(), out_specs=PartitionSpec(),
+                             check_vma=False)(*args)
+
+    on_mesh.__name__ = getattr(fn, "__name__", "on_mesh")  # compile events name the program as fn
+    return program_cache.jit(on_mesh), state
 
 
 def to_local(tree):
