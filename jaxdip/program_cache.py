@@ -7,7 +7,9 @@ depend on, known without tracing (``jaxdip.program_key``), and on a hit calls th
 serialised by ``jax.export``) as it is; the compiled code then comes from XLA's cache as before.
 
 A call the key cannot pin down goes the ordinary way (``MISS``): ``Unkeyable`` arguments, a program that does not
-export (a host callback), an entry that cannot be read (it is exported again over it). Results are the same
+export (a host callback), a program partitioned over more devices than its inputs are on (its entry says so, so
+the next process does not trace it to find out), an entry that cannot be read (it is exported again over it).
+Inputs sharded over this process's devices are served, with their shardings in the key. Results are the same
 either way: the stored program is the one JAX would have compiled (tests/test_program_cache.py compares them bit
 for bit, and ``jaxdip reproduce --quick`` gives the same results with and without it).
 

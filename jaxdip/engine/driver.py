@@ -9,8 +9,8 @@ Compilation: every batch runs through one module-level ``eqx.filter_jit`` functi
 (every hyperparameter) are traced arguments and everything else (the static fields, the functions) is the
 cache key, so a second call with new numbers but the same structure reuses the compiled program, and a sweep
 over a hyperparameter is one program with the swept leaf batched. With the program cache on (the CLI's,
-``jaxdip.program_cache``) a batch on one device is served from the traced program stored for its key, so a
-warm process skips the trace too.
+``jaxdip.program_cache``) a batch, on one device or sharded over this process's devices, is served from the
+traced program stored for its key, so a warm process skips the trace too.
 """
 
 from __future__ import annotations
