@@ -189,11 +189,9 @@ def _entry(fun: Callable, packed: tuple, name: str, path: str):
     try:
         blob = _export(fun, packed, name)
     except Unkeyable:
-        blob = _ORDINARY
-    except Exception:  # e.g. a host callback, which does not export: the ordinary call reports real errors
+        _write(path, _ORDINARY)
         return None
-    if blob == _ORDINARY:
-        _write(path, blob)
+    except Exception:  # e.g. a host callback, which does not export: the ordinary call reports real errors
         return None
     _write(path, blob)
     _COUNTS["exported"] += 1
