@@ -70,15 +70,15 @@ class _Program:
     def __call__(self, leaves: list):
         import jax
 
+        devices = {d for leaf in leaves if hasattr(leaf, "devices") for d in leaf.devices()}
         if self.exported.nr_devices > 1:  # a partitioned program: its inputs carry their shardings (the key's)
-            place = frozenset(d for leaf in leaves if hasattr(leaf, "devices") for d in leaf.devices())
-            if len(place) != self.exported.nr_devices:
+            if len(devices) != self.exported.nr_devices:
                 raise Unkeyable("inputs on other devices than the program's")
+            place = frozenset(devices)
             run = self.by_device.get(place)
             if run is None:
                 run = self.by_device[place] = jax.jit(self._program())
             return jax.tree_util.tree_unflatten(self.out_tree, run(*leaves))
-        devices = {d for leaf in leaves if hasattr(leaf, "devices") for d in leaf.devices()}
         device = devices.pop() if len(devices) == 1 else jax.devices()[0]
         if devices:  # inputs on several devices (each on one): not a case the cache serves
             raise Unkeyable("inputs on different devices")

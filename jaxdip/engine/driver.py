@@ -161,7 +161,7 @@ def _call_batch(method, fn, where, values, base, idx, args, n, detail=None, out_
     """``_batch``, or with the program cache on (the CLI's), the program stored for the call's key, on one
     device or sharded over this process's devices: a warm process then skips tracing and lowering too. The
     compiled code and the results are the same."""
-    out = program_cache.call(_batch_laid_out, (method, fn, where, values, base, idx, args, n, detail, out_sharding),
+    out = program_cache.call(_batch_body, (method, fn, where, values, base, idx, args, n, detail, out_sharding),
                              "_batch")
     if out is not program_cache.MISS:
         return out
@@ -170,20 +170,14 @@ def _call_batch(method, fn, where, values, base, idx, args, n, detail=None, out_
 
 @eqx.filter_jit
 def _batch(method, fn, where, values, base, idx, args, n, detail=None, out_sharding=None):
+    return _batch_body(method, fn, where, values, base, idx, args, n, detail, out_sharding)
+
+
+def _batch_body(method, fn, where, values, base, idx, args, n, detail=None, out_sharding=None):
     """vmap of ``method(fn, fold_in(base, i), arg_i, n)`` over the seed indices ``idx`` (and over the sweep).
     ``detail``: split each seed's output into (per seed, detail) and keep the detail of the batch's first seed.
     ``out_sharding``: lay every output out so (a sharding, static)."""
-    return _batch_laid_out(method, fn, where, values, base, idx, args, n, detail, out_sharding)
 
-
-def _batch_laid_out(method, fn, where, values, base, idx, args, n, detail, out_sharding):
-    out = _batch_body(method, fn, where, values, base, idx, args, n, detail)
-    if out_sharding is not None:
-        out = jax.lax.with_sharding_constraint(out, out_sharding)
-    return out
-
-
-def _batch_body(method, fn, where, values, base, idx, args, n, detail):
     def seeds(f, a):
         if method is _m_call_indexed:
             a = idx
@@ -194,8 +188,10 @@ def _batch_body(method, fn, where, values, base, idx, args, n, detail):
         return per, jax.tree_util.tree_map(lambda v: v[0], det)
 
     if where is None:
-        return seeds(fn, args)
-    return jax.vmap(lambda v, a: seeds(eqx.tree_at(where, fn, v), a))(values, args)
+        out = seeds(fn, args)
+    else:
+        out = jax.vmap(lambda v, a: seeds(eqx.tree_at(where, fn, v), a))(values, args)
+    return out if out_sharding is None else jax.lax.with_sharding_constraint(out, out_sharding)
 
 
 # ---- the driver ------------------------------------------------------------------------------------------------
