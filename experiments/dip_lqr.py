@@ -47,6 +47,11 @@ class DipLqrConfig:
                                     doc="stabilised: max |alpha|, |theta| over the last second below this (rad)")
     record_every: int = C.field(10, C.positive, doc="keep every n-th period for the figures")
     precision: str = precision_field()
+    trig: str = C.field("vectorised", C.one_of("vectorised", "library"),
+                        doc="the DIP's sin and cos: vectorised (within 3 ulp of the C library's, faster) or library")
+    noise_draw: str = C.field("float32", C.one_of("float32", "loop"),
+                              doc="dtype of the sensor's normals before the cast (loop: the loop's own; "
+                                  "trig=library with noise_draw=loop is the stream before 2026-11-27)")
 
     def loads(self) -> list[Load]:
         n = steps_of(self.duration, self.dt)
@@ -66,7 +71,8 @@ def build(cfg: DipLqrConfig) -> jd.Rollout:
     """One Monte Carlo trial (the library's dip_lqr scenario with this config's values)."""
     r = dip_lqr(variant=cfg.variant, dt=cfg.dt, substeps=cfg.substeps, duration=cfg.duration,
                 Q=weight_matrix("Q", cfg.Q, 6), R=cfg.R, noise_std=cfg.noise_std, init_radius=cfg.init_radius,
-                state_bound=cfg.state_bound, record_every=cfg.record_every)
+                state_bound=cfg.state_bound, record_every=cfg.record_every, trig=cfg.trig,
+                noise_draw=cfg.noise_draw)
     return jd.with_precision(r, cfg.precision)
 
 
@@ -99,7 +105,8 @@ def report(cfg: DipLqrConfig, r: dict) -> str:
     lines = [
         f"DIP ({cfg.variant} model) under continuous LQR, Q = {cfg.Q}, R = {cfg.R}, held for {cfg.dt * 1e3:g} ms "
         f"periods, {cfg.duration} s, noise std {cfg.noise_std}, initial states uniform in a ball of radius "
-        f"{cfg.init_radius} around upright.",
+        f"{cfg.init_radius} around upright. The DIP's sin and cos: {cfg.trig}; the sensor's normals drawn in "
+        f"{'the loop dtype' if cfg.noise_draw == 'loop' else cfg.noise_draw}.",
         "",
         f"- stabilised fraction: **{fmt_ci(r['stabilized_fraction'], r['stabilized_fraction_ci95'])}** "
         f"(max |alpha|, |theta| over the last second < {cfg.stabilized_tol} rad)",

@@ -21,17 +21,17 @@ def test_numpy_dip_equals_the_jax_model():
 
 def test_integration_errors_against_dop853():
     """200 periods of the dip-lqr loop on seed 0's noise: jaxdip's RK4 x 10 and the NumPy RK4 x 10 agree with
-    DOP853 (rtol 1e-12) to 1e-12, one RK4 step per period to 1e-9 (the bench's default integration), also with the
-    DIP's vectorised sin/cos."""
+    DOP853 (rtol 1e-12) to 1e-12, one RK4 step per period to 1e-9 (the bench's default integration), with the
+    DIP's vectorised sin/cos (dip-lqr's) and with the C library's."""
     e = integration_errors(substeps=(1, 10), n=200)["max_abs_final_state_error"]
     assert e["jaxdip_rk4x10"] < 1e-12 and e["numpy_rk4x10"] < 1e-12
     assert 1e-15 < e["jaxdip_rk4x1"] < 1e-9  # nonzero: the references do see the step size
     assert e["scipy_rk45"] < 1e-6
-    # the vectorised sin/cos stays within the bench's 1e-9; with a float32 draw the reference replays the normals
-    # as saved, which XLA may round once differently from the loop's in a few % of draws (docs/performance.md):
-    # ~1e-9 after 200 periods, 1.5e-12 after the bench's 6500, as the stable loop forgets
-    assert 1e-15 < e["jaxdip_rk4x1_vectorised_trig"] < 1e-9
-    assert 1e-15 < e["jaxdip_rk4x1_vectorised_trig_float32_draw"] < 1e-8
+    assert 1e-15 < e["jaxdip_rk4x1_library_trig"] < 1e-9
+    # with the float32 draw the reference replays the normals as saved, which XLA may round once differently from
+    # the loop's in a few % of draws (docs/performance.md): ~1e-9 after 200 periods, 1.5e-12 after the bench's
+    # 6500, as the stable loop forgets
+    assert 1e-15 < e["jaxdip_rk4x1_float32_draw"] < 1e-8
 
 
 def test_numpy_and_scipy_loops_agree_on_a_noise_sequence():

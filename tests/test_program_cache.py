@@ -85,7 +85,7 @@ def test_the_key_follows_the_trace_not_the_values():
     assert fp(scaled) == base
     # what shapes the trace: a static field, the horizon, a leaf's shape, a function in a field
     assert fp(dataclasses.replace(r, loop=dataclasses.replace(r.loop, plant=dataclasses.replace(
-        r.loop.plant, trig="vectorised")))) != base
+        r.loop.plant, trig="library")))) != base
     assert fp(dataclasses.replace(r, steps=r.steps + 5)) != base
     assert fp(r, n=5) != base  # an input's shape
     from jaxdip.scenarios.dip_cpx_ldf import estimation_error
@@ -108,7 +108,7 @@ def test_functions_count_by_code_defaults_and_closure():
     assert fp(functools.partial(lqr, rtol=1e-9)) != fp(functools.partial(lqr, rtol=1e-8))
     assert fp(functools.partial(lqr, rtol=1e-9)) == fp(functools.partial(lqr, rtol=1e-9))
     r = rollout()
-    assert fp(r.loop.plant.vector_field) != fp(dataclasses.replace(r.loop.plant, trig="vectorised").vector_field)
+    assert fp(r.loop.plant.vector_field) != fp(dataclasses.replace(r.loop.plant, trig="library").vector_field)
 
 
 def test_what_it_cannot_key_goes_the_ordinary_way(folder):

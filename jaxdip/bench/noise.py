@@ -181,19 +181,23 @@ def engine_rates(seeds: int = 1024, steps: int = 1000, rounds: int = 5) -> dict:
     """ns per seed-period (median CPU time, interleaved rounds) of the library's own dip-lqr loop
     (``jd.monte_carlo`` of the scenario's rollout, one RK4 step, no recording): today's keys, ``unsafe_rbg`` keys
     (a typed key given to ``monte_carlo``: the whole key schedule on that generator),
-    ``WhiteNoise(draw_dtype="float32")``, and ``NoDraw`` (no noise at all: what any draw could gain at most);
-    then the first, the third and the fourth again with ``DIP(trig="vectorised")`` (sin and cos in vectorised
-    operations instead of the C library's)."""
-    from jaxdip.bench.scoreboard import float32_draw, vectorised_trig
+    ``WhiteNoise(draw_dtype="float32")``, and ``NoDraw`` (no noise at all: what any draw could gain at most), all
+    with the C library's sin and cos (the loop before dip-lqr's defaults changed); then the first, the third and
+    the fourth again with ``DIP(trig="vectorised")`` (the last but one is the loop dip-lqr runs now)."""
     from jaxdip.scenarios.dip_lqr import dip_lqr
 
-    r = dip_lqr(duration=steps * DT, substeps=1, record_every=None)
-    r32 = float32_draw(r)
-    r0 = eqx.tree_at(lambda r: r.loop.sensor, r, NoDraw())
+    def loop(trig, draw):
+        return dip_lqr(duration=steps * DT, substeps=1, record_every=None, trig=trig, noise_draw=draw)
+
+    def no_draw(r):
+        return eqx.tree_at(lambda r: r.loop.sensor, r, NoDraw())
+
+    r = loop("library", "loop")
     cases = {"threefry": (r, jax.random.PRNGKey(0)), "unsafe_rbg": (r, jax.random.key(0, impl="unsafe_rbg")),
-             "float32": (r32, jax.random.PRNGKey(0)), "no_draw": (r0, jax.random.PRNGKey(0))}
-    for name, base in (("vectorised_trig", r), ("vectorised_trig_float32", r32), ("vectorised_trig_no_draw", r0)):
-        cases[name] = (vectorised_trig(base), jax.random.PRNGKey(0))
+             "float32": (loop("library", "float32"), jax.random.PRNGKey(0)), "no_draw": (no_draw(r), jax.random.PRNGKey(0)),
+             "vectorised_trig": (loop("vectorised", "loop"), jax.random.PRNGKey(0)),
+             "vectorised_trig_float32": (loop("vectorised", "float32"), jax.random.PRNGKey(0)),
+             "vectorised_trig_no_draw": (no_draw(loop("vectorised", "loop")), jax.random.PRNGKey(0))}
     progs = {name: jax.jit(lambda key, r=rollout: jd.monte_carlo(r, key, seeds).metrics)
              for name, (rollout, _) in cases.items()}
     for name, f in progs.items():

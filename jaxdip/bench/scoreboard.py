@@ -9,9 +9,10 @@ Contenders, each timed once per round, rounds interleaved, medians reported:
   rtol 1e-6 / atol 1e-9, and ``ode45_defaults``: the same at MATLAB ode45's defaults (rtol 1e-3, atol 1e-6),
   the documents' integrator;
 - ``jaxdip_batch_B`` (one device) and ``jaxdip_batch_B_all`` (sharded over every device): ``jd.monte_carlo`` of
-  the loop at its default integration, B seeds; ``..._vectorised_trig``: the same at 4096 seeds with
-  ``DIP(trig="vectorised")`` (sin and cos in vectorised operations, not the C library's), and that loop again
-  with the sensor's normals drawn in float32 (``..._vectorised_trig_float32_draw``, on every device).
+  the loop as dip-lqr runs it (the scenario's defaults: one RK4 step a period, the DIP's vectorised sin and
+  cos, the sensor's normals drawn in float32), B seeds; at 4096 seeds also the loop before those two choices
+  (``..._library_trig_float64_draw``: the C library's sin and cos, float64 normals) and with the float64 draw
+  only (``..._float64_draw``, on every device), so the scoreboard shows what each choice is worth.
 
 Accuracy: every contender runs the same fixed noise sequence (seed 0's sensor noise, read off jaxdip's own
 run) from the same initial state, and its final state is compared with DOP853 at rtol 1e-12 / atol 1e-14 per
@@ -120,25 +121,28 @@ def _x_and_y(sample):
 
 def integration_errors(substeps=(1, 2, 5, 10), n=6500, dt=0.001, key=0) -> dict:
     """Final-state error (max abs over the state) after ``n`` periods on seed 0's noise sequence, against DOP853
-    at rtol 1e-12: jaxdip at each sub-step count, at the default count with the vectorised sin/cos (and with it a
-    float32 draw, against DOP853 on that run's own noise), the NumPy RK4 x 10 loop, and SciPy's RK45 per period."""
+    at rtol 1e-12: jaxdip at each sub-step count, at the default count with the C library's sin/cos, the NumPy
+    RK4 x 10 loop and SciPy's RK45 per period, all on a float64 draw (replayed exactly); and the loop as dip-lqr
+    runs it (float32 draw), against DOP853 on that run's own noise."""
     key = jax.random.PRNGKey(key)
-    base = dip_lqr(dt=dt, substeps=1, duration=n * dt, record_every=None)
+    base = dip_lqr(dt=dt, substeps=1, duration=n * dt, record_every=None, noise_draw="loop")
     x0, noise, _ = _sensor_noise(base, key, n)
     K = np.asarray(base.loop.controller.K)
     ref = scipy_loop(K, noise, x0, dt, method="DOP853", rtol=1e-12, atol=1e-14)
     err = {}
     for s in substeps:
-        r = dip_lqr(dt=dt, substeps=s, duration=n * dt, record_every=None)
+        r = dip_lqr(dt=dt, substeps=s, duration=n * dt, record_every=None, noise_draw="loop")
         err[f"jaxdip_rk4x{s}"] = float(np.max(np.abs(_sensor_noise(r, key, n)[2] - ref)))
-    # the loop's noise does not depend on the plant's trig, so the same reference judges the vectorised sin/cos
-    vec = vectorised_trig(dip_lqr(dt=dt, substeps=DEFAULT_SUBSTEPS, duration=n * dt, record_every=None))
-    err[f"jaxdip_rk4x{DEFAULT_SUBSTEPS}_vectorised_trig"] = float(np.max(np.abs(_sensor_noise(vec, key, n)[2] - ref)))
+    # the loop's noise does not depend on the plant's trig, so the same reference judges the C library's sin/cos
+    lib = dip_lqr(dt=dt, substeps=DEFAULT_SUBSTEPS, duration=n * dt, record_every=None, trig="library",
+                  noise_draw="loop")
+    err[f"jaxdip_rk4x{DEFAULT_SUBSTEPS}_library_trig"] = float(np.max(np.abs(_sensor_noise(lib, key, n)[2] - ref)))
     # a float32 draw is another noise sequence: its own reference. XLA may round a float32 normal once differently
     # in the saved y than in the loop's (a few % of draws, 1e-10 absolute), so this error bounds the integration's
-    x0_32, noise_32, final_32 = _sensor_noise(float32_draw(vec), key, n)
+    x0_32, noise_32, final_32 = _sensor_noise(dip_lqr(dt=dt, substeps=DEFAULT_SUBSTEPS, duration=n * dt,
+                                                      record_every=None), key, n)
     ref_32 = scipy_loop(K, noise_32, x0_32, dt, method="DOP853", rtol=1e-12, atol=1e-14)
-    err[f"jaxdip_rk4x{DEFAULT_SUBSTEPS}_vectorised_trig_float32_draw"] = float(np.max(np.abs(final_32 - ref_32)))
+    err[f"jaxdip_rk4x{DEFAULT_SUBSTEPS}_float32_draw"] = float(np.max(np.abs(final_32 - ref_32)))
     err["numpy_rk4x10"] = float(np.max(np.abs(numpy_loop(K, noise, x0, dt, 10) - ref)))
     err["scipy_rk45"] = float(np.max(np.abs(scipy_loop(K, noise, x0, dt) - ref)))
     err["ode45_defaults"] = float(np.max(np.abs(scipy_loop(K, noise, x0, dt, rtol=1e-3, atol=1e-6) - ref)))
@@ -217,42 +221,22 @@ def _contenders(quick: bool, substeps: int, dt: float) -> dict[str, tuple[Callab
 
             run()  # compile
             out[name] = (run, n * b)
-    # the same loop with the DIP's sin and cos in vectorised operations (DIP(trig="vectorised")), at 4096 seeds
+    # at 4096 seeds, the loop before its two choices (the C library's sin and cos, float64 normals), and with
+    # the float64 draw only: what each choice is worth
     n = batches[4096]
-    rv = vectorised_trig(dip_lqr(dt=dt, substeps=substeps, duration=n * dt, record_every=None))
-    for shard in shards:
-        name = "jaxdip_batch_4096" + ("_all" if shard else "") + "_vectorised_trig"
+    before = dip_lqr(dt=dt, substeps=substeps, duration=n * dt, record_every=None, trig="library", noise_draw="loop")
+    f64 = dip_lqr(dt=dt, substeps=substeps, duration=n * dt, record_every=None, noise_draw="loop")
+    variants = [(before, shard, "_library_trig_float64_draw") for shard in shards]
+    variants.append((f64, len(shards) > 1, "_float64_draw"))
+    for r, shard, suffix in variants:
+        name = "jaxdip_batch_4096" + ("_all" if shard else "") + suffix
 
-        def run(r=rv, shard=shard):
+        def run(r=r, shard=shard):
             return _wait(jd.monte_carlo(r, key, 4096, shard=shard).final.x)
 
         run()
         out[name] = (run, n * 4096)
-    # and with the sensor's normals drawn in float32 (cast to float64), on every device
-    rv32 = float32_draw(rv)
-    shard = len(shards) > 1
-
-    def run32():
-        return _wait(jd.monte_carlo(rv32, key, 4096, shard=shard).final.x)
-
-    run32()
-    out["jaxdip_batch_4096" + ("_all" if shard else "") + "_vectorised_trig_float32_draw"] = (run32, n * 4096)
     return out
-
-
-def float32_draw(rollout: jd.Rollout) -> jd.Rollout:
-    """``rollout`` with its white-noise sensor drawing its normals in float32 (``WhiteNoise(draw_dtype=...)``)."""
-    import equinox as eqx
-
-    return eqx.tree_at(lambda r: r.loop.sensor, rollout,
-                       dataclasses.replace(rollout.loop.sensor, draw_dtype="float32"))
-
-
-def vectorised_trig(rollout: jd.Rollout) -> jd.Rollout:
-    """``rollout`` with its DIP evaluating sin and cos by ``jaxdip.plants.trig.sincos``."""
-    import equinox as eqx
-
-    return eqx.tree_at(lambda r: r.loop.plant, rollout, DIP(variant=rollout.loop.plant.variant, trig="vectorised"))
 
 
 def other_loops(quick: bool) -> dict:
