@@ -111,7 +111,9 @@ def test_level_sets_xla_flags_once_and_keeps_the_users(monkeypatch):
 @pytest.mark.parametrize("asked", ["fast", pytest.param("full", marks=pytest.mark.slow)])
 def test_cli_applies_and_records_the_level_and_levels_agree(tmp_path, asked):
     env = dict(os.environ, XLA_FLAGS=_without_level(), JAXDIP_NO_PROGRESS="1")
-    runs = {level: Child([*TINY_DIP_LQR, "--out", str(tmp_path / level)]
+    # on dip-lqr's float32 noise draw, `fast` rounds some normals one float32 ulp apart from the other levels, which
+    # moves these results by about 1e-8 relative; the levels' agreement is checked on the float64 draw
+    runs = {level: Child([*TINY_DIP_LQR, "--set", "noise_draw=loop", "--out", str(tmp_path / level)]
                          + (["--compile-effort", level] if level != "default" else []), env)
             for level in (asked, "default")}
     outs = {}
