@@ -1,7 +1,7 @@
 """The runner lays out and writes every figure of a run in one draw: ``tight_layout`` leaves a placeholder layout
 engine on the figure, and ``savefig`` answers any engine with a whole extra draw pass before the real one, so the
-runner drops the engine after laying out. The file must be the figure a plain ``tight_layout`` + ``savefig``
-gives, pixel for pixel."""
+runner drops the engine after laying out. The file must be the figure a plain ``tight_layout`` + ``savefig`` at
+the same resolution gives, pixel for pixel."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ import pytest
 from matplotlib.figure import Figure
 
 import outdir_world as W
+from jaxdip.runner.experiment import FIGURE_DPI
 
 world = W.world  # the shared fixture
 
@@ -50,11 +51,12 @@ def test_each_figure_is_drawn_once_and_gives_the_two_pass_pixels(world, monkeypa
     assert len(draws) == 1  # two before: the placeholder engine's extra pass, then the real one
     monkeypatch.setattr(Figure, "draw", original)
 
-    # the same figure laid out and saved the plain way, in two draws
+    # the same figure laid out at the resolution it is saved in and saved the plain way, in two draws
     ref = _figure(1)
+    ref.set_dpi(FIGURE_DPI)
     ref.tight_layout()
     buf = io.BytesIO()
-    ref.savefig(buf, format="png", dpi=120)
+    ref.savefig(buf, format="png", dpi=FIGURE_DPI)
     got = (world / "dest" / "fig.png").read_bytes()
     np.testing.assert_array_equal(_pixels(got), _pixels(buf.getvalue()))
 
