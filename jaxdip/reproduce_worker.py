@@ -55,10 +55,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    code = main()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    # every run's files are written and closed, and its answer sent, by now: skip the interpreter's teardown
-    # (JAX's backends and compiled programs, every module), which kept a reproduction waiting about 1.3 s at its
-    # end for the last worker to exit
-    os._exit(code)
+    from jaxdip.cli import end_process
+
+    end_process(main())  # every run's files are written and its answer sent: no teardown to wait for
