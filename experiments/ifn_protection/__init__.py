@@ -354,7 +354,7 @@ EXPERIMENT = Experiment(
     title="Optimal antiviral protection (Interferon-β): (P), Theorem 4.4.1 and §4.5 by Monte Carlo",
     config_cls=IfnProtectionConfig,
     run=run,
-    quick={"seeds": 4096, "quad_panels": 1024, "bisect_panels": 1024, "ball_grid": 14, "ball_refine": 1,
+    quick={"seeds": 4096, "quad_panels": 1024, "bisect_panels": 512, "ball_grid": 14, "ball_refine": 1,
            "perturbations": 2, "lattice_panels": 512, "lineages": 512, "generations": 6, "tune_steps": 100,
            "tune_batch": 2048,
            "generation_targets": [1.5, 1.0]},
