@@ -19,8 +19,11 @@ import tempfile
 import threading
 import time
 
+from jaxdip import xla_flags
 from jaxdip.cli_errors import error, note
+from jaxdip.outdir.files import write_file_atomic
 
+TIMES = "reproduce-times.json"  # in the cache folder: {"quick": {id: seconds}, "full": {...}}, the last durations
 MAX_JOBS = 64  # far beyond the experiments there are; a larger --jobs is a typo, not a plan
 
 
@@ -76,6 +79,46 @@ class Workers:
             w["proc"].wait()
 
 
+def work_order(reg, cost: str, learned: dict[str, float]) -> list:
+    """``reg`` (``[(id, Experiment)]``) longest first: by ``learned`` seconds where given, else by the estimate
+    named ``cost``; stable, so an entry without either stays in its place among equals."""
+    return sorted(reg, key=lambda r: -learned.get(r[0], getattr(r[1], cost, 0.0)))
+
+
+def last_times(path: str | None, scale: str) -> dict[str, float]:
+    """{experiment: seconds} of the last reproduction at ``scale`` recorded in ``path``; {} if none (or unreadable:
+    it only orders the work)."""
+    if path is None:
+        return {}
+    try:
+        with open(path, encoding="utf-8") as fh:
+            got = json.load(fh)[scale]
+        return {str(k): float(v) for k, v in got.items()
+                if isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < 1e7}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {}
+
+
+def record_times(path: str | None, scale: str, took: dict[str, float]) -> None:
+    """Add this reproduction's durations to ``path`` (the others' kept); a folder that cannot take it is no error."""
+    if path is None or not took:
+        return
+    try:
+        with open(path, encoding="utf-8") as fh:
+            data = json.load(fh)
+        if not isinstance(data, dict):
+            data = {}
+    except (OSError, ValueError):
+        data = {}
+    if not isinstance(data.get(scale), dict):
+        data[scale] = {}
+    data[scale].update({k: round(v, 3) for k, v in took.items()})
+    try:
+        write_file_atomic(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+    except OSError:
+        pass
+
+
 def close(w):
     """End of input: the worker exits once its current experiment is done."""
     if w["proc"].stdin and not w["proc"].stdin.closed:
@@ -99,11 +142,16 @@ def run_parallel(args, reg, jobs: int, stopped: str) -> int:
     """Run the experiments ``reg`` (``[(id, Experiment)]``) in ``jobs`` workers; 0 or the exit code (on an
     interrupt after the one-line note ``stopped``)."""
     cost = "quick_cost_s" if args.quick else "full_cost_s"
-    order = sorted(reg, key=lambda r: -getattr(r[1], cost, 0.0))  # stable; an entry without an Experiment stays put
+    times = None if args.no_compile_cache else os.path.join(xla_flags.cache_folder(), TIMES)
+    scale = "quick" if args.quick else "full"
+    # longest first: by the time each took in the last reproduction with this cache (a warm run's durations are
+    # not a cold one's: compiling dominates the first, computing and figures the others), else by its estimate
+    order = work_order(reg, cost, last_times(times, scale))
     pending = [exp_id for exp_id, _ in order]
     failed: list = []
     logs = tempfile.mkdtemp(prefix="jaxdip-reproduce-")
     n, done = len(order), 0
+    took: dict[str, float] = {}
     pool = Workers(min(jobs, n))
     answers, workers = pool.answers, pool.workers
 
@@ -144,7 +192,8 @@ def run_parallel(args, reg, jobs: int, stopped: str) -> int:
             done += 1
             rc = ans["rc"] if ans is not None else (w["proc"].wait() or 1)
             if rc == 0:
-                print(f"== {exp_id} done ({time.perf_counter() - w['t']:.1f} s) [{done}/{n}]", file=sys.stderr)
+                took[exp_id] = time.perf_counter() - w["t"]
+                print(f"== {exp_id} done ({took[exp_id]:.1f} s) [{done}/{n}]", file=sys.stderr)
             else:
                 failed.append((exp_id, rc, tail(exp_id)))
             if pending and not failed and ans is not None:
@@ -160,6 +209,7 @@ def run_parallel(args, reg, jobs: int, stopped: str) -> int:
         note(stopped)
         return 130
     pool.close()
+    record_times(times, scale, took)
     if not failed:
         shutil.rmtree(logs, ignore_errors=True)
         return 0

@@ -61,6 +61,12 @@ def _text(value: object) -> str:
     return str(value).lower()
 
 
+def cache_folder() -> str:
+    """Where the on-disk caches go: ``$JAXDIP_CACHE_DIR``, else ``$XDG_CACHE_HOME/jaxdip/xla``."""
+    return os.environ.get("JAXDIP_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "jaxdip", "xla")
+
+
 def use_compile_cache() -> str | None:
     """Keep XLA's compiled code on disk so a second run of the same loops skips compilation.
 
@@ -69,8 +75,7 @@ def use_compile_cache() -> str | None:
     entry is never used; it only saves time. ``--no-compile-cache`` turns it off for one run. Returns None, or why
     the cache is off (a folder it cannot create).
     """
-    folder = os.environ.get("JAXDIP_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "jaxdip", "xla")
+    folder = cache_folder()
     try:
         os.makedirs(folder, exist_ok=True)
     except OSError as e:
