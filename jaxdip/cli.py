@@ -15,9 +15,8 @@ import numpy as np
 
 from jaxdip import xla_flags
 from jaxdip.cli_args import check_paths, parser, special_kind
-from jaxdip.cli_errors import (Signals, component_refusal, emit, error, guarded, interrupt_seen, note, numerical,
-                               remember_sigint, riccati_keys,
-                               run_refusal, warn)
+from jaxdip.cli_errors import (Signals, component_refusal, emit, end_process, error, guarded, interrupt_seen, note,
+                               numerical, remember_sigint, riccati_keys, run_refusal, warn)
 from jaxdip.messages import listing, unknown
 from jaxdip.reproduce_pool import run_argv, run_parallel
 
@@ -29,8 +28,7 @@ def _use_all_cores(processes: int = 1):
     (the partitioned programs) and synchronisation, cold ``reproduce --quick`` 92 s against 79 s on 2 cores.
 
     XLA reads the flag when the backend starts (first computation), so setting it here, before any array is
-    made, is enough. A user's own XLA_FLAGS are left alone; worker processes inherit this one.
-    """
+    made, is enough. A user's own XLA_FLAGS are left alone; worker processes inherit this one."""
     cores = os.cpu_count() or 1
     n = max(1, cores // max(1, processes))
     # set even when it is 1: the workers' own `run` would otherwise take every core
@@ -39,8 +37,7 @@ def _use_all_cores(processes: int = 1):
 
 
 def _jobs(args) -> int:
-    """``reproduce --jobs`` (checked by the parser: 1 to ``reproduce_pool.MAX_JOBS``), or its default: one per
-    core, at most 2."""
+    """``reproduce --jobs`` (the parser checks 1 to ``reproduce_pool.MAX_JOBS``), or one per core, at most 2."""
     return args.jobs if args.jobs is not None else max(1, min(2, os.cpu_count() or 1))
 
 
@@ -222,8 +219,7 @@ def cmd_reproduce(args, argv=None) -> int:
             return error("--only", unknown("experiment", missing, ids))
         reg = [(i, e) for i, e in reg if i in want]
     report_path = os.path.join(args.out, "REPORT.md")
-    # every destination is checked before the first experiment compiles (with --distributed by process 0, the
-    # only one that writes; the others follow its verdict)
+    # every destination is checked before anything compiles (--distributed: by process 0, whose verdict all follow)
     main = not args.distributed or distributed.is_main()
     refused = None
     try:
@@ -397,25 +393,6 @@ def main(argv=None) -> int:
 def entry() -> None:
     """The ``jaxdip`` command: ``main`` with its status as the exit code."""
     end_process(main())
-
-
-def end_process(code: int) -> None:
-    """Exit with ``code`` once a command is done, without the interpreter's teardown where nothing needs it.
-
-    When a command returns, its files are written and closed; what the teardown would still do is JAX clearing
-    its backends and compiled programs, 0.3-0.5 s of a warm ``jaxdip run`` and about 1.3 s that a reproduction
-    waited for its last worker. It is kept where something does need it: a multi-process run (JAX shuts the
-    distributed system down in it), and a process being traced or profiled (coverage, cProfile write their data
-    at exit)."""
-    jax = sys.modules.get("jax")
-    if (jax is not None and jax.distributed.is_initialized()) or sys.gettrace() or sys.getprofile():
-        sys.exit(code)
-    try:
-        sys.stdout.flush()
-        sys.stderr.flush()
-    except OSError:  # a closed pipe (| head): nothing more can be said there
-        pass
-    os._exit(code)
 
 
 if __name__ == "__main__":

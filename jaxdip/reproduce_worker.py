@@ -55,6 +55,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    from jaxdip.cli import end_process
+    from jaxdip.cli_errors import end_process
 
     end_process(main())  # every run's files are written and its answer sent: no teardown to wait for

@@ -1,4 +1,4 @@
-"""``jaxdip.cli.end_process``: a finished command exits with its status and what it printed, without the
+"""``jaxdip.cli_errors.end_process``: a finished command exits with its status and what it printed, without the
 interpreter's teardown (atexit handlers, JAX clearing its backends), unless the process is traced or profiled,
 whose tools write their data at exit."""
 
@@ -11,7 +11,7 @@ import pytest
 
 CHILD = """
 import atexit, sys
-from jaxdip.cli import end_process
+from jaxdip.cli_errors import end_process
 atexit.register(lambda: print("teardown", flush=True))
 {setup}
 print("printed", end="")  # left in the buffer: end_process must flush it
