@@ -32,7 +32,7 @@ def dip_lqr(*, variant: str = "printed", dt: float = 0.001, substeps: int = 10, 
     operations) and ``noise_draw`` the dtype the sensor draws its normals in before the cast to the loop's
     (``"float32"``: another stream that passes the same statistical checks; ``"loop"``: the loop's own dtype).
     This loop only evaluates the plant and draws noise, so the two are most of its period: together about 2x
-    faster on a CPU. ``trig="library", noise_draw="loop"`` is the loop as it ran before 2026-11-27, for its
+    faster on a CPU. ``trig="library", noise_draw="loop"`` is the loop as it ran until 2026-11-26, for its
     numbers (docs/performance.md)."""
     plant = dip.DIP(variant=variant, trig=trig)
     Qm = np.asarray(Q, dtype=np.float64)
