@@ -51,7 +51,8 @@ class DipLqrConfig:
                         doc="the DIP's sin and cos: vectorised (within 3 ulp of the C library's, faster) or library")
     noise_draw: str = C.field("float32", C.one_of("float32", "loop"),
                               doc="dtype of the sensor's normals before the cast (loop: the loop's own; "
-                                  "trig=library with noise_draw=loop is the stream dip-lqr drew before 2026-11-26's change)")
+                                  "trig=library with noise_draw=loop is the stream dip-lqr drew before "
+                                  "2026-11-26's change)")
 
     def loads(self) -> list[Load]:
         n = steps_of(self.duration, self.dt)

@@ -279,13 +279,15 @@ SHARDED = textwrap.dedent("""
         for u, v in zip(jax.tree_util.tree_leaves(plain), jax.tree_util.tree_leaves(out)):
             np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
     x = jax.numpy.arange(16.0)
-    split = jax.device_put(x, jax.sharding.NamedSharding(jd.engine.driver.device_mesh(), jax.sharding.PartitionSpec("seeds")))
+    mesh = jd.engine.driver.device_mesh()
+    split = jax.device_put(x, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("seeds")))
     try:
         keys = {{program_key.fingerprint(jd.engine.driver._batch_body, (a,)) for a in (x, split)}}
     except program_key.Unkeyable:
         keys = ()
-    print(stored["exported"], stored["ordinary"], served["read"] - stored["read"], served["exported"] - stored["exported"],
-          served["ordinary"] - stored["ordinary"], compiled.count("jit(_batch)"), len(keys))
+    print(stored["exported"], stored["ordinary"], served["read"] - stored["read"],
+          served["exported"] - stored["exported"], served["ordinary"] - stored["ordinary"],
+          compiled.count("jit(_batch)"), len(keys))
 """)
 
 

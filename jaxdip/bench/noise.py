@@ -194,7 +194,8 @@ def engine_rates(seeds: int = 1024, steps: int = 1000, rounds: int = 5) -> dict:
 
     r = loop("library", "loop")
     cases = {"threefry": (r, jax.random.PRNGKey(0)), "unsafe_rbg": (r, jax.random.key(0, impl="unsafe_rbg")),
-             "float32": (loop("library", "float32"), jax.random.PRNGKey(0)), "no_draw": (no_draw(r), jax.random.PRNGKey(0)),
+             "float32": (loop("library", "float32"), jax.random.PRNGKey(0)),
+             "no_draw": (no_draw(r), jax.random.PRNGKey(0)),
              "vectorised_trig": (loop("vectorised", "loop"), jax.random.PRNGKey(0)),
              "vectorised_trig_float32": (loop("vectorised", "float32"), jax.random.PRNGKey(0)),
              "vectorised_trig_no_draw": (no_draw(loop("vectorised", "loop")), jax.random.PRNGKey(0))}

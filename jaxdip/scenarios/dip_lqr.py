@@ -39,7 +39,8 @@ def dip_lqr(*, variant: str = "printed", dt: float = 0.001, substeps: int = 10, 
     Qm = np.diag(Qm) if Qm.ndim == 1 else Qm
     K, _, _ = jd.control.lqr(*jd.linearize(plant), Qm, R)
     n_steps = int(round(duration / dt))
-    loop = jd.Loop(plant=plant, sensor=jd.sensors.WhiteNoise(noise_std, draw_dtype=None if noise_draw == "loop" else noise_draw), estimator=jd.Passthrough(),
+    sensor = jd.sensors.WhiteNoise(noise_std, draw_dtype=None if noise_draw == "loop" else noise_draw)
+    loop = jd.Loop(plant=plant, sensor=sensor, estimator=jd.Passthrough(),
                    controller=jd.control.StateFeedback(K), dt=dt, substeps=substeps, state_bound=state_bound)
     n_tail = min(n_steps, int(round(tail / dt)))
     metrics = {"x": jd.metrics.Moments("x"), "u": jd.metrics.Moments("u"),
