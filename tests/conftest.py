@@ -53,6 +53,17 @@ from jaxdip import program_cache  # noqa: E402
 
 program_cache.enable(None)
 
+
+@pytest.fixture(autouse=True)
+def _no_program_cache_after_a_test():
+    """An in-process ``cli.main(["run", ...])`` turns the program cache on for the whole process, as a CLI run
+    should; in the suite that would last into every later test of the worker, which would then trace and lower
+    each of its programs twice (exported, then called): about 40 CPU-s over the suite, measured."""
+    yield
+    if program_cache.enabled_folder() is not None:
+        program_cache.enable(None)
+
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 # The files that take longest (summed over their tests, measured with an empty compilation cache), longest first.
