@@ -25,7 +25,12 @@ from jaxdip.immune.costs import RadialCost
 from jaxdip.immune.levelset import U_MAX, grid_intervals, piecewise_monotone_intervals
 from jaxdip.immune.model import as_float, Infection, ball_volume, lower_gamma_series, mass_fraction
 
-NO_BREAKS = jnp.zeros((0,))
+
+
+def no_breaks() -> jax.Array:
+    """No breakpoints: an empty time array (made when asked, not at import, which must not start JAX's backend
+    before a caller has set XLA's flags)."""
+    return jnp.zeros((0,))
 
 
 def shells_profile(model: Infection, cost, t, a, b, weight):
@@ -44,7 +49,7 @@ class Radial(eqx.Module):
         return shells_profile(model, cost, t, a, b, wt)
 
     def breakpoints(self, model):
-        return NO_BREAKS
+        return no_breaks()
 
 
 class NoControl(Radial):
@@ -166,7 +171,7 @@ class LevelSet(Radial):
         """Times where the set changes shape (a boundary meets a jump of the cost, or the set vanishes): the
         kinks of m(s) and of the cost integrand, which the quadrature puts on segment ends (NaN: none)."""
         if self.tilt is not None:
-            return NO_BREAKS
+            return no_breaks()
         offsets = jnp.stack([self.tie_tol, -self.tie_tol]) if self.stochastic else jnp.zeros(1)
         rho, level = jax.vmap(lambda o: self.cost.event_levels(jax.lax.stop_gradient(self.log_r) + o))(offsets)
         t_left, t_right = model.times_where_log_g(rho, level)
