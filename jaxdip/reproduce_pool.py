@@ -45,6 +45,86 @@ def cpu_blocks(n: int) -> list[list[int]]:
     return [cpus[starts[i]:starts[i + 1]] for i in range(n)]
 
 
+def _threads() -> int | None:
+    try:
+        return len(os.listdir("/proc/self/task"))  # Linux: this process's threads, Python's and native ones
+    except OSError:
+        return None
+
+
+_THREADS_AT_IMPORT = _threads()  # jax and numpy are imported by now (the command line imports this module)
+
+
+def can_fork() -> bool:
+    """Whether the workers may be forked from this process rather than started as new interpreters: on Linux,
+    while no thread has started here since this module was imported. JAX's CPU backend starts a dozen when it
+    starts (the first computation), and a fork after that would copy its state without its threads; so the
+    ``jaxdip`` command, which computes nothing before it starts its workers, forks them, and a process that
+    has used JAX (a test, a script calling ``cli.main``) starts them the slower way."""
+    return sys.platform.startswith("linux") and hasattr(os, "fork") and _threads() == _THREADS_AT_IMPORT
+
+
+class Forked:
+    """A worker forked from this process, for ``Workers`` in place of a ``subprocess.Popen``: it inherits the
+    modules imported here (JAX, equinox, optax, the experiments), which a new interpreter takes about 0.8 s to
+    import before its first experiment, on the reproduction's critical path. ``extra``: environment variables
+    to set in it. It keeps none of this process's open files but its own two pipes, as a started worker: not
+    the pipes of the workers forked before it (holding another's input open would keep that one from ever
+    seeing the end of its input), nor a lock this process holds."""
+
+    def __init__(self, extra: dict[str, str]):
+        task_r, task_w = os.pipe()
+        answer_r, answer_w = os.pipe()
+        sys.stdout.flush()  # what this process has buffered must not be written a second time by the worker
+        sys.stderr.flush()
+        pid = os.fork()
+        if pid == 0:  # the worker: never returns into the code that forked it
+            code = 1
+            try:
+                os.setsid()  # its own session, as start_new_session: a Ctrl-C reaches the parent only
+                for name in os.listdir("/proc/self/fd"):
+                    if int(name) > 2 and int(name) not in (task_r, answer_w):
+                        try:
+                            os.close(int(name))
+                        except OSError:  # the listing's own descriptor, closed by now
+                            pass
+                null = os.open(os.devnull, os.O_RDWR)  # nothing of the terminal: no input, no messages
+                os.dup2(null, 0)
+                os.dup2(answer_w, 1)
+                os.dup2(null, 2)
+                os.environ.update(extra)
+                from jaxdip import reproduce_worker
+
+                code = reproduce_worker.main(os.fdopen(task_r, "r"))
+                sys.stdout.flush()
+            finally:
+                os._exit(code)
+        os.close(task_r)
+        os.close(answer_w)
+        self.pid, self.returncode = pid, None
+        self.stdin = os.fdopen(task_w, "w", buffering=1)
+        self.stdout = os.fdopen(answer_r, "r")
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            pid, status = os.waitpid(self.pid, os.WNOHANG)
+            if pid:
+                self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def wait(self) -> int:
+        if self.returncode is None:
+            self.returncode = os.waitstatus_to_exitcode(os.waitpid(self.pid, 0)[1])
+        return self.returncode
+
+    def send_signal(self, sig: int) -> None:
+        if self.poll() is None:
+            os.kill(self.pid, sig)
+
+    def kill(self) -> None:
+        self.send_signal(signal.SIGKILL)
+
+
 class Workers:
     """``n`` started ``jaxdip.reproduce_worker`` processes and one queue of their answers, ``(worker, answer or
     None when the worker has ended)``. Only ever made after every argument has been checked."""
@@ -55,16 +135,20 @@ class Workers:
         self.answers: queue.Queue = queue.Queue()
         self.workers = []
         blocks = cpu_blocks(n)
+        fork = can_fork()
         for i in range(n):
-            env = dict(os.environ, JAXDIP_NO_PROGRESS="1")
+            extra = {"JAXDIP_NO_PROGRESS": "1"}
             if blocks:
-                env["JAXDIP_WORKER_CPUS"] = ",".join(map(str, blocks[i]))
-            proc = subprocess.Popen([sys.executable, "-m", "jaxdip.reproduce_worker"], stdin=subprocess.PIPE,
-                                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env, text=True,
-                                    bufsize=1, start_new_session=True)
-            w = {"proc": proc, "task": None, "t": 0.0, "given": False}
+                extra["JAXDIP_WORKER_CPUS"] = ",".join(map(str, blocks[i]))
+            if fork:
+                proc = Forked(extra)
+            else:
+                proc = subprocess.Popen([sys.executable, "-m", "jaxdip.reproduce_worker"], stdin=subprocess.PIPE,
+                                        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                        env=dict(os.environ, **extra), text=True, bufsize=1, start_new_session=True)
+            self.workers.append({"proc": proc, "task": None, "t": 0.0, "given": False})
+        for w in self.workers:  # after every fork: a thread of this process must not be running while it forks
             threading.Thread(target=self._read, args=(w,), daemon=True).start()
-            self.workers.append(w)
 
     def _read(self, w):
         for line in w["proc"].stdout:

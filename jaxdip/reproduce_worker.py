@@ -13,6 +13,7 @@ import json
 import os
 import sys
 import traceback
+from typing import TextIO
 
 
 def keep_to_cpus(cpus: str | None = None) -> None:
@@ -26,12 +27,13 @@ def keep_to_cpus(cpus: str | None = None) -> None:
             pass  # the CPUs changed under us: run unpinned, as before
 
 
-def main() -> int:
+def main(tasks: TextIO | None = None) -> int:
+    """Run the tasks read from ``tasks`` (default: standard input), answering on standard output."""
     keep_to_cpus()
     answers = os.fdopen(os.dup(1), "w", buffering=1)
     from jaxdip import cli
 
-    for line in sys.stdin:
+    for line in sys.stdin if tasks is None else tasks:
         task = json.loads(line)
         fd = os.open(task["log"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         sys.stdout.flush()
