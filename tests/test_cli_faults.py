@@ -265,7 +265,7 @@ def test_deleted_working_folder(tmp_path):
 
 def _vm_size_after_import() -> int:
     """The address space a ``jaxdip run`` uses once its experiments are imported (JAX's backend started)."""
-    code = ("from jaxdip.runner import registry; registry()\n"
+    code = ("import jax\nfrom jaxdip.runner import registry; registry(); jax.devices()\n"
             "print([l.split()[1] for l in open('/proc/self/status') if l.startswith('VmSize:')][0])")
     r = subprocess.run([sys.executable, "-c", code], env=child_env(), capture_output=True, text=True, timeout=60)
     return int(r.stdout) * 1024

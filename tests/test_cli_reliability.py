@@ -230,34 +230,47 @@ def test_console_script_one_line(tmp_path):
 
 FAKE_WORKER = """
 import json, os, sys
-answers = os.fdopen(os.dup(1), "w", buffering=1)
-for line in sys.stdin:
-    task = json.loads(line)
-    with open(task["log"], "w") as log:
-        print("started " + task["id"], file=log)
-        if task["id"] == "eki-linear":
-            print("error: boom", file=log, flush=True)  # as the real worker: the log is written before the answer
-            answers.write(json.dumps({"id": task["id"], "rc": 1}) + "\\n")
-            continue
-    if task["id"] == "lorenz-mhe":
-        os._exit(9)  # the worker dies without answering
-    answers.write(json.dumps({"id": task["id"], "rc": 0}) + "\\n")
+
+def serve(tasks):
+    answers = os.fdopen(os.dup(1), "w", buffering=1)
+    for line in tasks:
+        task = json.loads(line)
+        with open(task["log"], "w") as log:
+            print("started " + task["id"], file=log)
+            if task["id"] == "eki-linear":
+                print("error: boom", file=log, flush=True)  # as the real worker: the log is written before the answer
+                answers.write(json.dumps({"id": task["id"], "rc": 1}) + "\\n")
+                continue
+        if task["id"] == "lorenz-mhe":
+            os._exit(9)  # the worker dies without answering
+        answers.write(json.dumps({"id": task["id"], "rc": 0}) + "\\n")
+    return 0
 """
 
 
-def _parallel_with_fake_workers(tmp_path, ids, jobs):
+def _parallel_with_fake_workers(tmp_path, ids, jobs, forked=False):
+    """``run_parallel`` with workers that answer the protocol without running anything: started as new
+    interpreters (the parent's ``sys.executable`` is a script running FAKE_WORKER), or, with ``forked``, forked
+    from a process that has not started JAX (``reproduce_worker.main`` replaced before the fork)."""
     import subprocess
     import sys
 
     worker = tmp_path / "fake_worker.py"
-    worker.write_text(FAKE_WORKER)
+    worker.write_text(FAKE_WORKER + "serve(sys.stdin)\n")
     fake = tmp_path / "fake-python"
     fake.write_text(f"#!/bin/sh\nexec {sys.executable} {worker}\n")
     fake.chmod(0o755)
+    if forked:
+        start = ("from jaxdip import reproduce_worker\n"
+                 f"exec({FAKE_WORKER!r})\n"
+                 "reproduce_worker.main = serve\n"
+                 "assert reproduce_pool.can_fork()\n")
+    else:
+        start = f"sys.executable = {str(fake)!r}\nreproduce_pool.can_fork = lambda: False\n"
     code = (
         "import sys, types\n"
         "from jaxdip import reproduce_pool\n"
-        f"sys.executable = {str(fake)!r}\n"
+        + start +
         f"args = types.SimpleNamespace(out={str(tmp_path / 'o')!r}, quick=False, force=False, no_compile_cache=False, compile_effort=None)\n"
         f"reg = [(i, None) for i in {tuple(ids)!r}]\n"
         f"sys.exit(reproduce_pool.run_parallel(args, reg, {jobs}, 'interrupted'))\n"
@@ -265,19 +278,25 @@ def _parallel_with_fake_workers(tmp_path, ids, jobs):
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
 
 
-def test_parallel_reproduce_stops_after_a_failing_child(tmp_path):
+forked_or_started = pytest.mark.parametrize("forked", [
+    False, pytest.param(True, marks=pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux only"))])
+
+
+@forked_or_started
+def test_parallel_reproduce_stops_after_a_failing_child(tmp_path, forked):
     """A failing experiment stops the parallel reproduce with its error line (it used to wait forever for the
     experiments it would no longer start)."""
-    r = _parallel_with_fake_workers(tmp_path, ("eki-linear", "dip-lqr", "twip-dmso"), 1)
+    r = _parallel_with_fake_workers(tmp_path, ("eki-linear", "dip-lqr", "twip-dmso"), 1, forked)
     assert r.returncode == 1, r.stderr
     assert "error: eki-linear: boom" in r.stderr
     assert "dip-lqr done" not in r.stderr  # would have been next: never given to the worker
 
 
-def test_parallel_reproduce_survives_a_dying_worker(tmp_path):
+@forked_or_started
+def test_parallel_reproduce_survives_a_dying_worker(tmp_path, forked):
     """A worker that dies mid-experiment (killed, out of memory) fails that experiment instead of hanging; the
     other worker finishes the one it is running, and one worker runs experiments one after another."""
-    r = _parallel_with_fake_workers(tmp_path, ("dip-lqr", "twip-dmso", "lorenz-mhe", "rwp-bias"), 2)
+    r = _parallel_with_fake_workers(tmp_path, ("dip-lqr", "twip-dmso", "lorenz-mhe", "rwp-bias"), 2, forked)
     assert r.returncode == 1, r.stderr
     assert "error: lorenz-mhe: started lorenz-mhe" in r.stderr, r.stderr
     assert "dip-lqr done" in r.stderr and "twip-dmso done" in r.stderr  # three experiments on two workers

@@ -257,15 +257,16 @@ def test_staging_of_a_killed_cli_run_is_cleaned_by_the_next(world, fake, capsys)
     assert sorted(os.listdir(world)) == ["dest", "victim"] and whole(world / "dest") is not None
 
 
-def test_reproduce_leaves_no_temporary_folder(world, monkeypatch):
+@pytest.mark.parametrize("forked", [False, True] if sys.platform.startswith("linux") else [False])
+def test_reproduce_leaves_no_temporary_folder(world, monkeypatch, forked):
     from test_cli_reliability import _parallel_with_fake_workers
 
     tmp = world / "tmpdir"
     tmp.mkdir()
     monkeypatch.setenv("TMPDIR", str(tmp))
-    r = _parallel_with_fake_workers(world, ("dip-lqr", "twip-dmso"), 2)
+    r = _parallel_with_fake_workers(world, ("dip-lqr", "twip-dmso"), 2, forked)
     assert r.returncode == 0 and os.listdir(tmp) == [], r.stderr
-    r = _parallel_with_fake_workers(world, ("eki-linear", "dip-lqr"), 1)  # a failure: its log is named, and kept
+    r = _parallel_with_fake_workers(world, ("eki-linear", "dip-lqr"), 1, forked)  # a failure: its log is named, and kept
     logs = os.listdir(tmp)
     assert r.returncode == 1 and len(logs) == 1 and os.path.join(str(tmp), logs[0]) in r.stderr, r.stderr
 
