@@ -275,7 +275,10 @@ def _parallel_with_fake_workers(tmp_path, ids, jobs, forked=False):
         f"reg = [(i, None) for i in {tuple(ids)!r}]\n"
         f"sys.exit(reproduce_pool.run_parallel(args, reg, {jobs}, 'interrupted'))\n"
     )
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    # a cache folder of its own: the order of the experiments follows the durations the last reproduction with
+    # that folder recorded (reproduce-times.json), which another test's fake run would have written
+    env = dict(os.environ, JAXDIP_CACHE_DIR=str(tmp_path / "cache"))
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
 
 
 forked_or_started = pytest.mark.parametrize("forked", [
