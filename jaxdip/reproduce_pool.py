@@ -75,8 +75,11 @@ class Forked:
     def __init__(self, extra: dict[str, str]):
         task_r, task_w = os.pipe()
         answer_r, answer_w = os.pipe()
-        sys.stdout.flush()  # what this process has buffered must not be written a second time by the worker
-        sys.stderr.flush()
+        for stream in (sys.stdout, sys.stderr):  # what is buffered here must not be written again by the worker
+            try:
+                stream.flush()
+            except (OSError, ValueError):  # a closed pipe or stream: nothing of it can be written twice
+                pass
         pid = os.fork()
         if pid == 0:  # the worker: never returns into the code that forked it
             code = 1
