@@ -350,9 +350,15 @@ def end_process(code: int) -> None:
     jax = sys.modules.get("jax")
     if (jax is not None and jax.distributed.is_initialized()) or sys.gettrace() or sys.getprofile():
         sys.exit(code)
-    try:
-        sys.stdout.flush()
-        sys.stderr.flush()
-    except OSError:  # a closed pipe (| head): nothing more can be said there
-        pass
+    flush_output()
     os._exit(code)
+
+
+def flush_output() -> None:
+    """Write out what standard output and error hold, before ``os._exit`` or ``os.fork`` (which would drop it,
+    or write it twice); a closed pipe (``| head``) or stream is no error: nothing more can be said there."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass

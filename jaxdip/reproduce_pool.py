@@ -20,7 +20,7 @@ import threading
 import time
 
 from jaxdip import xla_flags
-from jaxdip.cli_errors import error, note
+from jaxdip.cli_errors import error, flush_output, note
 from jaxdip.outdir.files import write_file_atomic
 
 TIMES = "reproduce-times.json"  # in the cache folder: {"quick": {id: seconds}, "full": {...}}, the last durations
@@ -75,11 +75,7 @@ class Forked:
     def __init__(self, extra: dict[str, str]):
         task_r, task_w = os.pipe()
         answer_r, answer_w = os.pipe()
-        for stream in (sys.stdout, sys.stderr):  # what is buffered here must not be written again by the worker
-            try:
-                stream.flush()
-            except (OSError, ValueError):  # a closed pipe or stream: nothing of it can be written twice
-                pass
+        flush_output()  # what is buffered here must not be written a second time by the worker
         pid = os.fork()
         if pid == 0:  # the worker: never returns into the code that forked it
             code = 1
@@ -99,7 +95,7 @@ class Forked:
                 from jaxdip import reproduce_worker
 
                 code = reproduce_worker.main(os.fdopen(task_r, "r"))
-                sys.stdout.flush()
+                flush_output()
             finally:
                 os._exit(code)
         os.close(task_r)
@@ -129,8 +125,9 @@ class Forked:
 
 
 class Workers:
-    """``n`` started ``jaxdip.reproduce_worker`` processes and one queue of their answers, ``(worker, answer or
-    None when the worker has ended)``. Only ever made after every argument has been checked."""
+    """``n`` worker processes (forked, ``Forked``, where ``can_fork``; else started as ``python -m
+    jaxdip.reproduce_worker``) and one queue of their answers, ``(worker, answer or None when the worker has
+    ended)``. Only ever made after every argument has been checked."""
 
     def __init__(self, n: int):
         if not 1 <= n <= MAX_JOBS:

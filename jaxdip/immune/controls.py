@@ -26,7 +26,6 @@ from jaxdip.immune.levelset import U_MAX, grid_intervals, piecewise_monotone_int
 from jaxdip.immune.model import as_float, Infection, ball_volume, lower_gamma_series, mass_fraction
 
 
-
 def no_breaks() -> jax.Array:
     """No breakpoints: an empty time array (made when asked, not at import, which must not start JAX's backend
     before a caller has set XLA's flags)."""
