@@ -18,7 +18,7 @@ import jax.numpy as jnp
 
 from jaxdip.control.riccati import care
 from jaxdip.engine import checks
-from jaxdip.engine.roles import Controller, Plant, linearize, param
+from jaxdip.engine.roles import Controller, Plant, linearize, param, rhs
 
 
 from jaxdip._public import public_dir
@@ -82,4 +82,4 @@ class PowerSeries(Controller):
 
     def step(self, state, xhat, key, k):
         m = self.plant.m
-        return state, _law(lambda z: self.plant.vector_field(z, jnp.zeros(m, xhat.dtype)), self, xhat), None
+        return state, _law(lambda z: rhs(self.plant, z, jnp.zeros(m, xhat.dtype)), self, xhat), None

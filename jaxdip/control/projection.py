@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine import checks
-from jaxdip.engine.roles import Controller, Plant, param
+from jaxdip.engine.roles import Controller, Plant, param, rhs
 
 
 from jaxdip._public import public_dir
@@ -85,7 +85,7 @@ def drift_and_input(plant_f, plant_params, x, m):
 
 def _model_map(model, x, u):
     # the controller's model as f(params, x, u) for drift_and_input; module-level, one function for jit
-    return model.vector_field(x, u) if model.continuous else model.step(x, u)
+    return rhs(model, x, u) if model.continuous else model.step(x, u)
 
 
 class RelaxedProjection(Controller):

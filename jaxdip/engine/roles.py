@@ -36,7 +36,7 @@ from jaxdip.engine.integrate import rk4_zoh
 
 from jaxdip._public import public_dir
 
-__all__ = ["param", "dtype_of", "Plant", "DiscretePlant", "linearize", "Sensor", "Estimator", "Controller", "Actuator", "Identity",
+__all__ = ["param", "dtype_of", "Plant", "DiscretePlant", "rhs", "linearize", "Sensor", "Estimator", "Controller", "Actuator", "Identity",
            "Passthrough", "FanOutAux", "FanOut"]
 __dir__ = public_dir(globals())
 
@@ -98,9 +98,24 @@ def param(default: Any = dataclasses.MISSING, **kw):
 # ---- plants -------------------------------------------------------------------------------------------------
 
 
-def _vector_field(plant, x, u):
-    # module-level, so integrators and jit see one function object for every plant instance
+def _call_vector_field(plant, x, u):
     return plant.vector_field(x, u)
+
+
+_rhs_program = eqx.filter_jit(_call_vector_field)
+
+
+def rhs(plant: "Plant", x, u) -> jax.Array:
+    """``plant.vector_field(x, u)`` as a program of its own, traced once per plant structure and argument shapes.
+
+    A loop calls its plant's right-hand side four times per RK4 step, and again in every linearisation,
+    derivative and gradient taken through it; called directly, each of those calls traces the plant's Python
+    anew (20 ms for the printed DIP's equations). Through ``rhs`` an enclosing trace takes the jaxpr traced the
+    first time (``vmap`` and autodiff transform it whole), and XLA inlines the call, so the compiled code and its
+    results are the same. Integrators, linearisations and the controllers and estimators that differentiate a
+    plant model call it. Module-level: one function object for every plant instance.
+    """
+    return _rhs_program(plant, x, u)
 
 
 class Plant(eqx.Module):
@@ -136,7 +151,7 @@ class Plant(eqx.Module):
 
     def period(self, x, u, dt: float, substeps: int) -> jax.Array:
         """x after one sample period ``dt`` with ``u`` held: ``substeps`` RK4 steps."""
-        return rk4_zoh(_vector_field, self, x, u, dt, substeps)
+        return rk4_zoh(rhs, self, x, u, dt, substeps)
 
 
 class DiscretePlant(Plant):
@@ -181,7 +196,7 @@ def _discrete_map(plant, x, u):
 @eqx.filter_jit
 def _jacobians(plant, x, u):
     # x and u are arguments, not constants made inside: XLA would fold them and round differently
-    f = _vector_field if plant.continuous else _discrete_map
+    f = rhs if plant.continuous else _discrete_map
     A = jax.jacfwd(f, argnums=1)(plant, x, u)
     B = jax.jacfwd(f, argnums=2)(plant, x, u)
     return A, B.reshape(x.shape[0], u.shape[0])

@@ -60,7 +60,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine import checks
-from jaxdip.engine.roles import Estimator, Plant, param, dtype_of
+from jaxdip.engine.roles import Estimator, Plant, param, dtype_of, rhs
 from jaxdip.estimators.linearized import AffineStep, local_model, lti_step
 from jaxdip.estimators.proximal import prox_from_qr, prox_from_svd, qr_factor, svd_factor
 from jaxdip.sim.discretize import Discrete
@@ -164,11 +164,6 @@ class CPX(_Centred):
         return prox_from_svd(factor, q, xprior, self.gamma, self.keep)
 
 
-def _plant_vector_field(plant, x, u):
-    # module-level, so every LinearizedCPX of one structure traces the same function
-    return plant.vector_field(x, u)
-
-
 class LinearizedCPX(_Centred):
     """CPX relinearised at the prior centre estimate every sample (thesis §1.6), or SCPX with ``keep=p``.
 
@@ -210,7 +205,7 @@ class LinearizedCPX(_Centred):
         return self.model.m
 
     def _model(self, xbar, ubar):
-        return local_model(_plant_vector_field, self.model, xbar, ubar, self.h, max_squarings=self.expm_squarings)
+        return local_model(rhs, self.model, xbar, ubar, self.h, max_squarings=self.expm_squarings)
 
     def _factor(self):
         return ()

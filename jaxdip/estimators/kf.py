@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdip.engine import checks
-from jaxdip.engine.roles import Estimator, Plant, param, dtype_of
+from jaxdip.engine.roles import Estimator, Plant, param, dtype_of, rhs
 from jaxdip.estimators.kalman import GaussianAux, KFState, as_covariance, predict, update
 from jaxdip.estimators.linearized import local_model
 
@@ -140,11 +140,6 @@ def output_size(C, h: Optional[Callable], xhat0) -> int:
     return int(jax.eval_shape(h, jnp.asarray(xhat0, jnp.result_type(float))).shape[0])
 
 
-def _plant_vector_field(plant, x, u):
-    # module-level, so every filter of one plant structure traces the same function
-    return plant.vector_field(x, u)
-
-
 class ExtendedKalmanFilter(_Gaussian):
     """EKF for x_{k+1} = f(x_k, u_k) + w, y_k = h(x_k) + v (or C x_k + v).
 
@@ -235,7 +230,7 @@ class ExtendedKalmanFilter(_Gaussian):
     def _transition(self, x, u, j):
         if self.model is None:
             return jax.jacfwd(self.f, argnums=0)(x, u), self.f(x, u)
-        lm = local_model(_plant_vector_field, self.model, x, u, self.dt, with_inverse=False,
+        lm = local_model(rhs, self.model, x, u, self.dt, with_inverse=False,
                          max_squarings=self.expm_squarings)
         return lm.Phi, lm.Phi @ x + (lm.W @ u + lm.b)
 
