@@ -23,6 +23,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from jaxdip.control.designs import dlqr
+from jaxdip.engine.memo import memoised
 from jaxdip.plants import twip
 from jaxdip.sim.discretize import zoh
 
@@ -58,9 +59,11 @@ def _weight(Q, n):
     return jnp.diag(Q) if Q.ndim == 1 else Q.reshape(n, n)
 
 
+@memoised(64)
 def twip_dlqr(params: twip.TWIP | None = None, Q=Q_THESIS, R=R_THESIS, dt=0.01) -> TwipDesign:
     """Discrete LQR (150) for the TWIP's nominal linear model (Table 8.1 when None). ``Q``: 4 diagonal weights
-    or a 4x4 matrix."""
+    or a 4x4 matrix. A call with the same values as an earlier one returns that design (``jaxdip.engine.memo``):
+    the experiments build each case's controller from the same nominal design, 20-50 ms each time."""
     params = twip.TWIP() if params is None else params
     F, G, A, B = twip_discrete(params, dt)
     Qm = _weight(Q, 4)

@@ -19,6 +19,7 @@ observers it is a 4-vector shaped like the plant state, so the loop's estimation
 
 from __future__ import annotations
 
+import functools
 from typing import Callable
 
 import equinox as eqx
@@ -60,6 +61,14 @@ def integrate_interval(rhs: Callable, params, xi, y0, y1, u, dt: float, substeps
     return jax.lax.fori_loop(0, substeps, rk4, xi)
 
 
+@functools.lru_cache(maxsize=None)
+def _program(rhs: Callable) -> Callable:
+    # an observer class's rhs (a module-level function) as a program of its own: RK4 calls it four times a
+    # sub-step, and each call would trace its Python again; traced once per shapes, inlined by XLA (the same
+    # compiled code), as the plants' right-hand sides are (jaxdip.engine.roles.rhs)
+    return eqx.filter_jit(rhs)
+
+
 class SampledObserver(Estimator):
     """A continuous observer as an engine estimator, state ``(xi, y_prev)``.
 
@@ -94,6 +103,6 @@ class SampledObserver(Estimator):
         xi, y_prev = state
         y = jnp.asarray(y)
         u = jnp.reshape(jnp.asarray(u_prev), (-1,))
-        xi_int = integrate_interval(cls.rhs, self, xi, y_prev, y, u, self.dt, self.substeps, self.hold)
+        xi_int = integrate_interval(_program(cls.rhs), self, xi, y_prev, y, u, self.dt, self.substeps, self.hold)
         xi_new = jnp.where(k == 0, cls.init_xi(self, y), xi_int)
         return (xi_new, y), cls.out(self, xi_new, y), xi_new

@@ -23,14 +23,13 @@ so bisection on its two ends brackets r_bar rigorously as well.
 
 from __future__ import annotations
 
-import functools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from jaxdip import program_cache
+from jaxdip.engine.memo import memoised
 from jaxdip.immune.controls import LevelSet
 from jaxdip.immune.model import Infection, mass_fraction
 
@@ -78,46 +77,6 @@ def _parts(control, model, t, cost):
 MEMO_SIZE = 4096  # results kept by ``masses``: a few scalars each
 
 
-def _memo_key(args) -> tuple | None:
-    """The arguments as a hashable value (tree structure with its static fields, and every leaf's dtype, shape and
-    bytes), or None when a leaf is traced (no value to key on) or is not an array or a number."""
-    leaves, treedef = jax.tree_util.tree_flatten(args)
-    if not all(isinstance(leaf, (jax.Array, np.ndarray, np.generic, int, float, bool)) for leaf in leaves):
-        return None
-    if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
-        return None
-    parts = []
-    for leaf in leaves:
-        a = np.asarray(leaf)
-        parts.append((a.dtype.str, a.shape, a.tobytes()))
-    key = treedef, tuple(parts)
-    try:
-        hash(key)
-    except TypeError:  # a static field that cannot be hashed
-        return None
-    return key
-
-
-def _memoised(fun):
-    """``fun`` (a deterministic compiled function) that returns the result it already computed when called again
-    with equal arguments: the searches of an experiment meet the same sets more than once (a threshold searched
-    twice for the same target, F at a threshold it has just found), and each repeat would cost a quadrature."""
-    memo: dict = {}
-
-    @functools.wraps(fun)
-    def wrapper(*args):
-        key = _memo_key(args)
-        if key is None:
-            return fun(*args)
-        if key not in memo:
-            if len(memo) >= MEMO_SIZE:
-                memo.pop(next(iter(memo)))  # the oldest
-            memo[key] = fun(*args)
-        return memo[key]
-
-    return wrapper
-
-
 def masses(model: Infection, control, cost, n: int = 4096) -> Masses:
     """int_A g and int_A h of a control with a ``profile``, n panels per segment between consecutive
     breakpoints (n rounded up to even): the value by Simpson's rule in a graded variable, the bracket from the
@@ -126,7 +85,7 @@ def masses(model: Infection, control, cost, n: int = 4096) -> Masses:
     return _masses(model, control, cost, int(n))
 
 
-@_memoised
+@memoised(MEMO_SIZE)
 @program_cache.jit
 def _masses(model: Infection, control, cost, n: int) -> Masses:
     n = n + (n % 2)
