@@ -248,10 +248,11 @@ def serve(tasks):
 """
 
 
-def _parallel_with_fake_workers(tmp_path, ids, jobs, forked=False):
+def _parallel_with_fake_workers(tmp_path, ids, jobs, forked=False, tmpdir=None):
     """``run_parallel`` with workers that answer the protocol without running anything: started as new
     interpreters (the parent's ``sys.executable`` is a script running FAKE_WORKER), or, with ``forked``, forked
-    from a process that has not started JAX (``reproduce_worker.main`` replaced before the fork)."""
+    from a process that has not started JAX (``reproduce_worker.main`` replaced before the fork). ``tmpdir``: the
+    run's temporary folder (default ``tmp_path``)."""
     import subprocess
     import sys
 
@@ -276,8 +277,9 @@ def _parallel_with_fake_workers(tmp_path, ids, jobs, forked=False):
         f"sys.exit(reproduce_pool.run_parallel(args, reg, {jobs}, 'interrupted'))\n"
     )
     # a cache folder of its own: the order of the experiments follows the durations the last reproduction with
-    # that folder recorded (reproduce-times.json), which another test's fake run would have written
-    env = dict(os.environ, JAXDIP_CACHE_DIR=str(tmp_path / "cache"))
+    # that folder recorded (reproduce-times.json), which another test's fake run would have written; and the
+    # test's folder as the temporary one: a failed reproduction keeps its failing experiment's log there
+    env = dict(os.environ, JAXDIP_CACHE_DIR=str(tmp_path / "cache"), TMPDIR=str(tmpdir or tmp_path))
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
 
 

@@ -258,15 +258,15 @@ def test_staging_of_a_killed_cli_run_is_cleaned_by_the_next(world, fake, capsys)
 
 
 @pytest.mark.parametrize("forked", [False, True] if sys.platform.startswith("linux") else [False])
-def test_reproduce_leaves_no_temporary_folder(world, monkeypatch, forked):
+def test_reproduce_leaves_no_temporary_folder(world, forked):
     from test_cli_reliability import _parallel_with_fake_workers
 
     tmp = world / "tmpdir"
     tmp.mkdir()
-    monkeypatch.setenv("TMPDIR", str(tmp))
-    r = _parallel_with_fake_workers(world, ("dip-lqr", "twip-dmso"), 2, forked)
+    r = _parallel_with_fake_workers(world, ("dip-lqr", "twip-dmso"), 2, forked, tmpdir=tmp)
     assert r.returncode == 0 and os.listdir(tmp) == [], r.stderr
-    r = _parallel_with_fake_workers(world, ("eki-linear", "dip-lqr"), 1, forked)  # a failure: its log is named, and kept
+    # a failure: its log is named, and kept
+    r = _parallel_with_fake_workers(world, ("eki-linear", "dip-lqr"), 1, forked, tmpdir=tmp)
     logs = os.listdir(tmp)
     assert r.returncode == 1 and len(logs) == 1 and os.path.join(str(tmp), logs[0]) in r.stderr, r.stderr
 
