@@ -50,7 +50,7 @@ def _log_cell_prob(model, t, xc, size):
 
 
 @program_cache.jit
-def _cells_mass(model, cost, log_theta, offset, centres, s_end, size, n_s: int):
+def _cells_mass(model, cost, log_theta, offset, centres, count, s_end, size, n_s: int):
     f = _rule(model, cost, log_theta, size, offset)
     x, w = np.polynomial.legendre.leggauss(GL_POINTS)
     x, w = jnp.asarray(x), jnp.asarray(w)
@@ -87,8 +87,33 @@ def _cells_mass(model, cost, log_theta, offset, centres, s_end, size, n_s: int):
         total = jnp.sum(jnp.where(keep, half * jnp.sum(w * P, axis=1), 0.0))
         return total, on.any(), on[-1], jnp.sum(switch) > MAX_SWITCHES
 
-    mass, ever, last, over = jax.lax.map(one, centres)
+    def one_or_none(c):  # a padding row (``cells_mass``) costs a branch, not a cell's work
+        xc, real = c
+        none = (jnp.zeros(()), jnp.zeros((), bool), jnp.zeros((), bool), jnp.zeros((), bool))
+        return jax.lax.cond(real, one, lambda _: none, xc)
+
+    mass, ever, last, over = jax.lax.map(one_or_none, (centres, jnp.arange(centres.shape[0]) < count))
     return model.R0 * mass, ever, last.any() | over.any()
+
+
+def _rows(k: int) -> int:
+    """The padded number of cells for k: a power of two, at least 512, so that boxes of a few hundred cells of
+    any size share one compiled program (each size compiled its own, about 0.5 s each)."""
+    return max(512, 1 << (k - 1).bit_length())
+
+
+def cells_mass(model: Infection, cost, log_theta, offset, centres, s_end, size,
+               n_s: int) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(R0 times each cell's protected g-mass, whether each cell is ever protected, whether any cell is still
+    protected on the last node or switches too often) for the cells centred at the rows of ``centres``, as NumPy
+    arrays. A cell's numbers do not depend on the other rows (nor on the padding)."""
+    centres = np.asarray(centres, float)
+    k = centres.shape[0]
+    padded = np.zeros((_rows(k), centres.shape[1]))
+    padded[:k] = centres
+    mass, ever, bad = _cells_mass(model, cost, log_theta, offset, jnp.asarray(padded), jnp.asarray(k), s_end, size,
+                                  int(n_s))
+    return np.asarray(mass)[:k], np.asarray(ever)[:k], bool(bad)
 
 
 def lattice_mass(model: Infection, cost, log_theta, size: float, *, offset: float = 0.0, n_s: int = 2048,
@@ -104,18 +129,18 @@ def lattice_mass(model: Infection, cost, log_theta, size: float, *, offset: floa
     edge = np.max(np.abs(cells), axis=1) >= n_half
     reps, copies = symmetry_classes(cells)
     s_end = float(model.s_of_t(t_end))
-    args = (model, cost, jnp.asarray(log_theta, float), jnp.asarray(offset, float), jnp.asarray(reps * size),
+    args = (model, cost, jnp.asarray(log_theta, float), jnp.asarray(offset, float), reps * size,
             jnp.asarray(s_end), jnp.asarray(size, float))
-    fine, ever, bad = _cells_mass(*args, int(n_s))
-    coarse, _, _ = _cells_mass(*args, int(n_s) // 2)
-    ever = np.asarray(ever)[copies]
+    fine, ever, bad = cells_mass(*args, int(n_s))
+    coarse, _, _ = cells_mass(*args, int(n_s) // 2)
+    ever = ever[copies]
     if ever[edge].any():
         raise RuntimeError(f"cells on the edge of the lattice box (reach {reach}) are protected: raise reach")
-    if bool(bad):
+    if bad:
         raise RuntimeError(f"a cell is still protected at t_end = {t_end} or switches more than {MAX_SWITCHES} "
                            "times: raise t_end or n_s")
     # summed over every cell of the box in its order, so the total is the one a pass over all cells gives
-    fine, coarse = float(np.sum(np.asarray(fine)[copies])), float(np.sum(np.asarray(coarse)[copies]))
+    fine, coarse = float(np.sum(fine[copies])), float(np.sum(coarse[copies]))
     return fine, abs(fine - coarse)
 
 
