@@ -361,3 +361,12 @@ def test_heldout_scenarios_change_each_seed_and_spread_zero_is_the_tuning_scenar
     np.testing.assert_array_equal(nominal, same)
     varied = np.asarray(tg.objective(seeds, smooth=False, scenarios=cfg.scenario_spreads()).per_seed(tg.paper, key))
     assert np.all(np.isfinite(varied)) and np.all(np.abs(varied - nominal) > 1e-6 * np.abs(nominal))
+
+
+@pytest.mark.parametrize("target", sorted(TT.TARGETS))
+def test_paper_values_are_strong_float64(target):
+    """A weak-typed value (``jnp.asarray`` of a Python float) keys another program than the tuned value's array
+    of the same shape: the held-out evaluation of the paper's value compiled a program of its own."""
+    tg = TT.make_target(C.load(T.TuneConfig, sets=[f"target={target}", "duration=0.2", "substeps=2"]))
+    for leaf in jax.tree_util.tree_leaves(tg.paper):
+        assert isinstance(leaf, jax.Array) and leaf.dtype == jnp.float64 and not leaf.weak_type

@@ -77,7 +77,7 @@ class CPXTarget(Target):
         self.rollouts = {smooth: dataclasses.replace(self.scenario, straight_through=smooth).rollout("cpx")
                          for smooth in (False, True)}
         self.with_gamma = S.with_gamma
-        self.paper = {"gamma": jnp.asarray(self.scenario.cpx_gamma)}
+        self.paper = {"gamma": jnp.asarray(self.scenario.cpx_gamma, dtype=jnp.float64)}  # strong: one program for every theta
         self.spec = {"gamma": Log()}
         self.penalty = cfg.divergence_penalty
         self.deg2 = (180.0 / math.pi) ** 2
