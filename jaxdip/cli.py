@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from jaxdip import xla_flags
+from jaxdip import gc_policy, xla_flags
 from jaxdip.cli_args import check_paths, parser, special_kind
 from jaxdip.cli_errors import (Signals, component_refusal, emit, end_process, error, guarded, interrupt_seen, note,
                                numerical, remember_sigint, riccati_keys, run_refusal, warn)
@@ -48,8 +48,7 @@ def _reproduce_jobs(args) -> int:
 
 
 def _compile_cache(enabled: bool) -> None:
-    """Keep XLA's compiled code on disk (``jaxdip.xla_flags.use_compile_cache``); a folder it cannot create is a
-    warning, and the run goes on without the cache."""
+    """XLA's compiled code kept on disk (``xla_flags.use_compile_cache``); a folder it cannot create: a warning."""
     if enabled and (why := xla_flags.use_compile_cache()):
         warn(why)
 
@@ -392,6 +391,7 @@ def main(argv=None) -> int:
 
 def entry() -> None:
     """The ``jaxdip`` command: ``main`` with its status as the exit code."""
+    gc_policy.for_a_command()
     end_process(main())
 
 

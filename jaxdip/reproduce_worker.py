@@ -57,6 +57,9 @@ def main(tasks: TextIO | None = None) -> int:
 
 
 if __name__ == "__main__":
+    from jaxdip import gc_policy
     from jaxdip.cli_errors import end_process
+
+    gc_policy.for_a_command()  # a started worker, as the command that starts it (a forked one inherits it)
 
     end_process(main())  # every run's files are written and its answer sent: no teardown to wait for
