@@ -21,7 +21,7 @@ PUBLIC_PACKAGES = ["jaxdip.engine", "jaxdip.plants", "jaxdip.sim", "jaxdip.estim
 PUBLIC_MODULES = ["jaxdip", "jaxdip.stats", "jaxdip.dataset"]
 NOT_PUBLIC = ["jaxdip.bench", "jaxdip.runner", "jaxdip.scenarios", "jaxdip.theory", "jaxdip.immune", "jaxdip.outdir",
               "jaxdip.checkpoint", "jaxdip.cli", "jaxdip.cli_args", "jaxdip.cli_compare", "jaxdip.cli_config",
-              "jaxdip.cli_errors", "jaxdip.cli_sweep",
+              "jaxdip.cli_errors", "jaxdip.cli_sweep", "jaxdip.gc_policy",
               "jaxdip.config", "jaxdip.config_toml", "jaxdip.distributed", "jaxdip.messages", "jaxdip.progress",
               "jaxdip.reproduce_pool", "jaxdip.reproduce_worker", "jaxdip.resources", "jaxdip.xla_flags",
               "jaxdip.program_cache", "jaxdip.program_key"]
